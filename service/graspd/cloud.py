@@ -1,0 +1,84 @@
+"""The viewpoint cloud: points seen by one or more cameras, in the caller's frame (metres)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float32]
+IntArray = NDArray[np.int32]
+
+
+class CloudError(ValueError):
+    """The cloud is malformed; the message names the offending field."""
+
+
+@dataclass(frozen=True)
+class ViewpointCloud:
+    """Points (N,3) float32, optional unit normals (N,3) pointing toward the observing camera,
+    per-point camera index camera_source (N,) int32 into viewpoints (K,3) float32 camera positions."""
+
+    points: FloatArray
+    viewpoints: FloatArray
+    camera_source: IntArray = field(default_factory=lambda: np.zeros(0, np.int32))
+    normals: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        pts = np.ascontiguousarray(np.asarray(self.points, dtype=np.float32))
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise CloudError(f"cloud.points must have shape (N, 3), got {pts.shape}")
+        vps = np.ascontiguousarray(np.asarray(self.viewpoints, dtype=np.float32).reshape(-1, 3))
+        if vps.shape[0] < 1:
+            raise CloudError("cloud.viewpoints needs at least one camera position")
+        if not np.isfinite(vps).all():
+            raise CloudError("cloud.viewpoints must be finite")
+        src = np.asarray(self.camera_source)
+        if src.size == 0:
+            src = np.zeros(pts.shape[0], np.int32)
+        src = np.ascontiguousarray(src.astype(np.int32, copy=False)).reshape(-1)
+        if src.shape[0] != pts.shape[0]:
+            raise CloudError(
+                f"cloud.camera_source must have one entry per point ({pts.shape[0]}), got {src.shape[0]}"
+            )
+        if src.size and (src.min() < 0 or src.max() >= vps.shape[0]):
+            raise CloudError(
+                f"cloud.camera_source indices must lie in [0, {vps.shape[0] - 1}] (one per viewpoint)"
+            )
+        nrm = self.normals
+        if nrm is not None:
+            nrm = np.ascontiguousarray(np.asarray(nrm, dtype=np.float32))
+            if nrm.shape != pts.shape:
+                raise CloudError(f"cloud.normals must have shape {pts.shape}, got {nrm.shape}")
+        object.__setattr__(self, "points", pts)
+        object.__setattr__(self, "viewpoints", vps)
+        object.__setattr__(self, "camera_source", src)
+        object.__setattr__(self, "normals", nrm)
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def num_cameras(self) -> int:
+        return int(self.viewpoints.shape[0])
+
+    def select(self, mask_or_index: NDArray[np.bool_] | NDArray[np.intp]) -> ViewpointCloud:
+        """The sub-cloud at a boolean mask or index array (viewpoints kept)."""
+        return replace(
+            self,
+            points=self.points[mask_or_index],
+            camera_source=self.camera_source[mask_or_index],
+            normals=None if self.normals is None else self.normals[mask_or_index],
+        )
+
+    def transformed(self, rotation: NDArray[np.floating], translation: NDArray[np.floating]) -> ViewpointCloud:
+        """The cloud moved rigidly: p -> R p + t (viewpoints and normals too)."""
+        r = np.asarray(rotation, np.float64)
+        t = np.asarray(translation, np.float64)
+        return ViewpointCloud(
+            points=(self.points @ r.T + t).astype(np.float32),
+            viewpoints=(self.viewpoints @ r.T + t).astype(np.float32),
+            camera_source=self.camera_source,
+            normals=None if self.normals is None else (self.normals @ r.T).astype(np.float32),
+        )

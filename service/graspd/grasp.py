@@ -1,0 +1,158 @@
+"""GraspSet: a batch of 6-DOF grasps as numpy arrays, in the grasp convention of DESIGN.md.
+
+Rotation columns are [approach, binormal, axis] (hand x, y, z); position is the centre of the
+hand base; fingertips are at position + hand_depth * approach.  Everything is in the frame of
+the cloud the caller sent, in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+
+
+def _empty(*shape: int) -> F64:
+    return np.zeros((0, *shape), np.float64)
+
+
+def rotation_to_quat_xyzw(rotations: F64) -> F64:
+    """Unit quaternions (M,4) in x, y, z, w order for rotation matrices (M,3,3)."""
+    from scipy.spatial.transform import Rotation
+
+    if len(rotations) == 0:
+        return _empty(4)
+    return np.asarray(Rotation.from_matrix(rotations).as_quat(), np.float64)
+
+
+@dataclass(frozen=True)
+class GraspSet:
+    """M grasps: positions (M,3), rotations (M,3,3), widths (M,), scores (M,), samples (M,3).
+
+    scores are NaN until a classifier has scored the set; widths are the object extent between
+    the fingers along the binormal (m).
+    """
+
+    positions: F64 = field(default_factory=lambda: _empty(3))
+    rotations: F64 = field(default_factory=lambda: _empty(3, 3))
+    widths: F64 = field(default_factory=lambda: _empty())
+    scores: F64 = field(default_factory=lambda: _empty())
+    samples: F64 = field(default_factory=lambda: _empty(3))
+
+    def __post_init__(self) -> None:
+        m = len(self.positions)
+        for name in ("rotations", "widths", "scores", "samples"):
+            if len(getattr(self, name)) != m:
+                raise ValueError(f"GraspSet.{name} has {len(getattr(self, name))} rows, expected {m}")
+
+    def __len__(self) -> int:
+        return int(self.positions.shape[0])
+
+    def __getitem__(self, index: Any) -> GraspSet:
+        """Rows at an index, slice, boolean mask or index array (always a GraspSet)."""
+        if isinstance(index, (int, np.integer)):
+            index = np.array([index])
+        return GraspSet(
+            positions=self.positions[index],
+            rotations=self.rotations[index],
+            widths=self.widths[index],
+            scores=self.scores[index],
+            samples=self.samples[index],
+        )
+
+    @property
+    def approach(self) -> F64:
+        return self.rotations[:, :, 0]
+
+    @property
+    def binormal(self) -> F64:
+        return self.rotations[:, :, 1]
+
+    @property
+    def axis(self) -> F64:
+        return self.rotations[:, :, 2]
+
+    @property
+    def poses(self) -> F64:
+        """Homogeneous hand poses (M,4,4): rotation [approach, binormal, axis], translation position."""
+        out = np.zeros((len(self), 4, 4))
+        out[:, :3, :3] = self.rotations
+        out[:, :3, 3] = self.positions
+        out[:, 3, 3] = 1.0
+        return out
+
+    @property
+    def quat_xyzw(self) -> F64:
+        return rotation_to_quat_xyzw(self.rotations)
+
+    def with_scores(self, scores: NDArray[np.floating]) -> GraspSet:
+        return replace(self, scores=np.asarray(scores, np.float64).reshape(-1))
+
+    def sorted_by_score(self) -> GraspSet:
+        """Best first; NaN scores last, in their original order."""
+        key = np.where(np.isnan(self.scores), -np.inf, self.scores)
+        return self[np.argsort(-key, kind="stable")]
+
+    def transformed(self, rotation: NDArray[np.floating], translation: NDArray[np.floating]) -> GraspSet:
+        """The grasps moved rigidly by p -> R p + t."""
+        r = np.asarray(rotation, np.float64)
+        t = np.asarray(translation, np.float64)
+        return replace(
+            self,
+            positions=self.positions @ r.T + t,
+            rotations=np.einsum("ij,mjk->mik", r, self.rotations),
+            samples=self.samples @ r.T + t,
+        )
+
+    @staticmethod
+    def concatenate(sets: list[GraspSet]) -> GraspSet:
+        if not sets:
+            return GraspSet()
+        return GraspSet(
+            positions=np.concatenate([s.positions for s in sets]),
+            rotations=np.concatenate([s.rotations for s in sets]),
+            widths=np.concatenate([s.widths for s in sets]),
+            scores=np.concatenate([s.scores for s in sets]),
+            samples=np.concatenate([s.samples for s in sets]),
+        )
+
+    def to_dicts(self) -> list[dict[str, Any]]:
+        """One JSON-ready dict per grasp, with the field names of DESIGN.md (gpd_ros GraspConfig)."""
+        quats = self.quat_xyzw
+        poses = self.poses
+        out = []
+        for i in range(len(self)):
+            score = float(self.scores[i])
+            out.append(
+                {
+                    "position": self.positions[i].tolist(),
+                    "approach": self.approach[i].tolist(),
+                    "binormal": self.binormal[i].tolist(),
+                    "axis": self.axis[i].tolist(),
+                    "width": float(self.widths[i]),
+                    "score": None if np.isnan(score) else score,
+                    "sample": self.samples[i].tolist(),
+                    "pose": poses[i].tolist(),
+                    "quat_xyzw": quats[i].tolist(),
+                }
+            )
+        return out
+
+    def save_npz(self, path: str) -> None:
+        np.savez_compressed(
+            path,
+            positions=self.positions,
+            rotations=self.rotations,
+            widths=self.widths,
+            scores=self.scores,
+            samples=self.samples,
+        )
+
+    @staticmethod
+    def load_npz(path: str) -> GraspSet:
+        with np.load(path) as z:
+            return GraspSet(**{k: z[k] for k in ("positions", "rotations", "widths", "scores", "samples")})
