@@ -1,0 +1,1 @@
+"""Training pipeline: objects and views from meshes, antipodal labels, datasets, CNN, evaluation."""
