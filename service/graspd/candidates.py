@@ -25,7 +25,8 @@ from .scene import ClosingRegionPoints, Scene, ball_pairs
 
 @dataclass(frozen=True)
 class SamplingParams:
-    """num_samples points drawn uniformly (seeded) from the cloud, or exactly sample_indices;
+    """num_samples points drawn uniformly (seeded) from the cloud (or from the points where sample_pool
+    is True: the region of interest), or exactly sample_indices;
     |Phi| orientations in [-pi/2, pi/2) and |Y| finger placements; frame_radius r (m)."""
 
     num_samples: int = 1000
@@ -34,6 +35,7 @@ class SamplingParams:
     frame_radius: float = 0.01
     seed: int | None = 0
     sample_indices: tuple[int, ...] | None = None
+    sample_pool: NDArray[np.bool_] | None = None
 
 
 def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float) -> NDArray[np.float64]:
@@ -74,8 +76,9 @@ def sample_point_indices(n_points: int, params: SamplingParams) -> NDArray[np.in
             raise ValueError(f"sample_indices must lie in [0, {n_points - 1}]")
         return idx
     rng = np.random.default_rng(params.seed)
-    k = min(params.num_samples, n_points)
-    return np.sort(rng.choice(n_points, size=k, replace=False)).astype(np.int64)
+    pool = np.arange(n_points) if params.sample_pool is None else np.flatnonzero(params.sample_pool)
+    k = min(params.num_samples, len(pool))
+    return np.sort(pool[rng.choice(len(pool), size=k, replace=False)]).astype(np.int64)
 
 
 def sample_candidates(scene: Scene, hand: HandGeometry, params: SamplingParams | None = None) -> GraspSet:
@@ -134,9 +137,9 @@ def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None
     bins = np.floor((y_phi + y_max) / bin_w).astype(np.int64)
     inside = (bins >= 0) & (bins < n_bins)
     keys = (sid[None, :] * n_phi + np.arange(n_phi)[:, None]) * n_bins + bins
-    depth_min = np.full(n_s * n_phi * n_bins, np.inf, np.float32)
-    np.minimum.at(depth_min, keys[inside], x_phi[inside])
-    depth_min = depth_min.reshape(n_s, n_phi, n_bins)
+    flat_min = np.full(n_s * n_phi * n_bins, np.inf, np.float32)
+    np.minimum.at(flat_min, keys[inside], x_phi[inside])
+    depth_min = flat_min.reshape(n_s, n_phi, n_bins)
 
     def bin_range(lo: float, hi: float) -> slice:
         first = max(int(np.floor((lo + y_max) / bin_w)), 0)

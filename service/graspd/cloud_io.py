@@ -73,7 +73,7 @@ def parse_ply(data: bytes) -> NDArray[np.float32]:
     with tempfile.NamedTemporaryFile(suffix=".ply") as tmp:
         tmp.write(data)
         tmp.flush()
-        pcd = o3d.io.read_point_cloud(tmp.name, format="ply")
+        pcd = o3d.io.read_point_cloud(Path(tmp.name), format="ply")
     return np.asarray(pcd.points, np.float32)
 
 

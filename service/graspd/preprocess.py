@@ -56,7 +56,7 @@ def voxelize(points: NDArray[np.float32], camera_source: NDArray[np.int32], voxe
     if normals is not None:
         nsum = np.stack([np.bincount(inverse, normals[:, k], m) for k in range(3)], axis=1)
         out_nrm = (nsum / np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)).astype(np.float32)
-    return out_pts, out_src, out_nrm
+    return out_pts, out_src.astype(np.int32), out_nrm
 
 
 def estimate_normals(points: NDArray[np.float32], radius: float, max_nn: int) -> NDArray[np.float32]:
@@ -81,7 +81,7 @@ def orient_toward_cameras(points: NDArray[np.float32], normals: NDArray[np.float
 def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) -> ViewpointCloud:
     """Drop non-finite points, crop, voxelize, remove outliers, and give every point an oriented normal."""
     p = params or PreprocessParams()
-    finite = np.isfinite(cloud.points).all(axis=1)
+    finite: NDArray[np.bool_] = np.isfinite(cloud.points).all(axis=1)
     if cloud.normals is not None:
         finite &= np.isfinite(cloud.normals).all(axis=1)
     c = cloud.select(finite) if not finite.all() else cloud
@@ -105,3 +105,20 @@ def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) ->
         nrm = estimate_normals(pts, p.normal_radius, p.normal_max_nn) if len(pts) >= 3 else np.zeros_like(pts)
     nrm = orient_toward_cameras(pts, nrm, src, c.viewpoints)
     return ViewpointCloud(points=pts, viewpoints=c.viewpoints, camera_source=src, normals=nrm)
+
+
+def support_plane_mask(points: NDArray[np.float32], distance: float = 0.01, min_fraction: float = 0.2,
+                       seed: int = 0) -> NDArray[np.bool_]:
+    """Points within `distance` (m) of the dominant plane (RANSAC), if that plane holds at least
+    min_fraction of the cloud; else all False.  Used to keep samples off the table."""
+    import open3d as o3d
+
+    mask = np.zeros(len(points), bool)
+    if len(points) < 3:
+        return mask
+    o3d.utility.random.seed(seed)
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    _, inliers = pcd.segment_plane(distance_threshold=distance, ransac_n=3, num_iterations=200)
+    if len(inliers) >= min_fraction * len(points):
+        mask[np.asarray(inliers, np.int64)] = True
+    return mask

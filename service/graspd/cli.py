@@ -1,0 +1,118 @@
+"""Command line: `graspd detect CLOUD ...` and the subcommands other modules register."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .detector import Scorer
+
+#: Modules exposing register(subparsers) for further subcommands (serve, train, ...).
+SUBCOMMAND_MODULES: tuple[str, ...] = ()
+
+
+def _detect(args: argparse.Namespace) -> int:
+    from .cloud import CloudError
+    from .cloud_io import read_cloud
+    from .detector import DetectionParams, GraspDetector
+    from .hand import HandGeometry, hand_preset
+
+    try:
+        viewpoints = np.array(args.viewpoint, np.float32).reshape(-1, 3) if args.viewpoint else None
+        cloud = read_cloud(args.cloud, viewpoints=viewpoints)
+        hand = hand_preset(args.hand) if args.hand else HandGeometry()
+        params = DetectionParams(
+            num_samples=args.samples,
+            workspace=tuple(args.workspace) if args.workspace else None,
+            max_grasps=args.max_grasps,
+            gravity=tuple(args.gravity) if args.gravity else None,
+            use_classifier=not args.no_classifier,
+            exclude_support_plane=args.exclude_table,
+            seed=args.seed,
+        )
+    except (CloudError, KeyError, ValueError, OSError) as exc:
+        print(f"graspd detect: {exc}", file=sys.stderr)
+        return 2
+    classifier = None
+    if not args.no_classifier:
+        classifier = _load_classifier(args.model, args.models_dir)
+    detection = GraspDetector(classifier, hand).detect(cloud, params)
+    out = detection.to_dict()
+    if classifier is None:
+        out["note"] = "no classifier: candidates are unscored (the paper's 'no classification' ablation)"
+    text = json.dumps(out, indent=1)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(text)
+    if args.plot:
+        from .plot import plot_grasps
+        from .preprocess import PreprocessParams, preprocess
+
+        shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
+        title = f"{Path(args.cloud).name}: top {min(args.top, len(detection.grasps))} of " \
+                f"{detection.num_candidates} candidates, model {detection.model or 'none (unscored)'}"
+        plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title)
+    t = detection.timings
+    print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates on {detection.num_points} points "
+          f"in {t['total']:.2f} s (" + ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k != "total") + ")",
+          file=sys.stderr)
+    if not args.out:
+        print(text)
+    return 0
+
+
+def _load_classifier(name: str | None, models_dir: str | None) -> Scorer | None:
+    """The named (or default) ONNX classifier from models/, or None if the project has none yet."""
+    try:
+        classifier = importlib.import_module("graspd.classifier")
+    except ImportError:
+        return None
+    directory = Path(models_dir) if models_dir else None
+    try:
+        return classifier.load_model(name, directory)  # type: ignore[no-any-return]
+    except FileNotFoundError:
+        if name:
+            raise
+        return None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="graspd", description="Grasp Pose Detection for two-finger hands")
+    sub = parser.add_subparsers(dest="command", required=True)
+    d = sub.add_parser("detect", help="detect grasps in a point cloud file (.pcd, .ply, .npz)")
+    d.add_argument("cloud")
+    d.add_argument("--viewpoint", type=float, nargs=3, action="extend", metavar=("X", "Y", "Z"),
+                   help="camera position in the cloud frame (m); repeat for several cameras")
+    d.add_argument("--workspace", type=float, nargs=6, metavar=("XMIN", "XMAX", "YMIN", "YMAX", "ZMIN", "ZMAX"))
+    d.add_argument("--hand", help="hand preset: gpd (default), panda, robotiq_2f85")
+    d.add_argument("--samples", type=int, default=1000, help="points to sample hands at")
+    d.add_argument("--max-grasps", type=int, default=100)
+    d.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
+                   help="gravity direction in the cloud frame; enables the top-grasp utility")
+    d.add_argument("--model", help="classifier name in the models directory (default: the generic 15-channel one)")
+    d.add_argument("--models-dir", help="directory of ONNX models and cards (default: the shipped models/)")
+    d.add_argument("--no-classifier", action="store_true", help="skip scoring (the paper's ablation)")
+    d.add_argument("--exclude-table", action="store_true",
+                   help="do not sample on the dominant plane (the table); it still blocks hands")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--out", help="write the grasps as JSON here (else print them)")
+    d.add_argument("--plot", help="write a PNG of the cloud with the top grasps")
+    d.add_argument("--top", type=int, default=10, help="grasps to draw")
+    d.set_defaults(func=_detect)
+    for name in SUBCOMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

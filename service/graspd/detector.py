@@ -1,0 +1,179 @@
+"""GraspDetector: Algorithm 1 of the IJRR paper end to end, with a classifier passed in.
+
+preprocess -> scene (kd-tree, unobserved volume) -> sample hands -> feasibility filters -> encode
+grasp images -> score -> select.  Without a classifier (or with use_classifier off) the pipeline
+runs as the paper's "no classification" ablation and says so (scored = False).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .candidates import SamplingParams, search_hands
+from .cloud import ViewpointCloud
+from .grasp import GraspSet
+from .hand import HandGeometry
+from .images import encode_images
+from .preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
+from .scene import Scene
+from .selection import SelectionParams, Vec3, feasible_mask, select
+
+MAX_NUM_SAMPLES = 20_000
+
+
+class Scorer(Protocol):
+    """What the detector needs of a classifier (graspd.classifier.GraspClassifier satisfies it)."""
+
+    name: str
+    representation: str
+
+    def score(self, images: NDArray[np.uint8]) -> NDArray[np.float32]: ...
+
+
+@dataclass(frozen=True)
+class DetectionParams:
+    """Per-request knobs (metres, degrees).  workspace crops the cloud and the grasp positions;
+    exclude_support_plane keeps samples off the dominant plane (a table) while the plane still blocks hands."""
+
+    num_samples: int = 1000
+    workspace: Workspace | None = None
+    max_grasps: int = 100
+    min_score: float | None = None
+    approach_direction: Vec3 | None = None
+    approach_max_angle_deg: float | None = None
+    min_aperture: float | None = None
+    max_aperture: float | None = None
+    use_selection: bool = True
+    use_clustering: bool = True
+    use_classifier: bool = True
+    gravity: Vec3 | None = None
+    reference_position: Vec3 | None = None
+    seed: int | None = 0
+    voxel_size: float = 0.003
+    remove_outliers: bool = False
+    exclude_support_plane: bool = False
+    num_orientations: int = 8
+    num_finger_placements: int = 10
+    frame_radius: float = 0.01
+    score_batch: int = 512
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.num_samples <= MAX_NUM_SAMPLES:
+            raise ValueError(f"num_samples must be in [1, {MAX_NUM_SAMPLES}], got {self.num_samples}")
+        if self.max_grasps < 0:
+            raise ValueError(f"max_grasps must be >= 0, got {self.max_grasps}")
+        if not 0.0 <= self.voxel_size <= 0.05:
+            raise ValueError(f"voxel_size must be in [0, 0.05] m, got {self.voxel_size}")
+        if not 1 <= self.num_orientations <= 64 or not 1 <= self.num_finger_placements <= 64:
+            raise ValueError("num_orientations and num_finger_placements must be in [1, 64]")
+
+    def selection(self, hand: HandGeometry) -> SelectionParams:
+        return SelectionParams(
+            workspace=self.workspace,
+            min_aperture=self.min_aperture,
+            max_aperture=hand.max_aperture if self.max_aperture is None else self.max_aperture,
+            approach_direction=self.approach_direction,
+            approach_max_angle_deg=self.approach_max_angle_deg,
+            min_score=self.min_score,
+            use_clustering=self.use_clustering,
+            gravity=self.gravity,
+            reference_position=self.reference_position,
+            max_grasps=self.max_grasps,
+        )
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Ranked grasps (best first) with what produced them and how long each stage took (s)."""
+
+    grasps: GraspSet
+    timings: dict[str, float]
+    model: str | None
+    scored: bool
+    num_candidates: int
+    num_points: int
+    hand: HandGeometry = field(default_factory=HandGeometry)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "grasps": self.grasps.to_dicts(),
+            "timings": dict(self.timings),
+            "model": self.model,
+            "scored": self.scored,
+            "num_candidates": self.num_candidates,
+            "num_points": self.num_points,
+            "hand": self.hand.to_dict(),
+        }
+
+
+class GraspDetector:
+    """Loads nothing itself: give it a classifier (or None for the unscored ablation) and a hand."""
+
+    def __init__(self, classifier: Scorer | None = None, hand: HandGeometry | None = None) -> None:
+        self.classifier = classifier
+        self.hand = hand or HandGeometry()
+
+    def prepare(self, cloud: ViewpointCloud, params: DetectionParams, hand: HandGeometry) -> Scene:
+        """Preprocess and index a cloud (exposed for benchmarks and training-data generation)."""
+        pre = PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace,
+                               remove_outliers=params.remove_outliers)
+        return Scene.build(preprocess(cloud, pre), hand)
+
+    def detect(self, cloud: ViewpointCloud, params: DetectionParams | None = None,
+               hand: HandGeometry | None = None) -> Detection:
+        p = params or DetectionParams()
+        h = hand or self.hand
+        timings: dict[str, float] = {}
+        t0 = t = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal t
+            now = time.perf_counter()
+            timings[stage] = now - t
+            t = now
+
+        pre = PreprocessParams(voxel_size=p.voxel_size, workspace=p.workspace, remove_outliers=p.remove_outliers)
+        prepared = preprocess(cloud, pre)
+        lap("preprocess")
+        scene = Scene.build(prepared, h)
+        lap("scene")
+        pool = ~support_plane_mask(prepared.points) if p.exclude_support_plane else None
+        sampling = SamplingParams(num_samples=p.num_samples, num_orientations=p.num_orientations,
+                                  num_finger_placements=p.num_finger_placements, frame_radius=p.frame_radius,
+                                  seed=p.seed, sample_pool=pool)
+        candidates, region = search_hands(scene, h, sampling)
+        lap("sample")
+        sel = p.selection(h)
+        feasible = feasible_mask(candidates, replace(sel, min_score=None))
+        candidates, region = candidates[feasible], region.subset(feasible)
+        scorer = self.classifier if p.use_classifier else None
+        if scorer is not None and len(candidates):
+            images = encode_images(scene, candidates, h, scorer.representation, region=region)
+            lap("encode")
+            scores = np.concatenate([
+                np.asarray(scorer.score(images[i : i + p.score_batch]), np.float64)
+                for i in range(0, len(images), p.score_batch)
+            ])
+            candidates = candidates.with_scores(scores)
+            lap("score")
+        else:
+            timings["encode"] = 0.0
+            timings["score"] = 0.0
+        rng = np.random.default_rng(p.seed)
+        grasps = select(candidates, sel, use_selection=p.use_selection, rng=rng)
+        lap("select")
+        timings["total"] = time.perf_counter() - t0
+        return Detection(
+            grasps=grasps,
+            timings=timings,
+            model=None if scorer is None else scorer.name,
+            scored=scorer is not None,
+            num_candidates=len(candidates),
+            num_points=len(prepared),
+            hand=h,
+        )
