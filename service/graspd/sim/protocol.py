@@ -1,0 +1,198 @@
+"""The dense-clutter benchmark protocol (IJRR Table 1) and its statistics.
+
+A round: build a scene, then repeat sense -> detect -> choose a feasible grasp -> execute until the tray
+is empty, no grasp was found three times, or the same failure happened on the same object three times
+in a row.  Success rate = successes / attempts; cleared = objects lifted out / objects in the scene.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..grasp import GraspSet
+from ..hand import HandGeometry
+from .detectors import SimDetector, Workspace
+from .gripper import Attempt, ExecutionParams, Gripper, Outcome
+from .sensing import NO_NOISE, Camera, DepthNoise, active_cameras, observe, passive_cameras, side_camera
+from .world import build_scene
+
+SENSINGS = ("passive", "active", "side")
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One benchmark configuration: scene kind and size, sensing, grasp choice and hand."""
+
+    scene: str = "pour"
+    num_objects: int = 10
+    sensing: str = "passive"
+    choice: str = "best"  # "best": detector's order; "random": uniform among feasible (no selection)
+    noise: bool = True
+    max_approach_angle_deg: float = 80.0  # feasible approaches lie within this angle of straight down
+    max_attempts: int = 30
+    hand: HandGeometry = field(default_factory=HandGeometry)
+
+    def __post_init__(self) -> None:
+        if self.sensing not in SENSINGS:
+            raise ValueError(f"sensing must be one of {SENSINGS}, got {self.sensing!r}")
+        if self.choice not in ("best", "random"):
+            raise ValueError(f"choice must be 'best' or 'random', got {self.choice!r}")
+
+
+@dataclass
+class RoundResult:
+    """Counts of one round and the outcome of every attempt (plus the wall time, s)."""
+
+    seed: int
+    num_objects: int
+    successes: int = 0
+    attempts: int = 0
+    cleared: int = 0
+    outcomes: list[str] = field(default_factory=list)
+    end_reason: str = ""
+    seconds: float = 0.0
+    detect_seconds: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def feasible(grasps: GraspSet, hand: HandGeometry, max_angle_deg: float, floor_z: float) -> np.ndarray:
+    """Mask of grasps a robot above the tray could execute: approach within max_angle_deg of straight
+    down (reachable without IK failures), width within the aperture, fingertips above the floor."""
+    if len(grasps) == 0:
+        return np.zeros(0, bool)
+    down = -grasps.approach[:, 2]
+    ok = down >= np.cos(np.deg2rad(max_angle_deg))
+    ok &= grasps.widths <= hand.max_aperture
+    tips = grasps.positions + hand.hand_depth * grasps.approach
+    ok &= tips[:, 2] > floor_z
+    return np.asarray(ok)
+
+
+def cameras_for(setting: Setting) -> list[Camera]:
+    """The cameras of the setting's sensing strategy."""
+    if setting.sensing == "passive":
+        return passive_cameras()
+    if setting.sensing == "active":
+        return active_cameras()
+    return side_camera()
+
+
+def run_round(detector: SimDetector, setting: Setting, seed: int,
+              execution: ExecutionParams | None = None) -> RoundResult:
+    """One round of the protocol with scene, noise and choices all drawn from seed."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed + 1_000_003)
+    world = build_scene(setting.scene, setting.num_objects, seed, setting.hand)
+    result = RoundResult(seed=seed, num_objects=len(world.objects))
+    x0, x1, y0, y1 = world.inside_region()
+    margin = 0.02
+    region = (x0 - margin, x1 + margin, y0 - margin, y1 + margin, -0.005, 0.4)
+    workspace: Workspace = region
+    noise = DepthNoise() if setting.noise else NO_NOISE
+    cams = cameras_for(setting)
+    try:
+        gripper = Gripper(world, setting.hand, execution)
+        no_grasp = 0
+        streak: tuple[str, int | None] | None = None
+        streak_len = 0
+        while True:
+            if not world.objects:
+                result.end_reason = "tray empty"
+                break
+            if result.attempts >= setting.max_attempts:
+                result.end_reason = "attempt limit"
+                break
+            cloud = observe(world.client, cams, noise, rng, region)
+            td = time.perf_counter()
+            grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
+            result.detect_seconds += time.perf_counter() - td
+            ok = np.flatnonzero(feasible(grasps, setting.hand, setting.max_approach_angle_deg, 0.0))
+            if len(ok) == 0:
+                no_grasp += 1
+                result.outcomes.append(Outcome.NO_GRASP.value)
+                if no_grasp >= 3:
+                    result.end_reason = "no grasp found 3 times"
+                    break
+                continue
+            pick = int(ok[0] if setting.choice == "best" else rng.choice(ok))
+            attempt: Attempt = gripper.execute(grasps, pick)
+            result.attempts += 1
+            result.outcomes.append(attempt.outcome.value)
+            world.remove_outside()
+            if attempt.outcome is Outcome.SUCCESS:
+                result.successes += 1
+                result.cleared += len(attempt.removed)
+                streak, streak_len = None, 0
+                continue
+            key = (attempt.outcome.value, attempt.target)
+            streak_len = streak_len + 1 if key == streak else 1
+            streak = key
+            if streak_len >= 3:
+                result.end_reason = "same failure on same object 3 times"
+                break
+    finally:
+        world.close()
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Totals over rounds with 95% bootstrap intervals (resampling rounds)."""
+
+    rounds: int
+    objects: int
+    attempts: int
+    successes: int
+    cleared: int
+    success_rate: float
+    success_ci: tuple[float, float]
+    cleared_rate: float
+    cleared_ci: tuple[float, float]
+    failures: dict[str, int]
+    seconds_per_round: float
+    detect_seconds_per_attempt: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def summarize(results: list[RoundResult], boot: int = 2000, seed: int = 0) -> Summary:
+    """Pooled success and cleared rates with percentile bootstrap 95% intervals over rounds."""
+    if not results:
+        raise ValueError("summarize needs at least one round")
+    succ = np.array([r.successes for r in results], float)
+    att = np.array([r.attempts for r in results], float)
+    clr = np.array([r.cleared for r in results], float)
+    obj = np.array([r.num_objects for r in results], float)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(results), size=(boot, len(results)))
+
+    def ratio(num: np.ndarray, den: np.ndarray) -> tuple[float, tuple[float, float]]:
+        point = float(num.sum() / den.sum()) if den.sum() else float("nan")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            samples = num[idx].sum(1) / den[idx].sum(1)
+        samples = samples[np.isfinite(samples)]
+        if len(samples) == 0:
+            return point, (float("nan"), float("nan"))
+        lo, hi = np.percentile(samples, [2.5, 97.5])
+        return point, (float(lo), float(hi))
+
+    s, s_ci = ratio(succ, att)
+    c, c_ci = ratio(clr, obj)
+    fails = Counter(o for r in results for o in r.outcomes if o != Outcome.SUCCESS.value)
+    attempts_total = max(int(att.sum()) + fails.get(Outcome.NO_GRASP.value, 0), 1)
+    return Summary(
+        rounds=len(results), objects=int(obj.sum()), attempts=int(att.sum()), successes=int(succ.sum()),
+        cleared=int(clr.sum()), success_rate=s, success_ci=s_ci, cleared_rate=c, cleared_ci=c_ci,
+        failures=dict(sorted(fails.items())),
+        seconds_per_round=float(np.mean([r.seconds for r in results])),
+        detect_seconds_per_attempt=float(sum(r.detect_seconds for r in results) / attempts_total),
+    )
