@@ -1,0 +1,24 @@
+"""graspd-client: the robot side of graspd (numpy + httpx; zenoh optional) and the wire contract."""
+
+from .codec import WIRE_DTYPES, WireError, decode_array, encode_array
+from .errors import GraspdError, RequestRejected, ServerBusy, ServerError, TransportError
+from .grasps import Grasps
+from .http import AsyncGraspClient, GraspClient
+from .wire import build_detect_request
+
+__version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> object:
+    if name == "ZenohGraspClient":  # imported lazily: zenoh is an optional extra
+        from .zenoh_client import ZenohGraspClient
+
+        return ZenohGraspClient
+    raise AttributeError(name)
+
+
+__all__ = [
+    "WIRE_DTYPES", "AsyncGraspClient", "GraspClient", "GraspdError", "Grasps", "RequestRejected",
+    "ServerBusy", "ServerError", "TransportError", "WireError", "ZenohGraspClient", "build_detect_request",
+    "decode_array", "encode_array",
+]

@@ -1,0 +1,105 @@
+"""Grasps: the client's numpy-backed view of a detect response (one array per field, best first)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .codec import WireError
+from .wire import decode_png_bytes
+
+F64 = NDArray[np.float64]
+
+
+def _column(grasps: list[dict[str, Any]], key: str, width: tuple[int, ...]) -> F64:
+    """Stack one response field of every grasp into an array (M, *width); None → NaN."""
+    try:
+        rows = [np.nan if g[key] is None else g[key] for g in grasps]
+        arr = np.array(rows, dtype=np.float64).reshape(len(grasps), *width)
+    except KeyError:
+        raise WireError(f"grasps.{key}", "missing in the response") from None
+    except (TypeError, ValueError) as exc:
+        raise WireError(f"grasps.{key}", f"expected numbers of shape {width} per grasp ({exc})") from None
+    return arr
+
+
+@dataclass(frozen=True)
+class Grasps:
+    """M grasps in the caller's cloud frame (metres), sorted best first as the server sent them.
+
+    poses (M,4,4) have rotation columns [approach, binormal, axis] and translation = hand-base centre.
+    scores are NaN when the server ran without a classifier (scored is False).
+    crops[i] is PNG bytes of the object-proposal crop, or None (not asked, or point outside the image).
+    """
+
+    ids: list[str]
+    positions: F64
+    approach: F64
+    binormal: F64
+    axis: F64
+    widths: F64
+    scores: F64
+    samples: F64
+    poses: F64
+    quat_xyzw: F64
+    model: str | None = None
+    scored: bool = False
+    timings: dict[str, float] = field(default_factory=dict)
+    request_id: str | None = None
+    crops: list[bytes | None] = field(default_factory=list)
+    crop_pixels: F64 = field(default_factory=lambda: np.zeros((0, 2)))
+    in_image: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    raw: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @property
+    def rotations(self) -> F64:
+        """(M,3,3) rotation matrices, columns [approach, binormal, axis]."""
+        return self.poses[:, :3, :3]
+
+    @classmethod
+    def from_response(cls, body: dict[str, Any]) -> Grasps:
+        """Parse the JSON body of a detect response; WireError names a malformed field."""
+        if not isinstance(body, dict) or not isinstance(body.get("grasps"), list):
+            raise WireError("grasps", "response has no grasps list")
+        gs: list[dict[str, Any]] = body["grasps"]
+        if not all(isinstance(g, dict) for g in gs):
+            raise WireError("grasps", "each grasp must be an object")
+        ids = [str(g.get("id", i)) for i, g in enumerate(gs)]
+        crops: list[bytes | None] = []
+        pixels = np.full((len(gs), 2), np.nan)
+        inside = np.zeros(len(gs), bool)
+        for i, g in enumerate(gs):
+            crop = g.get("crop")
+            if isinstance(crop, dict):
+                crops.append(decode_png_bytes(crop.get("png")))
+                if crop.get("pixel") is not None:
+                    pixels[i] = crop["pixel"]
+                inside[i] = bool(crop.get("in_image", False))
+            else:
+                crops.append(None)
+        return cls(
+            ids=ids,
+            positions=_column(gs, "position", (3,)),
+            approach=_column(gs, "approach", (3,)),
+            binormal=_column(gs, "binormal", (3,)),
+            axis=_column(gs, "axis", (3,)),
+            widths=_column(gs, "width", ()),
+            scores=_column(gs, "score", ()),
+            samples=_column(gs, "sample", (3,)),
+            poses=_column(gs, "pose", (4, 4)),
+            quat_xyzw=_column(gs, "quat_xyzw", (4,)),
+            model=body.get("model"),
+            scored=bool(body.get("scored", False)),
+            timings={str(k): float(v) for k, v in (body.get("timings") or {}).items()},
+            request_id=body.get("request_id"),
+            crops=crops,
+            crop_pixels=pixels,
+            in_image=inside,
+            raw=body,
+        )

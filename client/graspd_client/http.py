@@ -1,0 +1,163 @@
+"""HTTP clients for graspd: GraspClient (blocking) and AsyncGraspClient (asyncio), both over httpx.
+
+numpy in (points, viewpoints, camera indices, optional image), Grasps out.  503 answers are retried
+after the server's Retry-After (capped); 4xx raise RequestRejected naming the field.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Any
+
+import httpx
+from numpy.typing import ArrayLike
+
+from .codec import WireError
+from .errors import RequestRejected, ServerBusy, ServerError, TransportError
+from .grasps import Grasps
+from .wire import build_detect_request
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+
+
+def retry_delay(response: httpx.Response, attempt: int, max_delay: float) -> float:
+    """Seconds to wait before retrying a 503: the Retry-After header if given, else exponential backoff."""
+    header = response.headers.get("retry-after")
+    try:
+        delay = float(header) if header is not None else 0.1 * 2**attempt
+    except ValueError:
+        delay = 0.1 * 2**attempt
+    return max(0.0, min(delay, max_delay))
+
+
+def interpret(response: httpx.Response) -> Any:
+    """The JSON body of a 2xx answer; RequestRejected / ServerError otherwise."""
+    try:
+        body = response.json()
+    except ValueError:
+        body = None
+    if response.is_success:
+        if body is None:
+            raise ServerError(f"HTTP {response.status_code}: answer is not JSON")
+        return body
+    message = (body or {}).get("error") if isinstance(body, dict) else None
+    field = (body or {}).get("field") if isinstance(body, dict) else None
+    text = str(message or response.text[:300] or response.reason_phrase)
+    if 400 <= response.status_code < 500:
+        raise RequestRejected(response.status_code, text, field=field, body=body)
+    raise ServerError(f"HTTP {response.status_code}: {text}")
+
+
+def parse_grasps(body: Any) -> Grasps:
+    try:
+        return Grasps.from_response(body)
+    except WireError as exc:
+        raise ServerError(f"malformed detect response: {exc}") from None
+
+
+class GraspClient:
+    """Blocking client.  `GraspClient("http://host:8000").detect(points, viewpoints)` → Grasps."""
+
+    def __init__(self, url: str = DEFAULT_URL, *, timeout: float = 30.0, retries: int = 3,
+                 max_retry_delay: float = 5.0, token: str | None = None) -> None:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.retries = retries
+        self.max_retry_delay = max_retry_delay
+        self._http = httpx.Client(base_url=url, timeout=timeout, headers=headers)
+
+    def __enter__(self) -> GraspClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._http.close()
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> Any:
+        for attempt in range(self.retries + 1):
+            try:
+                response = self._http.request(method, path, **kwargs)
+            except httpx.TimeoutException as exc:
+                raise TransportError(f"{method} {path}: no answer within the timeout ({exc!r})") from None
+            except httpx.HTTPError as exc:
+                raise TransportError(f"{method} {path}: {exc!r}") from None
+            if response.status_code == 503 and attempt < self.retries:
+                time.sleep(retry_delay(response, attempt, self.max_retry_delay))
+                continue
+            if response.status_code == 503:
+                raise ServerBusy(f"{method} {path}: server busy after {self.retries + 1} attempts")
+            return interpret(response)
+        raise AssertionError("unreachable")
+
+    def detect(self, points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
+               camera_source: ArrayLike | None = None, **options: Any) -> Grasps:
+        """Grasps for a cloud; options are those of build_detect_request (model, hand, num_samples, ...)."""
+        return self.detect_request(build_detect_request(points, viewpoints, camera_source, **options))
+
+    def detect_request(self, body: dict[str, Any]) -> Grasps:
+        """Grasps for an already-built request body."""
+        return parse_grasps(self._request("POST", "/detect", json=body))
+
+    def detect_file(self, data: bytes, *, content_type: str = "application/octet-stream",
+                    **params: Any) -> Grasps:
+        """Grasps for raw PCD/PLY bytes (params: viewpoint "x,y,z", num_samples, model, ...)."""
+        return parse_grasps(self._request("POST", "/detect", content=data,
+                                          headers={"Content-Type": content_type}, params=params))
+
+    def models(self) -> Any:
+        return self._request("GET", "/models")
+
+    def ready(self) -> bool:
+        try:
+            self._request("GET", "/readyz")
+        except (RequestRejected, ServerBusy, ServerError, TransportError):
+            return False
+        return True
+
+
+class AsyncGraspClient:
+    """asyncio client with the same methods as GraspClient (awaitable)."""
+
+    def __init__(self, url: str = DEFAULT_URL, *, timeout: float = 30.0, retries: int = 3,
+                 max_retry_delay: float = 5.0, token: str | None = None) -> None:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.retries = retries
+        self.max_retry_delay = max_retry_delay
+        self._http = httpx.AsyncClient(base_url=url, timeout=timeout, headers=headers)
+
+    async def __aenter__(self) -> AsyncGraspClient:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        await self._http.aclose()
+
+    async def _request(self, method: str, path: str, **kwargs: Any) -> Any:
+        for attempt in range(self.retries + 1):
+            try:
+                response = await self._http.request(method, path, **kwargs)
+            except httpx.TimeoutException as exc:
+                raise TransportError(f"{method} {path}: no answer within the timeout ({exc!r})") from None
+            except httpx.HTTPError as exc:
+                raise TransportError(f"{method} {path}: {exc!r}") from None
+            if response.status_code == 503 and attempt < self.retries:
+                await asyncio.sleep(retry_delay(response, attempt, self.max_retry_delay))
+                continue
+            if response.status_code == 503:
+                raise ServerBusy(f"{method} {path}: server busy after {self.retries + 1} attempts")
+            return interpret(response)
+        raise AssertionError("unreachable")
+
+    async def detect(self, points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
+                     camera_source: ArrayLike | None = None, **options: Any) -> Grasps:
+        return await self.detect_request(build_detect_request(points, viewpoints, camera_source, **options))
+
+    async def detect_request(self, body: dict[str, Any]) -> Grasps:
+        return parse_grasps(await self._request("POST", "/detect", json=body))
+
+    async def models(self) -> Any:
+        return await self._request("GET", "/models")

@@ -1,0 +1,132 @@
+"""Field names, limits and the request builder of the graspd wire contract (DESIGN.md), shared by
+client and server so there is one definition.
+
+Frames and units: metres, right-handed, everything in the frame of the cloud the caller sends;
+viewpoints are camera positions in that frame.  A grasp follows gpd_ros GraspConfig: rotation
+columns [approach, binormal, axis], position = centre of the hand base.
+"""
+
+from __future__ import annotations
+
+import base64
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .codec import WireError, encode_array
+
+API_VERSION = "1"
+
+#: Upper bounds the server enforces (requests beyond them get a 422 naming the field).
+MAX_NUM_SAMPLES = 20_000
+MAX_GRASPS = 1_000
+MAX_VIEWPOINTS = 64
+MIN_CROP_SIZE = 8
+MAX_CROP_SIZE = 512
+DEFAULT_CROP_SIZE = 120
+
+#: Hand-geometry fields (GPD names, metres) a request may override.
+HAND_FIELDS: tuple[str, ...] = ("finger_width", "hand_outer_diameter", "hand_depth", "hand_height", "init_bite")
+
+#: Per-grasp fields of a detect response.
+GRASP_FIELDS: tuple[str, ...] = (
+    "id", "position", "approach", "binormal", "axis", "width", "score", "sample", "pose", "quat_xyzw",
+)
+
+#: Query parameters accepted with a raw PCD/PLY upload to POST /detect.
+UPLOAD_QUERY_PARAMS: tuple[str, ...] = (
+    "viewpoint", "model", "hand", "num_samples", "max_grasps", "min_score", "workspace", "selection", "seed",
+)
+
+#: Zenoh key suffixes under the configured prefix (default "graspd").
+ZENOH_DETECT_KEY = "detect"
+ZENOH_CLOUD_KEY = "cloud"
+ZENOH_GRASPS_KEY = "grasps"
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _vec(value: ArrayLike, n: int, field: str) -> list[float]:
+    arr = np.asarray(value, np.float64).reshape(-1)
+    if arr.shape != (n,) or not np.isfinite(arr).all():
+        raise WireError(field, f"{n} finite numbers expected, got {np.asarray(value).tolist()!r}")
+    return [float(v) for v in arr]
+
+
+def build_detect_request(
+    points: ArrayLike,
+    viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
+    camera_source: ArrayLike | None = None,
+    *,
+    workspace: Sequence[float] | None = None,
+    hand: str | Mapping[str, Any] | None = None,
+    model: str | None = None,
+    num_samples: int | None = None,
+    max_grasps: int | None = None,
+    min_score: float | None = None,
+    approach_direction: Sequence[float] | None = None,
+    approach_max_angle_deg: float | None = None,
+    selection: bool | None = None,
+    seed: int | None = None,
+    image: ArrayLike | bytes | None = None,
+    intrinsics: Mapping[str, float] | Sequence[float] | None = None,
+    camera_pose: ArrayLike | None = None,
+    crop_size: int | None = None,
+) -> dict[str, Any]:
+    """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
+
+    points (N,3) m; viewpoints (K,3) camera positions; camera_source (N,) index into viewpoints;
+    image HxWx3 uint8 (or PNG bytes) with intrinsics (fx, fy, cx, cy) and camera_pose (4x4,
+    camera-to-cloud) asks for one object-proposal crop per grasp.
+    """
+    pts = np.asarray(points, np.float32)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise WireError("cloud.points", f"shape (N,3) expected, got {tuple(pts.shape)}")
+    vps = np.asarray(viewpoints, np.float64).reshape(-1, 3)
+    cloud: dict[str, Any] = {"points": encode_array(pts), "viewpoints": vps.tolist()}
+    if camera_source is not None:
+        cloud["camera_source"] = encode_array(np.asarray(camera_source).astype(np.int32))
+    body: dict[str, Any] = {"cloud": cloud}
+    if workspace is not None:
+        body["workspace"] = _vec(workspace, 6, "workspace")
+    if hand is not None:
+        body["hand"] = hand if isinstance(hand, str) else dict(hand)
+    options = {"model": model, "num_samples": num_samples, "max_grasps": max_grasps, "min_score": min_score,
+               "selection": selection, "seed": seed}
+    body.update({k: v for k, v in options.items() if v is not None})
+    if approach_direction is not None:
+        body["approach"] = {"direction": _vec(approach_direction, 3, "approach.direction")}
+        if approach_max_angle_deg is not None:
+            body["approach"]["max_angle_deg"] = float(approach_max_angle_deg)
+    if image is not None:
+        if intrinsics is None or camera_pose is None:
+            raise WireError("crops", "an image needs intrinsics and camera_pose")
+        if isinstance(intrinsics, Mapping):
+            intr = {k: float(intrinsics[k]) for k in ("fx", "fy", "cx", "cy")}
+        else:
+            intr = dict(zip(("fx", "fy", "cx", "cy"), _vec(intrinsics, 4, "crops.intrinsics"), strict=True))
+        crops: dict[str, Any] = {
+            "intrinsics": intr,
+            "camera_pose": np.asarray(camera_pose, np.float64).reshape(4, 4).tolist(),
+        }
+        if isinstance(image, bytes | bytearray):
+            crops["image_png"] = base64.b64encode(bytes(image)).decode("ascii")
+        else:
+            crops["image"] = encode_array(np.asarray(image, np.uint8))
+        if crop_size is not None:
+            crops["size"] = int(crop_size)
+        body["crops"] = crops
+    return body
+
+
+def decode_png_bytes(value: str | None) -> bytes | None:
+    """PNG bytes from the base64 text of a response crop (None stays None)."""
+    if value is None:
+        return None
+    raw = base64.b64decode(value)
+    if not raw.startswith(PNG_MAGIC):
+        raise WireError("grasps.crop.png", "not a PNG")
+    return raw
+

@@ -1,0 +1,90 @@
+"""ZenohGraspClient: the detect request as a Zenoh query on `<prefix>/detect` (needs the zenoh extra).
+
+Connects in peer mode to the given endpoints (default: the server's loopback listener).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from typing import Any
+
+from numpy.typing import ArrayLike
+
+from .errors import RequestRejected, ServerBusy, ServerError, TransportError
+from .grasps import Grasps
+from .http import parse_grasps
+from .wire import ZENOH_DETECT_KEY, build_detect_request
+
+DEFAULT_ENDPOINTS = ("tcp/127.0.0.1:7447",)
+
+
+def zenoh_config(mode: str = "peer", connect: Sequence[str] = DEFAULT_ENDPOINTS,
+                 listen: Sequence[str] = (), multicast: bool = False) -> Any:
+    """A zenoh.Config for mode/endpoints; multicast scouting off unless asked (loopback default)."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(multicast))
+    return conf
+
+
+class ZenohGraspClient:
+    """Blocking Zenoh client: `.detect(points, viewpoints)` → Grasps; errors as for GraspClient."""
+
+    def __init__(self, *, prefix: str = "graspd", connect: Sequence[str] = DEFAULT_ENDPOINTS,
+                 mode: str = "peer", timeout: float = 30.0, retries: int = 3, session: Any = None) -> None:
+        import zenoh
+
+        self.key = f"{prefix.rstrip('/')}/{ZENOH_DETECT_KEY}"
+        self.timeout = timeout
+        self.retries = retries
+        self._own = session is None
+        self._session = session if session is not None else zenoh.open(zenoh_config(mode, connect))
+
+    def __enter__(self) -> ZenohGraspClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._own:
+            self._session.close()
+
+    def query(self, payload: bytes) -> Any:
+        """The decoded JSON reply to one raw query payload (retrying busy answers)."""
+        import time
+
+        for attempt in range(self.retries + 1):
+            replies = list(self._session.get(self.key, payload=payload, timeout=self.timeout))
+            if not replies:
+                raise TransportError(f"zenoh {self.key}: no reply within {self.timeout} s (is a server up?)")
+            reply = replies[0]
+            if reply.ok is not None:
+                try:
+                    return json.loads(reply.ok.payload.to_bytes())
+                except ValueError:
+                    raise ServerError(f"zenoh {self.key}: reply is not JSON") from None
+            try:
+                err = json.loads(reply.err.payload.to_bytes())
+            except ValueError:
+                err = {"error": reply.err.payload.to_bytes().decode("utf-8", "replace"), "status": 500}
+            status = int(err.get("status", 500)) if isinstance(err, dict) else 500
+            if status == 503 and attempt < self.retries:
+                time.sleep(min(float(err.get("retry_after", 0.5)), 5.0))
+                continue
+            if status == 503:
+                raise ServerBusy(f"zenoh {self.key}: server busy after {self.retries + 1} attempts")
+            if 400 <= status < 500:
+                raise RequestRejected(status, str(err.get("error")), field=err.get("field"), body=err)
+            raise ServerError(f"zenoh {self.key}: {err.get('error')}")
+        raise AssertionError("unreachable")
+
+    def detect(self, points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
+               camera_source: ArrayLike | None = None, **options: Any) -> Grasps:
+        body = build_detect_request(points, viewpoints, camera_source, **options)
+        return parse_grasps(self.query(json.dumps(body).encode()))

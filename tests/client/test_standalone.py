@@ -1,0 +1,42 @@
+"""graspd-client works with only numpy and httpx: no graspd server package on the path."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+SCRIPT = r"""
+import sys
+import numpy as np
+import graspd_client
+from graspd_client import GraspClient, Grasps, build_detect_request, decode_array
+body = build_detect_request(np.zeros((5, 3), np.float32), [[0, 0, 1]], num_samples=10, hand="panda")
+pts = decode_array(body["cloud"]["points"], "cloud.points", shape=(None, 3))
+assert pts.shape == (5, 3)
+response = {"grasps": [{"id": "a", "position": [0, 0, 0], "approach": [1, 0, 0], "binormal": [0, 1, 0],
+            "axis": [0, 0, 1], "width": 0.03, "score": None, "sample": [0, 0, 0],
+            "pose": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "quat_xyzw": [0, 0, 0, 1]}],
+            "model": None, "scored": False, "timings": {"total": 0.1}}
+g = Grasps.from_response(response)
+assert g.poses.shape == (1, 4, 4) and np.isnan(g.scores[0]) and g.ids == ["a"]
+GraspClient("http://127.0.0.1:9").close()
+heavy = [m for m in ("graspd", "open3d", "torch", "onnxruntime", "scipy", "fastapi", "pydantic")
+         if m in sys.modules]
+assert not heavy, heavy
+print("ok")
+"""
+
+
+def test_client_imports_without_server_package() -> None:
+    env = {"PYTHONPATH": str(ROOT / "client"), "PATH": "/usr/bin:/bin"}
+    code = f"import sys; sys.path.insert(0, {str(ROOT / 'client')!r})\n" + SCRIPT
+    out = subprocess.run([sys.executable, "-I", "-c", code], capture_output=True, text=True, env=env, cwd="/",
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
+    probe = subprocess.run([sys.executable, "-I", "-c", "import graspd"], capture_output=True, text=True,
+                           env=env, cwd="/", timeout=60)
+    assert probe.returncode != 0, "graspd must not be importable in the client-only environment"
