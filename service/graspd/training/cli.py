@@ -1,0 +1,71 @@
+"""`graspd train ...`: train, evaluate and export one grasp classifier (ONNX + model card) in one command."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from typing import Any
+
+
+def _categories(text: str) -> list[str]:
+    return [c.strip() for c in text.split(",") if c.strip()]
+
+
+def register(subparsers: Any) -> None:
+    """Add the `train` subcommand to graspd's argparse subparsers."""
+    p = subparsers.add_parser(
+        "train", help="train + evaluate + export a grasp classifier from a graspd dataset",
+        description="Train a CNN on a graspd dataset (graspd.training.dataset format), evaluate the exported "
+                    "ONNX model on the test part of the split, and write models-dir/NAME.onnx with its card.")
+    p.add_argument("--config", help="JSON training config (graspd.training.train.TrainConfig); flags override it")
+    p.add_argument("--dataset", help="dataset folder (manifest.json, chunk_*.npz, splits/)")
+    p.add_argument("--name", help="model name (file stem in models-dir); default generic15")
+    p.add_argument("--representation", choices=["15", "12", "3", "herzog"])
+    p.add_argument("--architecture", choices=["fast", "lenet"])
+    p.add_argument("--split", choices=["view", "object"], help="split to train/validate/test on")
+    p.add_argument("--categories", type=_categories, help="comma-separated: box,cylinder,other (default all)")
+    p.add_argument("--epochs", type=int)
+    p.add_argument("--batch-size", type=int, dest="batch_size")
+    p.add_argument("--learning-rate", type=float, dest="learning_rate")
+    p.add_argument("--patience", type=int)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--threads", type=int, help="torch and onnxruntime threads (default 2)")
+    p.add_argument("--max-train", type=int, dest="max_train", help="use at most this many training exemplars")
+    p.add_argument("--max-minutes", type=float, dest="max_minutes", help="stop training after this wall time")
+    p.add_argument("--models-dir", default=None, help="where to write NAME.onnx and NAME.json (default models/)")
+    p.add_argument("--work-dir", default=None, help="checkpoint and training metrics (default models-dir/.work/NAME)")
+    p.set_defaults(func=_run)
+
+
+_CONFIG_FLAGS = ("dataset", "name", "representation", "architecture", "split", "categories", "epochs",
+                 "batch_size", "learning_rate", "patience", "seed", "threads", "max_train", "max_minutes")
+
+
+def _run(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from graspd.classifier import default_models_dir
+
+    from .train import TrainConfig, train_and_export
+
+    data: dict[str, Any] = json.loads(Path(args.config).read_text()) if args.config else {}
+    data.update({k: getattr(args, k) for k in _CONFIG_FLAGS if getattr(args, k) is not None})
+    if "dataset" not in data:
+        print("graspd train: --dataset (or a config with 'dataset') is required", file=sys.stderr)
+        return 2
+    try:
+        config = TrainConfig.from_dict(data)
+    except (TypeError, ValueError) as exc:
+        print(f"graspd train: {exc}", file=sys.stderr)
+        return 2
+    models_dir = Path(args.models_dir) if args.models_dir else default_models_dir()
+    command = "graspd " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else None
+    path = train_and_export(config, models_dir, args.work_dir, command=command)
+    card = json.loads(path.with_suffix(".json").read_text())
+    for key, m in card["metrics"].items():
+        print(f"{key}: accuracy {m['accuracy']:.4f}  RA99P {m['ra99p']:.4f}  AP {m['average_precision']:.4f}  "
+              f"(n={m['n']})")
+    print(f"wrote {path} and {path.with_suffix('.json')}")
+    return 0

@@ -1,0 +1,356 @@
+"""Train a grasp-image classifier on a graspd dataset: reproducible from a config and a seed, on the CPU.
+
+Class-balanced (class-weighted cross-entropy), Adam, early stopping on the validation part of the
+chosen split; writes checkpoint.pt (best validation state, config, architecture) and
+train_metrics.json (per-epoch history) to the output folder.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import nn
+
+from graspd.images import REPRESENTATIONS
+
+from .network import ARCHITECTURES, build_network
+
+
+@dataclass
+class TrainConfig:
+    """Everything that determines a training run (with the dataset's own manifest)."""
+
+    dataset: str
+    name: str = "generic15"
+    representation: str = "15"
+    architecture: str = "fast"
+    split: str = "view"                       # "view" (the paper's) or "object"
+    categories: list[str] | None = None       # None = all; e.g. ["box"] for a category model
+    epochs: int = 20
+    batch_size: int = 128
+    learning_rate: float = 1e-3
+    weight_decay: float = 1e-4
+    patience: int = 4                         # epochs without validation-loss improvement before stopping
+    seed: int = 0
+    threads: int = 2
+    max_train: int | None = None              # use at most this many training exemplars (random, seeded)
+    max_val: int | None = 20000
+    max_minutes: float | None = None          # stop after the epoch that passes this wall time
+    network: dict[str, Any] = field(default_factory=dict)  # extra FastNet arguments (width, hidden)
+
+    def __post_init__(self) -> None:
+        if self.representation not in REPRESENTATIONS:
+            raise ValueError(f"representation must be one of {sorted(REPRESENTATIONS)}, got {self.representation!r}")
+        if self.architecture not in ARCHITECTURES:
+            raise ValueError(f"architecture must be one of {list(ARCHITECTURES)}, got {self.architecture!r}")
+        if self.split not in ("view", "object"):
+            raise ValueError(f"split must be 'view' or 'object', got {self.split!r}")
+        for key in ("epochs", "batch_size", "threads"):
+            if getattr(self, key) < 1:
+                raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
+        if not self.learning_rate > 0:
+            raise ValueError(f"learning_rate must be > 0, got {self.learning_rate}")
+        if self.categories is not None:
+            from .dataset import CATEGORIES
+
+            bad = [c for c in self.categories if c not in CATEGORIES]
+            if bad:
+                raise ValueError(f"categories must be among {list(CATEGORIES)}, got {bad}")
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown training config fields {unknown}; known: {sorted(known)}")
+        return cls(**data)
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> TrainConfig:
+        return cls.from_dict(json.loads(Path(path).read_text()))
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def load_rows(directory: str | Path, kind: str, part: str, representation: str,
+              categories: list[str] | None = None, limit: int | None = None,
+              seed: int = 0) -> tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.uint8]]:
+    """(images (M,C,S,S) uint8 of a representation, labels (M,), categories (M,)) of one split part.
+
+    Reads the small per-row arrays first, then the images chunk by chunk into one preallocated
+    array, so the peak memory is the result plus one chunk; limit keeps a seeded random subset.
+    """
+    from .dataset import CATEGORIES, derive_images, read_manifest, read_split, split_mask
+
+    directory = Path(directory)
+    manifest = read_manifest(directory)
+    split = read_split(directory, kind)
+    codes = None if categories is None else np.array([CATEGORIES[c] for c in categories], np.uint8)
+    masks: list[NDArray[np.bool_]] = []
+    for entry in manifest["chunks"]:
+        with np.load(directory / entry["file"]) as z:
+            mask = split_mask(z["object_ids"], z["view_ids"], split, part)
+            if codes is not None:
+                mask &= np.isin(z["categories"], codes)
+            masks.append(mask)
+    total = int(sum(m.sum() for m in masks))
+    if total == 0:
+        raise ValueError(f"split {kind!r} part {part!r} (categories {categories}) has no rows in {directory}")
+    if limit is not None and limit < total:
+        keep = np.zeros(total, bool)
+        keep[np.random.default_rng(seed).choice(total, limit, replace=False)] = True
+        start = 0
+        for i, m in enumerate(masks):
+            idx = np.flatnonzero(m)
+            m = np.zeros_like(m)
+            m[idx[keep[start : start + len(idx)]]] = True
+            start += len(idx)
+            masks[i] = m
+        total = limit
+    channels = REPRESENTATIONS[representation]
+    size = int(manifest["image_size"])
+    images = np.empty((total, channels, size, size), np.uint8)
+    labels = np.empty(total, np.uint8)
+    cats = np.empty(total, np.uint8)
+    row = 0
+    for entry, mask in zip(manifest["chunks"], masks, strict=True):
+        n = int(mask.sum())
+        if n == 0:
+            continue
+        with np.load(directory / entry["file"]) as z:
+            images[row : row + n] = derive_images(z["images"][mask], representation)
+            labels[row : row + n] = z["labels"][mask]
+            cats[row : row + n] = z["categories"][mask]
+        row += n
+    return images, labels, cats
+
+
+def _batches(n: int, batch_size: int, rng: np.random.Generator | None) -> list[NDArray[np.int64]]:
+    order = rng.permutation(n) if rng is not None else np.arange(n)
+    return [order[a : a + batch_size] for a in range(0, n, batch_size)]
+
+
+def _to_tensor(images: NDArray[np.uint8], idx: NDArray[np.int64]) -> torch.Tensor:
+    from .export import INPUT_OFFSET, INPUT_SCALE
+
+    x = torch.from_numpy(images[idx]).float()
+    return x.mul_(INPUT_SCALE).add_(INPUT_OFFSET)
+
+
+def predict_logits(net: nn.Module, images: NDArray[np.uint8], batch_size: int = 512) -> NDArray[np.float32]:
+    """Logits (M, 2) of a network in eval mode."""
+    net.eval()
+    out = []
+    with torch.no_grad():
+        for idx in _batches(len(images), batch_size, None):
+            out.append(net(_to_tensor(images, idx)).numpy())
+    return np.concatenate(out) if out else np.zeros((0, 2), np.float32)
+
+
+def recalibrate_batchnorm(net: nn.Module, images: NDArray[np.uint8], rng: np.random.Generator,
+                          rows: int = 4096, batch_size: int = 256) -> None:
+    """Recompute batch-norm running statistics from a random sample of training images with the current
+    weights (exact averages instead of the lagging momentum estimate: matters on small datasets)."""
+    bns = [m for m in net.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+    if not bns:
+        return
+    momenta = [bn.momentum for bn in bns]
+    for bn in bns:
+        bn.reset_running_stats()
+        bn.momentum = None
+    net.train()
+    idx = rng.choice(len(images), min(rows, len(images)), replace=False)
+    with torch.no_grad():
+        for a in range(0, len(idx), batch_size):
+            net(_to_tensor(images, idx[a : a + batch_size]))
+    for bn, m in zip(bns, momenta, strict=True):
+        bn.momentum = m
+
+
+def grasp_probability(logits: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Softmax of class 1 from logits (M, 2)."""
+    z = logits - logits.max(axis=1, keepdims=True)
+    e = np.exp(z)
+    return (e[:, 1] / e.sum(axis=1)).astype(np.float32)
+
+
+def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[str, Any]:
+    """Train one network; returns the metrics dict also written to out_dir/train_metrics.json."""
+    from .dataset import read_manifest
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    t0 = time.perf_counter()
+    manifest = read_manifest(config.dataset)
+    x_tr, y_tr, _ = load_rows(config.dataset, config.split, "train", config.representation, config.categories,
+                              config.max_train, config.seed)
+    x_va, y_va, _ = load_rows(config.dataset, config.split, "val", config.representation, config.categories,
+                              config.max_val, config.seed + 1)
+    load_s = time.perf_counter() - t0
+    log(f"[{config.name}] loaded {len(y_tr)} train / {len(y_va)} val exemplars in {load_s:.1f} s "
+        f"(train positives {y_tr.mean():.3f})")
+    counts = np.bincount(y_tr, minlength=2).astype(np.float64)
+    if counts.min() == 0:
+        raise ValueError(f"training part has only one class (counts {counts.tolist()}); cannot train")
+    class_weight = torch.tensor(counts.sum() / (2.0 * counts), dtype=torch.float32)
+    channels = REPRESENTATIONS[config.representation]
+    size = int(manifest["image_size"])
+    net = build_network(config.architecture, channels, size, **config.network)
+    loss_fn = nn.CrossEntropyLoss(weight=class_weight)
+    opt = torch.optim.Adam(net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs)
+    y_va_t = torch.from_numpy(y_va.astype(np.int64))
+    best: dict[str, Any] = {"val_loss": float("inf")}
+    best_state: dict[str, torch.Tensor] = {}
+    history: list[dict[str, float]] = []
+    stale = 0
+    stopped = "epochs"
+    for epoch in range(config.epochs):
+        te = time.perf_counter()
+        net.train()
+        total, seen = 0.0, 0
+        for idx in _batches(len(y_tr), config.batch_size, rng):
+            x = _to_tensor(x_tr, idx)
+            y = torch.from_numpy(y_tr[idx].astype(np.int64))
+            opt.zero_grad(set_to_none=True)
+            loss = loss_fn(net(x), y)
+            loss.backward()
+            opt.step()
+            total += loss.item() * len(idx)
+            seen += len(idx)
+        sched.step()
+        recalibrate_batchnorm(net, x_tr, rng)
+        logits = predict_logits(net, x_va)
+        val_loss = float(loss_fn(torch.from_numpy(logits), y_va_t))
+        val_acc = float(np.mean((logits[:, 1] > logits[:, 0]) == (y_va == 1)))
+        row = {"epoch": epoch + 1, "train_loss": total / seen, "val_loss": val_loss, "val_accuracy": val_acc,
+               "seconds": time.perf_counter() - te}
+        history.append(row)
+        log(f"[{config.name}] epoch {epoch + 1}: train loss {row['train_loss']:.4f}  val loss {val_loss:.4f}  "
+            f"val acc {val_acc:.4f}  ({row['seconds']:.1f} s)")
+        if val_loss < best["val_loss"]:
+            best = dict(row)
+            best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+            stale = 0
+        else:
+            stale += 1
+            if stale >= config.patience:
+                stopped = "early_stopping"
+                break
+        if config.max_minutes is not None and time.perf_counter() - t0 > 60.0 * config.max_minutes:
+            stopped = "time_limit"
+            break
+    net.load_state_dict(best_state)
+    checkpoint = out / "checkpoint.pt"
+    torch.save({"state_dict": net.state_dict(), "config": config.to_dict(), "architecture": config.architecture,
+                "channels": channels, "image_size": size}, checkpoint)
+    metrics = {
+        "config": config.to_dict(),
+        "dataset_sha256": manifest.get("dataset_sha256"),
+        "num_train": int(len(y_tr)), "num_val": int(len(y_va)),
+        "train_class_counts": counts.astype(int).tolist(),
+        "best_epoch": int(best["epoch"]), "best_val_loss": best["val_loss"], "best_val_accuracy": best["val_accuracy"],
+        "stopped": stopped, "history": history,
+        "seconds_total": time.perf_counter() - t0, "seconds_load": load_s,
+        "torch_threads": config.threads, "torch_version": torch.__version__,
+    }
+    (out / "train_metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    return metrics
+
+
+def load_checkpoint(path: str | Path) -> tuple[nn.Module, TrainConfig]:
+    """The network (eval mode) and config stored by train()."""
+    ckpt = torch.load(Path(path), map_location="cpu", weights_only=True)
+    config = TrainConfig.from_dict(ckpt["config"])
+    net = build_network(ckpt["architecture"], int(ckpt["channels"]), int(ckpt["image_size"]), **config.network)
+    net.load_state_dict(ckpt["state_dict"])
+    return net.eval(), config
+
+
+def export_trained(net: nn.Module, config: TrainConfig, train_metrics: dict[str, Any], models_dir: str | Path,
+                   command: str, evaluate_on: list[tuple[str, list[str] | None]] | None = None,
+                   parity_rows: int = 256) -> Path:
+    """Export a trained network to models_dir/<name>.onnx, check ONNX/torch parity, evaluate the exported
+    model on the test parts listed (default: the training split, all categories, and each category
+    trained on), and write the model card models_dir/<name>.json.  Returns the .onnx path."""
+    from graspd.classifier import OnnxGraspClassifier
+    from graspd.images import channel_layout
+
+    from .dataset import read_manifest
+    from .evaluate import evaluate_classifier
+    from .export import base_card, check_parity, export_onnx, write_card
+    from .network import count_parameters, multiply_adds
+
+    manifest = read_manifest(config.dataset)
+    channels = REPRESENTATIONS[config.representation]
+    size = int(manifest["image_size"])
+    models = Path(models_dir)
+    onnx_path = export_onnx(net, models / f"{config.name}.onnx", channels, size)
+    card = base_card(config.name, config.representation, channels, size, config.architecture, manifest["hand"],
+                     channel_layout(config.representation))
+    x_par, _, _ = load_rows(config.dataset, config.split, "test", config.representation, config.categories,
+                            parity_rows, config.seed)
+    card["parity_max_abs_diff"] = check_parity(net, onnx_path, card, x_par)
+    clf = OnnxGraspClassifier(onnx_path, card, threads=config.threads)
+    if evaluate_on is None:
+        evaluate_on = [(config.split, None)] + [(config.split, [c]) for c in (config.categories or [])]
+    metrics: dict[str, Any] = {}
+    for kind, cats in evaluate_on:
+        key = f"{kind}_test" + ("" if cats is None else "_" + "+".join(cats))
+        metrics[key], _, _ = evaluate_classifier(clf, config.dataset, kind, "test", cats)
+    card.update({
+        "categories": config.categories or "all",
+        "metrics": metrics,
+        "network": {"parameters": count_parameters(net), "multiply_adds_per_image": multiply_adds(net, channels, size)},
+        "training": {
+            "config": config.to_dict(),
+            "dataset_manifest_sha256": manifest.get("dataset_sha256"),
+            "dataset_seed": manifest.get("seed"),
+            "dataset_counts": manifest.get("counts"),
+            "num_train": train_metrics["num_train"], "num_val": train_metrics["num_val"],
+            "best_epoch": train_metrics["best_epoch"], "epochs_run": len(train_metrics["history"]),
+            "stopped": train_metrics["stopped"], "best_val_accuracy": train_metrics["best_val_accuracy"],
+            "seconds": round(train_metrics["seconds_total"], 1), "torch_version": train_metrics["torch_version"],
+        },
+        "command": command,
+    })
+    write_card(onnx_path.with_suffix(".json"), card)
+    return onnx_path
+
+
+def config_command(config: TrainConfig, models_dir: str | Path) -> str:
+    """The graspd command line that reproduces a config (used for the model card)."""
+    parts = ["graspd", "train", "--dataset", config.dataset, "--name", config.name, "--representation",
+             config.representation, "--architecture", config.architecture, "--split", config.split,
+             "--epochs", str(config.epochs), "--batch-size", str(config.batch_size), "--learning-rate",
+             str(config.learning_rate), "--patience", str(config.patience), "--seed", str(config.seed),
+             "--threads", str(config.threads), "--models-dir", str(models_dir)]
+    if config.categories:
+        parts += ["--categories", ",".join(config.categories)]
+    if config.max_train is not None:
+        parts += ["--max-train", str(config.max_train)]
+    if config.max_minutes is not None:
+        parts += ["--max-minutes", str(config.max_minutes)]
+    return " ".join(parts)
+
+
+def train_and_export(config: TrainConfig, models_dir: str | Path, work_dir: str | Path | None = None,
+                     command: str | None = None, log: Any = print) -> Path:
+    """The whole pipeline for one model: train, export to ONNX with parity check, evaluate, write the card."""
+    work = Path(work_dir) if work_dir is not None else Path(models_dir) / ".work" / config.name
+    metrics = train(config, work, log=log)
+    net, _ = load_checkpoint(work / "checkpoint.pt")
+    path = export_trained(net, config, metrics, models_dir, command or config_command(config, models_dir))
+    log(f"[{config.name}] exported {path}")
+    return path
