@@ -7,6 +7,7 @@ input.offset, to "score" (batch,) = P(grasp) in [0, 1]; graspd.classifier loads 
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +35,8 @@ def export_onnx(net: nn.Module, path: str | Path, channels: int, image_size: int
     path.parent.mkdir(parents=True, exist_ok=True)
     model = GraspProbability(net).eval()
     dummy = torch.zeros(2, channels, image_size, image_size)
-    with torch.no_grad():
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # the TorchScript exporter: stable output, no onnxscript
         torch.onnx.export(model, (dummy,), str(path), input_names=[INPUT_NAME], output_names=[OUTPUT_NAME],
                           dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
                           opset_version=17, do_constant_folding=True, dynamo=False)
