@@ -1,0 +1,217 @@
+"""Graspable object meshes with no download: procedural shapes and pybullet_data's random_urdfs.
+
+Every object is an open3d TriangleMesh in metres, centred on its bounding-box centre, scaled so a
+two-finger hand can close on it (smallest bounding extent at most `fit` x the hand's max aperture),
+and tagged with a category as in the IJRR paper's dataset: box-like, cylinder-like or other.
+
+pybullet_data random_urdfs 900-999 are the project's held-out test objects (DESIGN.md, "Data
+rules"): random_urdf_mesh refuses them unless the caller says it is the held-out evaluation.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+
+from ..hand import HandGeometry
+
+CATEGORY_NAMES = ("box", "cylinder", "other")
+HELD_OUT_URDFS = range(900, 1000)
+TRAINING_URDFS = range(0, 900)
+PROCEDURAL_KINDS = ("box", "cylinder", "sphere", "cone", "capsule", "composite")
+
+
+class HeldOutObjectError(PermissionError):
+    """A held-out test object was requested for training or validation."""
+
+
+@dataclass(frozen=True)
+class GraspObject:
+    """A mesh (metres, centred) with its name, source (where it came from), category and applied scale."""
+
+    name: str
+    source: str
+    category: str
+    mesh: o3d.geometry.TriangleMesh
+    scale: float
+
+    @property
+    def extent(self) -> tuple[float, float, float]:
+        """Axis-aligned bounding-box size (m)."""
+        bb = self.mesh.get_axis_aligned_bounding_box()
+        e = bb.get_extent()
+        return (float(e[0]), float(e[1]), float(e[2]))
+
+    def to_dict(self) -> dict[str, object]:
+        return {"name": self.name, "source": self.source, "category": self.category,
+                "scale": self.scale, "extent": list(self.extent)}
+
+
+def pybullet_data_dir() -> Path:
+    """The pybullet_data folder shipped inside the pybullet wheel."""
+    import pybullet_data
+
+    return Path(pybullet_data.getDataPath())
+
+
+def check_not_held_out(index: int, held_out_ok: bool = False) -> None:
+    """Raise HeldOutObjectError for random_urdfs 900-999 unless held_out_ok (held-out evaluation only)."""
+    if index in HELD_OUT_URDFS and not held_out_ok:
+        raise HeldOutObjectError(
+            f"random_urdfs/{index:03d} is a held-out test object (900-999): never load it for training or "
+            "validation; pass held_out_ok=True only in the held-out evaluation"
+        )
+    if not 0 <= index <= 999:
+        raise ValueError(f"random_urdfs index must lie in [0, 999], got {index}")
+
+
+def _clean(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
+    """Merged duplicate vertices, no degenerate triangles, centred on the bounding-box centre."""
+    mesh.merge_close_vertices(1e-7)
+    mesh.remove_degenerate_triangles()
+    mesh.remove_duplicated_triangles()
+    mesh.remove_unreferenced_vertices()
+    mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
+    mesh.compute_triangle_normals()
+    return mesh
+
+
+def fit_to_hand(mesh: o3d.geometry.TriangleMesh, hand: HandGeometry, fit: float = 0.8,
+                max_extent: float = 0.25) -> float:
+    """Scale the mesh in place so its smallest extent along its principal axes <= fit * max_aperture and its largest
+    <= max_extent (m); returns the factor applied (1 when it already fits)."""
+    v = np.asarray(mesh.vertices)
+    _, _, axes = np.linalg.svd(v - v.mean(axis=0), full_matrices=False)
+    local = v @ axes.T
+    ext = np.sort(local.max(axis=0) - local.min(axis=0))
+    factor = min(1.0, fit * hand.max_aperture / max(float(ext[0]), 1e-9), max_extent / max(float(ext[2]), 1e-9))
+    if factor < 1.0:
+        mesh.scale(factor, center=np.zeros(3))
+    return float(factor)
+
+
+def random_urdf_mesh(index: int, hand: HandGeometry | None = None, held_out_ok: bool = False) -> GraspObject:
+    """The mesh of pybullet_data random_urdfs/<index>, with the URDF's scale, fitted to the hand."""
+    check_not_held_out(index, held_out_ok)
+    folder = pybullet_data_dir() / "random_urdfs" / f"{index:03d}"
+    urdf = (folder / f"{index:03d}.urdf").read_text()
+    match = re.search(r'<mesh\s+filename="([^"]+)"(?:\s+scale="([^"]+)")?', urdf)
+    if match is None:
+        raise ValueError(f"{folder}: no <mesh filename=...> in the URDF")
+    scale_xyz = np.array([float(v) for v in (match.group(2) or "1 1 1").split()], np.float64)
+    mesh = o3d.io.read_triangle_mesh(folder / match.group(1))
+    if len(mesh.triangles) == 0:
+        raise ValueError(f"{folder / match.group(1)}: no triangles")
+    verts = np.asarray(mesh.vertices) * scale_xyz
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), mesh.triangles)
+    mesh = _clean(mesh)
+    factor = fit_to_hand(mesh, hand or HandGeometry())
+    mesh.compute_triangle_normals()
+    return GraspObject(name=f"urdf_{index:03d}", source=f"pybullet_data:random_urdfs/{index:03d}/{index:03d}.urdf",
+                       category="other", mesh=mesh, scale=float(scale_xyz[0] * factor))
+
+
+# ---- procedural shapes (sizes in metres, graspable by a hand with a 10 cm aperture) ----
+
+
+def box_mesh(x: float, y: float, z: float) -> o3d.geometry.TriangleMesh:
+    return _clean(o3d.geometry.TriangleMesh.create_box(x, y, z))
+
+
+def cylinder_mesh(radius: float, height: float, resolution: int = 40) -> o3d.geometry.TriangleMesh:
+    return _clean(o3d.geometry.TriangleMesh.create_cylinder(radius, height, resolution=resolution, split=4))
+
+
+def sphere_mesh(radius: float, resolution: int = 24) -> o3d.geometry.TriangleMesh:
+    return _clean(o3d.geometry.TriangleMesh.create_sphere(radius, resolution=resolution))
+
+
+def cone_mesh(radius: float, height: float, resolution: int = 40) -> o3d.geometry.TriangleMesh:
+    return _clean(o3d.geometry.TriangleMesh.create_cone(radius, height, resolution=resolution, split=4))
+
+
+def capsule_mesh(radius: float, length: float, resolution: int = 24) -> o3d.geometry.TriangleMesh:
+    """A closed capsule along z: a sphere whose upper and lower halves are pulled length/2 apart."""
+    sphere = o3d.geometry.TriangleMesh.create_sphere(radius, resolution=resolution)
+    v = np.asarray(sphere.vertices).copy()
+    v[:, 2] += np.where(v[:, 2] >= 0.0, 0.5 * length, -0.5 * length)
+    return _clean(o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), sphere.triangles))
+
+
+def composite_mesh(rng: np.random.Generator) -> o3d.geometry.TriangleMesh:
+    """Two parts that touch without overlapping (so every ray starting inside hits a back face first):
+    an L of two boxes, a box on a cylinder, or a mallet (cylinder handle with a box head)."""
+    kind = int(rng.integers(3))
+    if kind == 0:
+        a = o3d.geometry.TriangleMesh.create_box(*rng.uniform([0.03, 0.02, 0.02], [0.12, 0.06, 0.05]))
+        ea = a.get_axis_aligned_bounding_box().get_extent()
+        b = o3d.geometry.TriangleMesh.create_box(float(rng.uniform(0.02, 0.05)), ea[1], float(rng.uniform(0.03, 0.1)))
+        b.translate([0.0, 0.0, ea[2]])
+    elif kind == 1:
+        r, h = rng.uniform([0.015, 0.03], [0.04, 0.1])
+        a = o3d.geometry.TriangleMesh.create_cylinder(float(r), float(h), resolution=40, split=4)
+        a.translate([0.0, 0.0, h / 2])
+        bx, by, bz = rng.uniform([0.03, 0.03, 0.02], [0.08, 0.08, 0.05])
+        b = o3d.geometry.TriangleMesh.create_box(bx, by, bz)
+        b.translate([-bx / 2, -by / 2, h])
+    else:
+        r, h = rng.uniform([0.008, 0.06], [0.02, 0.15])
+        a = o3d.geometry.TriangleMesh.create_cylinder(float(r), float(h), resolution=32, split=4)
+        a.translate([0.0, 0.0, h / 2])
+        bx, by, bz = rng.uniform([0.06, 0.025, 0.025], [0.12, 0.05, 0.05])
+        b = o3d.geometry.TriangleMesh.create_box(bx, by, bz)
+        b.translate([-bx / 2, -by / 2, h])
+    return _clean(a + b)
+
+
+def procedural_object(kind: str, index: int, seed: int = 0, hand: HandGeometry | None = None) -> GraspObject:
+    """The index-th procedural shape of a kind (deterministic from kind, index and seed)."""
+    if kind not in PROCEDURAL_KINDS:
+        raise ValueError(f"kind must be one of {PROCEDURAL_KINDS}, got {kind!r}")
+    rng = np.random.default_rng([seed, PROCEDURAL_KINDS.index(kind), index])
+    category = kind if kind in ("box", "cylinder") else "other"
+    if kind == "box":
+        dims = rng.uniform([0.02, 0.03, 0.04], [0.08, 0.10, 0.22])
+        mesh = box_mesh(*rng.permutation(dims))
+    elif kind == "cylinder":
+        r, h = rng.uniform([0.01, 0.04], [0.045, 0.22])
+        mesh = cylinder_mesh(float(r), float(h))
+    elif kind == "sphere":
+        mesh = sphere_mesh(float(rng.uniform(0.015, 0.045)))
+    elif kind == "cone":
+        r, h = rng.uniform([0.015, 0.04], [0.045, 0.15])
+        mesh = cone_mesh(float(r), float(h))
+    elif kind == "capsule":
+        r, length = rng.uniform([0.01, 0.02], [0.04, 0.12])
+        mesh = capsule_mesh(float(r), float(length))
+    else:
+        mesh = composite_mesh(rng)
+    factor = fit_to_hand(mesh, hand or HandGeometry())
+    mesh.compute_triangle_normals()
+    return GraspObject(name=f"{kind}_{index:04d}", source=f"procedural:{kind}:seed={seed}:index={index}",
+                       category=category, mesh=mesh, scale=factor)
+
+
+def object_catalogue(num_urdfs: int = 900, procedural_per_kind: dict[str, int] | None = None,
+                     seed: int = 0) -> list[tuple[str, int]]:
+    """Object specs (kind, index) for a dataset: kind "urdf" for random_urdfs 000..num_urdfs-1 (at most
+    900: the held-out objects are never listed), or a procedural kind."""
+    if not 0 <= num_urdfs <= len(TRAINING_URDFS):
+        raise ValueError(f"num_urdfs must lie in [0, {len(TRAINING_URDFS)}] (900-999 are held out), got {num_urdfs}")
+    specs: list[tuple[str, int]] = [("urdf", i) for i in TRAINING_URDFS[:num_urdfs]]
+    for kind, count in (procedural_per_kind or {}).items():
+        if kind not in PROCEDURAL_KINDS:
+            raise ValueError(f"procedural kind must be one of {PROCEDURAL_KINDS}, got {kind!r}")
+        specs.extend((kind, i) for i in range(count))
+    return specs
+
+
+def load_object(kind: str, index: int, seed: int = 0, hand: HandGeometry | None = None) -> GraspObject:
+    """One object of object_catalogue: a training random_urdf (never a held-out one) or a procedural shape."""
+    if kind == "urdf":
+        return random_urdf_mesh(index, hand)
+    return procedural_object(kind, index, seed, hand)
