@@ -1,0 +1,120 @@
+"""The FastAPI application: create_app(settings) wires settings, models, engine, Zenoh node and routes."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from graspd import __version__
+
+from .deps import ServiceState
+from .engine import DetectionEngine
+from .metrics import Metrics
+from .problems import Problem, from_validation
+from .registry import ModelRegistry
+from .routers import detect, health, metrics, models
+from .schemas import DetectRequest
+from .settings import Settings
+
+log = logging.getLogger("graspd.server")
+
+DESCRIPTION = """Grasp Pose Detection (ten Pas, Gualtieri, Saenko, Platt; IJRR 2017) as a service.
+
+**Frames and units.** Metres, right-handed, everything in the frame of the cloud you send; viewpoints
+are the camera positions in that frame.
+
+**Grasps** follow gpd_ros `GraspConfig`: `position` is the centre of the hand base; `approach` (hand x)
+is the direction the hand moves to reach the object; `binormal` (hand y) the closing direction;
+`axis` = approach x binormal (hand z); `width` the object extent between the fingers (m);
+`pose` is 4x4 row-major with rotation columns [approach, binormal, axis]; `quat_xyzw` the same rotation.
+Fingertips are at `position + hand_depth * approach`.
+
+**Arrays** are `{"dtype", "shape", "data": base64 of little-endian C-order bytes}` or nested lists.
+The same request and response travel over Zenoh on `<prefix>/detect` (default prefix `graspd`).
+"""
+
+
+def problem_response(exc: Problem) -> JSONResponse:
+    headers = {"Retry-After": str(int(exc.retry_after))} if exc.retry_after is not None else None
+    if exc.status == 401:
+        headers = {"WWW-Authenticate": "Bearer"}
+    return JSONResponse(exc.body(), status_code=exc.status, headers=headers)
+
+
+def create_app(settings: Settings | None = None, registry: ModelRegistry | None = None) -> FastAPI:
+    """A service app; models load and the Zenoh node starts in the lifespan (use `with TestClient(app)`)."""
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        reg = registry or ModelRegistry.load(settings.resolved_models_dir(), settings.default_model,
+                                             settings.model_threads)
+        mets = Metrics()
+        engine = DetectionEngine(settings, reg, mets)
+        state = ServiceState(settings, reg, mets, engine)
+        app.state.service = state
+        if settings.zenoh_enabled:
+            from .zenoh_node import ZenohNode
+
+            state.zenoh = ZenohNode(settings, engine, mets)
+            state.zenoh.start()
+        log.info("graspd ready", extra={"models": reg.names(), "default_model": reg.default,
+                                        "workers": engine.workers, "queue": settings.queue_size,
+                                        "zenoh": settings.zenoh_enabled})
+        try:
+            yield
+        finally:
+            log.info("graspd shutting down: finishing running detections")
+            if state.zenoh is not None:
+                state.zenoh.close()
+            engine.close(wait=True)
+
+    app = FastAPI(title="graspd", version=__version__, description=DESCRIPTION, lifespan=lifespan)
+    for r in (detect.router, health.router, models.router, metrics.router):
+        app.include_router(r)
+
+    @app.exception_handler(Problem)
+    async def _problem(_: Request, exc: Problem) -> JSONResponse:
+        return problem_response(exc)
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
+        detail = [{"field": ".".join(str(p) for p in e.get("loc", ()) if p not in ("body", "query")),
+                   "message": str(e.get("msg", "invalid"))} for e in exc.errors()]
+        first = detail[0] if detail else {"field": "", "message": "invalid request"}
+        return problem_response(Problem(422, first["message"], first["field"] or None, detail=detail))
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        return problem_response(Problem(exc.status_code, str(exc.detail)))
+
+    @app.exception_handler(Exception)
+    async def _crash(_: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error", extra={"error": repr(exc)})
+        return JSONResponse({"error": f"internal error: {type(exc).__name__}: {exc}", "field": None, "detail": []},
+                            status_code=500)
+
+    def openapi() -> dict[str, Any]:
+        """FastAPI's schema plus DetectRequest (its body is read by hand to also accept PCD/PLY files)."""
+        if app.openapi_schema is None:
+            from fastapi.openapi.utils import get_openapi
+
+            schema = get_openapi(title=app.title, version=app.version, description=app.description,
+                                 routes=app.routes)
+            extra = DetectRequest.model_json_schema(ref_template="#/components/schemas/{model}")
+            comps = schema.setdefault("components", {}).setdefault("schemas", {})
+            comps.update(extra.pop("$defs", {}))
+            comps["DetectRequest"] = extra
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+    _ = from_validation  # re-exported for routers that validate by hand
+    return app

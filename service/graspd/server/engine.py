@@ -1,0 +1,209 @@
+"""The detection engine shared by HTTP and Zenoh: admission control (bounded queue, 503 when full),
+a worker pool sized to the cores, per-request deadlines, and request -> detection -> response JSON."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import threading
+import time
+import uuid
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
+from typing import Any
+
+import numpy as np
+from graspd_client.codec import WireError
+from pydantic import ValidationError
+
+from graspd.cloud import CloudError, ViewpointCloud
+from graspd.detector import Detection, DetectionParams
+
+from . import proposals
+from .metrics import Metrics
+from .pngio import decode_png_rgb, encode_png_b64
+from .problems import Problem, from_validation, from_wire
+from .registry import ModelRegistry
+from .schemas import CropsRequest, DetectRequest
+from .settings import Settings
+
+log = logging.getLogger("graspd.server")
+
+
+def parse_request(payload: bytes | str | dict[str, Any]) -> DetectRequest:
+    """A validated DetectRequest from JSON text or a decoded object; Problem (400/422) names the field."""
+    if isinstance(payload, bytes | str):
+        try:
+            payload = json.loads(payload)
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise Problem(400, f"invalid JSON ({exc})", "body") from None
+    if not isinstance(payload, dict):
+        raise Problem(422, f"a JSON object is expected, got {type(payload).__name__}", "body")
+    try:
+        return DetectRequest.model_validate(payload)
+    except ValidationError as exc:
+        raise from_validation(exc) from None
+    except WireError as exc:
+        raise from_wire(exc) from None
+
+
+def detection_params(req: DetectRequest) -> DetectionParams:
+    ws = req.workspace
+    return DetectionParams(
+        num_samples=req.num_samples,
+        workspace=None if ws is None else (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]),
+        max_grasps=req.max_grasps,
+        min_score=req.min_score,
+        approach_direction=None if req.approach is None else tuple(req.approach.direction),  # type: ignore[arg-type]
+        approach_max_angle_deg=None if req.approach is None else req.approach.max_angle_deg,
+        use_selection=req.selection,
+        use_clustering=req.clustering,
+        seed=req.seed,
+    )
+
+
+def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
+    """One crop entry per grasp: PNG of the window around the projected point between the fingers."""
+    image = crops.image if crops.image is not None else decode_png_rgb(crops.image_png or "")
+    intr = crops.intrinsics
+    g = det.grasps
+    centres = proposals.finger_centres(g.positions, g.approach, det.hand.hand_depth)
+    pixels, _ = proposals.project(centres, crops.camera_pose, proposals.Pinhole(intr.fx, intr.fy, intr.cx, intr.cy))
+    inside = proposals.inside_image(pixels, image.shape[0], image.shape[1])
+    windows = proposals.crop_windows(image, np.where(inside[:, None], pixels, np.nan), crops.size)
+    out = []
+    for i in range(len(g)):
+        finite = bool(np.isfinite(pixels[i]).all())
+        out.append({
+            "png": encode_png_b64(windows[i]) if inside[i] else None,
+            "pixel": pixels[i].tolist() if finite else None,
+            "in_image": bool(inside[i]),
+        })
+    return out
+
+
+class DetectionEngine:
+    """Runs detections on a thread pool with at most `workers` at once and `queue_size` waiting."""
+
+    def __init__(self, settings: Settings, registry: ModelRegistry, metrics: Metrics) -> None:
+        self.settings = settings
+        self.registry = registry
+        self.metrics = metrics
+        self.workers = settings.workers
+        self.capacity = self.workers + settings.queue_size
+        self.executor = ThreadPoolExecutor(self.workers, thread_name_prefix="graspd-detect")
+        self._lock = threading.Lock()
+        self._pending = 0
+        self._running = 0
+        self._avg_seconds = 1.0
+        self.closed = False
+
+    # ---- admission -------------------------------------------------------------------------
+    def _admit(self) -> None:
+        with self._lock:
+            if self.closed:
+                raise Problem(503, "server is shutting down", retry_after=1.0)
+            if self._pending >= self.capacity:
+                wait = self._avg_seconds * (self._pending / self.workers)
+                raise Problem(503, f"server busy ({self._pending} requests queued or running)",
+                              retry_after=float(min(30, max(1, math.ceil(wait)))))
+            self._pending += 1
+            self.metrics.queue_depth.set(self._pending - self._running)
+
+    def _release(self, _future: Future[Any] | None = None) -> None:
+        with self._lock:
+            self._pending -= 1
+            self.metrics.queue_depth.set(max(0, self._pending - self._running))
+
+    @property
+    def pending(self) -> int:
+        return self._pending
+
+    # ---- the work --------------------------------------------------------------------------
+    def _job(self, req: DetectRequest, enqueued: float, deadline: float, timings: dict[str, float]) -> bytes:
+        start = time.perf_counter()
+        with self._lock:
+            self._running += 1
+            self.metrics.running.set(self._running)
+            self.metrics.queue_depth.set(max(0, self._pending - self._running))
+        try:
+            timings["queue"] = start - enqueued
+            if start > deadline:
+                raise Problem(504, f"deadline of {self.settings.deadline_s} s passed while queued", "deadline")
+            model = self.registry.resolve(req.model)
+            try:
+                hand = req.hand_geometry()
+                cloud = ViewpointCloud(points=req.cloud.points, viewpoints=req.cloud.viewpoints.astype(np.float32),
+                                       camera_source=(np.zeros(0, np.int32) if req.cloud.camera_source is None
+                                                      else req.cloud.camera_source))
+                params = detection_params(req)
+            except WireError as exc:
+                raise from_wire(exc) from None
+            except (CloudError, ValueError) as exc:
+                text = str(exc)
+                field = text.split(" ", 1)[0] if text.startswith(("cloud.", "hand.")) else "body"
+                raise Problem(422, text, field) from None
+            det = self.registry.detector(model).detect(cloud, params, hand)
+            body = det.to_dict()
+            timings.update(det.timings)
+            if req.crops is not None:
+                t = time.perf_counter()
+                crops = crops_json(det, req.crops)
+                for g, c in zip(body["grasps"], crops, strict=True):
+                    g["crop"] = c
+                timings["crops"] = time.perf_counter() - t
+            request_id = uuid.uuid4().hex[:16]
+            for i, g in enumerate(body["grasps"]):
+                g["id"] = f"{request_id}-{i}"
+            self.metrics.candidates.observe(det.num_candidates)
+            self.metrics.grasps.observe(len(det.grasps))
+            self.metrics.points.observe(det.num_points)
+            elapsed = time.perf_counter() - start
+            self._avg_seconds = 0.8 * self._avg_seconds + 0.2 * elapsed
+            timings["total"] = time.perf_counter() - enqueued + timings.get("decode", 0.0)
+            self.metrics.observe_timings(timings)
+            body = {"request_id": request_id, **body, "timings": timings}
+            return json.dumps(body, separators=(",", ":")).encode()
+        finally:
+            with self._lock:
+                self._running -= 1
+                self.metrics.running.set(self._running)
+
+    def submit(self, req: DetectRequest, timings: dict[str, float]) -> tuple[Future[bytes], float]:
+        """Admit a request (Problem 503 when full) and queue it; returns the future and its deadline."""
+        self._admit()
+        now = time.perf_counter()
+        deadline = now + self.settings.deadline_s
+        try:
+            fut = self.executor.submit(self._job, req, now, deadline, timings)
+        except RuntimeError:  # executor shut down
+            self._release()
+            raise Problem(503, "server is shutting down", retry_after=1.0) from None
+        fut.add_done_callback(self._release)
+        return fut, deadline
+
+    def run_sync(self, req: DetectRequest, timings: dict[str, float] | None = None) -> bytes:
+        """Blocking detect (Zenoh callbacks, CLI): response JSON bytes, or Problem."""
+        fut, deadline = self.submit(req, timings if timings is not None else {})
+        try:
+            return fut.result(timeout=max(0.0, deadline - time.perf_counter()))
+        except FutureTimeout:
+            fut.cancel()
+            raise Problem(504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline") from None
+
+    async def run(self, req: DetectRequest, timings: dict[str, float]) -> bytes:
+        """Awaitable detect for the HTTP app: the work runs off the event loop."""
+        fut, deadline = self.submit(req, timings)
+        try:
+            return await asyncio.wait_for(asyncio.wrap_future(fut), timeout=max(0.0, deadline - time.perf_counter()))
+        except TimeoutError:
+            fut.cancel()
+            raise Problem(504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline") from None
+
+    def close(self, wait: bool = True) -> None:
+        """Refuse new work and let running detections finish (graceful shutdown)."""
+        with self._lock:
+            self.closed = True
+        self.executor.shutdown(wait=wait, cancel_futures=True)

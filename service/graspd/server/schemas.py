@@ -1,0 +1,311 @@
+"""Pydantic models of the wire contract.  Array decoding, limits and field names come from
+graspd_client (one definition); these models add validation and the OpenAPI documentation.
+
+Frames and units: metres, right-handed, in the frame of the cloud the caller sends.  A grasp follows
+gpd_ros GraspConfig: position = centre of the hand base, rotation columns [approach, binormal, axis]
+(hand x, y, z), fingertips at position + hand_depth * approach.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import math
+from typing import Annotated, Any
+
+import numpy as np
+from graspd_client import wire
+from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
+from pydantic import BaseModel, ConfigDict, Field, PlainValidator, ValidationInfo, WithJsonSchema, field_validator
+
+from graspd.hand import HAND_PRESETS, HandGeometry
+
+MAX_POINTS = 5_000_000
+
+ENCODED_ARRAY_SCHEMA: dict[str, Any] = {
+    "oneOf": [
+        {
+            "type": "object",
+            "title": "EncodedArray",
+            "description": "base64 of the array's little-endian, C-order bytes",
+            "properties": {
+                "dtype": {"type": "string", "enum": list(WIRE_DTYPES)},
+                "shape": {"type": "array", "items": {"type": "integer", "minimum": 0}},
+                "data": {"type": "string", "contentEncoding": "base64"},
+            },
+            "required": ["dtype", "shape", "data"],
+            "additionalProperties": False,
+        },
+        {"type": "array", "title": "NestedLists", "description": "plain nested lists of numbers (small inputs)"},
+    ]
+}
+
+
+def _array(shape: tuple[int | None, ...], kind: str, dtype: str, finite: bool, description: str) -> Any:
+    """An Annotated numpy field decoded by the client codec; errors carry pydantic's field path."""
+
+    def validate(value: Any) -> np.ndarray:
+        if isinstance(value, list) and not value and shape == (None, 3):
+            raise ValueError("empty (0 rows); send at least one point")
+        try:
+            return decode_array(value, shape=shape, kind=kind, dtype=None if kind == "i" else dtype,
+                                finite=finite, max_bytes=MAX_POINTS * 3 * 8)
+        except WireError as exc:
+            raise ValueError(str(exc).lstrip(": ")) from None
+
+    return Annotated[np.ndarray, PlainValidator(validate),
+                     WithJsonSchema({**ENCODED_ARRAY_SCHEMA, "description": description})]
+
+
+Points = _array((None, 3), "f", "float32", True,
+                "cloud points (N,3), metres, in the caller's frame; float32 or float64; finite")
+Viewpoints = _array((None, 3), "f", "float64", True,
+                    "camera positions (K,3), metres, same frame as the points")
+CameraSource = _array((None,), "i", "int64", False,
+                      "per-point camera index (N,) into viewpoints; default 0 for every point")
+RGBImage = _array((None, None, 3), "i", "uint8", False, "RGB image (H,W,3) uint8, row-major, top row first")
+Matrix4 = _array((4, 4), "f", "float64", True, "4x4 homogeneous transform, row-major")
+
+
+class Cloud(BaseModel):
+    """Points seen by one or more cameras; viewpoints are the camera positions (metres)."""
+
+    model_config = ConfigDict(extra="forbid")
+    points: Points  # type: ignore[valid-type]
+    viewpoints: Viewpoints = Field(default_factory=lambda: np.zeros((1, 3)))  # type: ignore[valid-type]
+    camera_source: CameraSource | None = None  # type: ignore[valid-type]
+
+    @field_validator("points")
+    @classmethod
+    def _points(cls, v: np.ndarray) -> np.ndarray:
+        if len(v) == 0:
+            raise ValueError("empty cloud (0 points); send at least one point")
+        if len(v) > MAX_POINTS:
+            raise ValueError(f"{len(v)} points exceeds the limit of {MAX_POINTS}")
+        return v.astype(np.float32, copy=False)
+
+    @field_validator("viewpoints")
+    @classmethod
+    def _viewpoints(cls, v: np.ndarray) -> np.ndarray:
+        if not 1 <= len(v) <= wire.MAX_VIEWPOINTS:
+            raise ValueError(f"1 to {wire.MAX_VIEWPOINTS} camera positions expected, got {len(v)}")
+        return v
+
+    @field_validator("camera_source")
+    @classmethod
+    def _camera_source(cls, v: np.ndarray | None, info: ValidationInfo) -> np.ndarray | None:
+        if v is None:
+            return None
+        pts, vps = info.data.get("points"), info.data.get("viewpoints")
+        if pts is not None and len(v) != len(pts):
+            raise ValueError(f"one index per point expected ({len(pts)}), got {len(v)}")
+        if vps is not None and len(v) and (v.min() < 0 or v.max() >= len(vps)):
+            raise ValueError(f"indices must lie in [0, {len(vps) - 1}] (one per viewpoint), "
+                             f"got values in [{v.min()}, {v.max()}]")
+        return v.astype(np.int32)
+
+
+Length = Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)]
+
+
+class Hand(BaseModel):
+    """Two-finger hand geometry (GPD names, metres): a named preset, optionally with overrides."""
+
+    model_config = ConfigDict(extra="forbid")
+    preset: str | None = Field(None, description=f"one of {sorted(HAND_PRESETS)}; default 'gpd'")
+    finger_width: Length | None = Field(None, description="finger thickness along the closing direction (m)")
+    hand_outer_diameter: Length | None = Field(None, description="outer span of the open fingers (m)")
+    hand_depth: Length | None = Field(None, description="finger length along the approach (m)")
+    hand_height: Length | None = Field(None, description="hand thickness along the hand axis (m)")
+    init_bite: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = Field(
+        None, description="least depth past the surface the fingertips must reach (m)")
+
+    @field_validator("preset")
+    @classmethod
+    def _preset(cls, v: str | None) -> str | None:
+        if v is not None and v not in HAND_PRESETS:
+            raise ValueError(f"unknown hand preset {v!r}; known: {sorted(HAND_PRESETS)}")
+        return v
+
+    def geometry(self) -> HandGeometry:
+        base = HAND_PRESETS[self.preset or "gpd"]
+        overrides = {k: v for k, v in self.model_dump(exclude={"preset"}).items() if v is not None}
+        return base.with_overrides(**overrides) if overrides else base
+
+
+class Approach(BaseModel):
+    """Keep only grasps whose approach lies within max_angle_deg of direction (cloud frame)."""
+
+    model_config = ConfigDict(extra="forbid")
+    direction: list[Annotated[float, Field(allow_inf_nan=False)]] = Field(
+        min_length=3, max_length=3, description="direction the hand should move along (need not be unit)")
+    max_angle_deg: float = Field(45.0, ge=0.0, le=180.0, description="cone half-angle (degrees)")
+
+    @field_validator("direction")
+    @classmethod
+    def _direction(cls, v: list[float]) -> list[float]:
+        n = math.sqrt(sum(c * c for c in v))
+        if n < 1e-9:
+            raise ValueError("must be a non-zero vector")
+        return [c / n for c in v]
+
+
+class Intrinsics(BaseModel):
+    """Pinhole intrinsics of the RGB camera (pixels): u = fx x/z + cx, v = fy y/z + cy."""
+
+    model_config = ConfigDict(extra="forbid")
+    fx: float = Field(gt=0, allow_inf_nan=False)
+    fy: float = Field(gt=0, allow_inf_nan=False)
+    cx: float = Field(allow_inf_nan=False)
+    cy: float = Field(allow_inf_nan=False)
+
+
+class CropsRequest(BaseModel):
+    """Ask for one object-proposal crop per grasp (IJRR paper, combined grasp and object detection):
+    a size x size window of the RGB image centred on the projection of the point between the fingers."""
+
+    model_config = ConfigDict(extra="forbid")
+    image: RGBImage | None = None  # type: ignore[valid-type]
+    image_png: str | None = Field(None, description="the RGB image as base64 PNG (instead of image)")
+    intrinsics: Intrinsics
+    camera_pose: Matrix4 = Field(description="camera-to-cloud transform (4x4): optical frame, z forward, "  # type: ignore[valid-type]
+                                 "x right, y down; maps camera coordinates into the cloud frame")
+    size: int = Field(wire.DEFAULT_CROP_SIZE, ge=wire.MIN_CROP_SIZE, le=wire.MAX_CROP_SIZE,
+                      description="crop side (pixels)")
+
+    @field_validator("image")
+    @classmethod
+    def _image(cls, v: np.ndarray | None) -> np.ndarray | None:
+        if v is None:
+            return None
+        if v.size and (v.min() < 0 or v.max() > 255):
+            raise ValueError("values must lie in [0, 255] (uint8)")
+        if v.shape[0] < 1 or v.shape[1] < 1 or v.shape[0] * v.shape[1] > 50_000_000:
+            raise ValueError(f"image size {v.shape[:2]} out of range")
+        return v.astype(np.uint8)
+
+    @field_validator("image_png")
+    @classmethod
+    def _png(cls, v: str | None) -> str | None:
+        if v is None:
+            return None
+        try:
+            raw = base64.b64decode(v, validate=True)
+        except (binascii.Error, ValueError) as exc:
+            raise ValueError(f"invalid base64 ({exc})") from None
+        if not raw.startswith(wire.PNG_MAGIC):
+            raise ValueError("not a PNG (bad signature)")
+        return v
+
+    @field_validator("camera_pose")
+    @classmethod
+    def _pose(cls, v: np.ndarray) -> np.ndarray:
+        r = v[:3, :3]
+        if not np.allclose(v[3], [0, 0, 0, 1], atol=1e-6) or not np.allclose(r @ r.T, np.eye(3), atol=1e-3):
+            raise ValueError("must be a rigid transform (orthonormal rotation, last row 0 0 0 1)")
+        return v
+
+
+class DetectRequest(BaseModel):
+    """POST /detect body and the Zenoh query payload (JSON)."""
+
+    model_config = ConfigDict(extra="forbid")
+    cloud: Cloud
+    workspace: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
+        None, min_length=6, max_length=6,
+        description="[xmin, xmax, ymin, ymax, zmin, zmax] (m, cloud frame): crop points and grasp positions")
+    hand: Hand | None = Field(None, description="hand geometry; a plain string is read as {\"preset\": string}")
+    model: str | None = Field(None, max_length=200, description="classifier name (GET /models); default: the "
+                              "server's default model, if any")
+    num_samples: int = Field(1000, ge=1, le=wire.MAX_NUM_SAMPLES, description="points sampled for candidates")
+    max_grasps: int = Field(100, ge=0, le=wire.MAX_GRASPS, description="most grasps returned")
+    min_score: float | None = Field(None, allow_inf_nan=False, description="drop grasps scoring below this")
+    approach: Approach | None = None
+    selection: bool = Field(True, description="filter, cluster and rank by utility (false: raw ranking)")
+    clustering: bool = Field(True, description="GPD clustering of aligned hands")
+    seed: int | None = Field(0, ge=0, le=2**32 - 1, description="sampling seed (null: random)")
+    crops: CropsRequest | None = Field(None, description="object-proposal crops, on request only")
+
+    @field_validator("workspace")
+    @classmethod
+    def _workspace(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and any(v[i + 1] < v[i] for i in (0, 2, 4)):
+            raise ValueError("each max must be >= its min ([xmin, xmax, ymin, ymax, zmin, zmax])")
+        return v
+
+    @field_validator("hand", mode="before")
+    @classmethod
+    def _hand(cls, v: Any) -> Any:
+        return {"preset": v} if isinstance(v, str) else v
+
+    def hand_geometry(self) -> HandGeometry | None:
+        if self.hand is None:
+            return None
+        assert isinstance(self.hand, Hand)
+        try:
+            return self.hand.geometry()
+        except ValueError as exc:
+            raise WireError("hand", str(exc).removeprefix("hand.")) from None
+
+
+Vec3Out = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class CropOut(BaseModel):
+    png: str | None = Field(description="base64 PNG (size x size RGB), null when the point is outside the image")
+    pixel: list[float] | None = Field(description="[u, v] projection of the point between the fingers (px)")
+    in_image: bool = Field(description="whether that point projects inside the image (in front of the camera)")
+
+
+class GraspOut(BaseModel):
+    """One grasp (gpd_ros GraspConfig), cloud frame, metres."""
+
+    id: str = Field(description="unique id of this grasp (for feedback)")
+    position: Vec3Out = Field(description="centre of the hand base (m)")
+    approach: Vec3Out = Field(description="unit vector the hand moves along to reach the object (hand x)")
+    binormal: Vec3Out = Field(description="unit closing direction of the fingers (hand y)")
+    axis: Vec3Out = Field(description="approach x binormal (hand z)")
+    width: float = Field(description="object extent between the fingers along binormal (m)")
+    score: float | None = Field(description="classifier probability in [0, 1]; null when unscored")
+    sample: Vec3Out = Field(description="cloud point the candidate was sampled at (m)")
+    pose: list[list[float]] = Field(description="4x4 row-major; rotation columns [approach, binormal, axis], "
+                                    "translation position")
+    quat_xyzw: list[float] = Field(description="rotation as a unit quaternion x, y, z, w")
+    crop: CropOut | None = Field(None, description="object-proposal crop, when crops were requested")
+
+
+class DetectResponse(BaseModel):
+    request_id: str
+    grasps: list[GraspOut] = Field(description="best first")
+    model: str | None = Field(description="classifier used; null when unscored")
+    scored: bool = Field(description="false when no classifier ran (scores null)")
+    timings: dict[str, float] = Field(description="seconds per stage: decode, queue, preprocess, scene, sample, "
+                                      "encode, score, select, crops, total")
+    num_candidates: int
+    num_points: int = Field(description="points after preprocessing")
+    hand: dict[str, float] = Field(description="hand geometry used (m)")
+
+
+class FieldProblem(BaseModel):
+    field: str
+    message: str
+
+
+class ErrorBody(BaseModel):
+    """Every 4xx/5xx body: the first problem as text, its field, and all problems."""
+
+    error: str
+    field: str | None = None
+    detail: list[FieldProblem] = Field(default_factory=list)
+
+
+class ModelInfo(BaseModel):
+    name: str
+    representation: str
+    default: bool
+    card: dict[str, Any]
+
+
+class ModelsResponse(BaseModel):
+    default: str | None
+    models: list[ModelInfo]

@@ -1,0 +1,60 @@
+"""All service settings in one pydantic-settings object, read from GRASPD_* environment variables."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (affinity-aware)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - non-Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def default_models_dir() -> Path:
+    from graspd.classifier import default_models_dir as models_dir
+
+    return models_dir()
+
+
+class Settings(BaseSettings):
+    """Service configuration; every field can be set as GRASPD_<FIELD> (lists as JSON)."""
+
+    model_config = SettingsConfigDict(env_prefix="GRASPD_", extra="ignore")
+
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+    models_dir: Path | None = Field(None, description="folder of <name>.onnx + <name>.json; None: models/")
+    default_model: str | None = Field(None, description="model used when a request names none")
+    model_threads: int = Field(1, ge=0, description="onnxruntime intra-op threads per model")
+    detect_workers: int = Field(0, ge=0, description="detections run at once; 0 = one per CPU core")
+    queue_size: int = Field(32, ge=0, description="requests that may wait for a worker before 503")
+    deadline_s: float = Field(30.0, gt=0, description="per-request deadline, queueing included (s)")
+    max_body_bytes: int = Field(64 << 20, gt=0, description="request size cap (bytes); larger gets 413")
+    token: SecretStr | None = Field(None, description="bearer token required on /detect and /models")
+    log_level: str = "INFO"
+    log_json: bool = True
+    zenoh_enabled: bool = True
+    zenoh_mode: str = Field("peer", pattern="^(peer|client|router)$")
+    zenoh_listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    zenoh_connect: list[str] = Field(default_factory=list)
+    zenoh_multicast: bool = Field(False, description="multicast scouting (off: loopback, no router)")
+    zenoh_prefix: str = "graspd"
+    zenoh_instance: str = Field("", description="instance id for <prefix>/instances/<id>; '' = host-pid")
+    zenoh_stream: bool = Field(True, description="subscribe <prefix>/cloud, publish <prefix>/grasps")
+    stream_viewpoint: tuple[float, float, float] = Field((0.0, 0.0, 0.0),
+                                                         description="camera position for streamed clouds (m)")
+    stream_num_samples: int = Field(500, ge=1)
+
+    @property
+    def workers(self) -> int:
+        return self.detect_workers or available_cores()
+
+    def resolved_models_dir(self) -> Path:
+        return self.models_dir if self.models_dir is not None else default_models_dir()
