@@ -22,6 +22,8 @@ from .grasp import GraspSet
 from .hand import HandGeometry
 from .scene import ClosingRegionPoints, Scene, ball_pairs
 
+MIN_FRAME_POINTS = 3
+
 
 @dataclass(frozen=True)
 class SamplingParams:
@@ -38,8 +40,10 @@ class SamplingParams:
     sample_pool: NDArray[np.bool_] | None = None
 
 
-def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float) -> NDArray[np.float64]:
-    """Frames (S,3,3), columns [approach = -normal, binormal, curvature axis], from the r-ball normals."""
+def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float
+                   ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Frames (S,3,3), columns [approach = -normal, binormal, curvature axis], from the r-ball normals,
+    and the number of points in each r-ball."""
     pts, nrm = scene.points, scene.normals
     sid, idx = ball_pairs(scene.tree, pts[sample_idx], radius)
     n = nrm[idx].astype(np.float64)
@@ -52,9 +56,13 @@ def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float) -
     flip = np.einsum("ij,ij->i", normal, nrm[sample_idx]) < 0.0
     normal[flip] *= -1.0
     axis = vecs[:, :, 0]
+    # The eigenvector's sign is arbitrary: point the axis toward the observing camera, which moves
+    # with the cloud, so frames are deterministic and equivariant under rigid motions.
+    to_cam = scene.cloud.viewpoints[scene.cloud.camera_source[sample_idx]] - pts[sample_idx]
+    axis[np.einsum("ij,ij->i", axis, to_cam) < 0.0] *= -1.0
     approach = -normal
     binormal = np.cross(axis, approach)
-    return np.stack([approach, binormal, axis], axis=2)
+    return np.stack([approach, binormal, axis], axis=2), np.bincount(sid, minlength=len(sample_idx))
 
 
 def finger_offsets(hand: HandGeometry, count: int) -> NDArray[np.float64]:
@@ -107,7 +115,12 @@ def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None
     sample_idx = sample_point_indices(len(scene.points), p)
     if len(sample_idx) == 0:
         return empty
-    frames = darboux_frames(scene, sample_idx, p.frame_radius)
+    frames, support = darboux_frames(scene, sample_idx, p.frame_radius)
+    # A frame needs a surface: a valid normal and a few neighbours (lone points have neither).
+    ok = (support >= MIN_FRAME_POINTS) & (np.linalg.norm(scene.normals[sample_idx], axis=1) > 0.5)
+    sample_idx, frames = sample_idx[ok], frames[ok]
+    if len(sample_idx) == 0:
+        return empty
     s_grid = finger_offsets(hand, p.num_finger_placements)
     phis = orientations(p.num_orientations)
     od, fw, hd, hh = hand.hand_outer_diameter, hand.finger_width, hand.hand_depth, hand.hand_height

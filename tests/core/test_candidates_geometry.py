@@ -1,0 +1,113 @@
+"""Algorithm 2 on analytic scenes: hands are collision-free, hold the object, and obey the hand geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from graspd.candidates import SamplingParams, darboux_frames, sample_candidates, search_hands
+from graspd.cloud import ViewpointCloud
+from graspd.hand import HandGeometry
+from graspd.preprocess import PreprocessParams, preprocess
+from graspd.scene import Scene
+
+HAND = HandGeometry()
+
+
+def _scene(cloud: ViewpointCloud) -> Scene:
+    return Scene.build(preprocess(cloud, PreprocessParams(voxel_size=0.003)), HAND)
+
+
+def _hand_frame(points: np.ndarray, grasps) -> np.ndarray:  # (M, N, 3)
+    return np.einsum("mnj,mjk->mnk", points[None, :, :] - grasps.positions[:, None, :], grasps.rotations)
+
+
+def _in_fingers_or_palm(local: np.ndarray, hand: HandGeometry, margin: float = 0.0) -> np.ndarray:
+    x, y, z = local[..., 0], local[..., 1], local[..., 2]
+    od, fw = hand.hand_outer_diameter / 2, hand.finger_width
+    tall = np.abs(z) < hand.hand_height / 2 - margin
+    finger = (x > margin) & (x < hand.hand_depth - margin) & (np.abs(y) > od - fw + margin) & (np.abs(y) < od - margin)
+    palm = (x < -margin) & (x > -0.02) & (np.abs(y) < od - margin)
+    return tall & (finger | palm)
+
+
+def test_hands_on_a_cylinder_hold_it_and_do_not_cut_the_cloud(cylinder_scene: ViewpointCloud) -> None:
+    scene = _scene(cylinder_scene)
+    on_cylinder = np.hypot(scene.points[:, 0], scene.points[:, 1]) < 0.035
+    on_cylinder &= scene.points[:, 2] > 0.01
+    grasps = sample_candidates(scene, HAND, SamplingParams(num_samples=150, sample_pool=on_cylinder))
+    assert len(grasps) > 100
+    local = _hand_frame(scene.points.astype(np.float64), grasps)
+    # Condition 1: no observed point inside a finger or the palm.
+    assert not _in_fingers_or_palm(local, HAND, margin=1e-4).any()
+    # Condition 2: points between the fingers, and the sampled point among them.
+    half = HAND.hand_outer_diameter / 2 - HAND.finger_width
+    between = (local[..., 0] >= 0) & (local[..., 0] <= HAND.hand_depth) & (np.abs(local[..., 1]) <= half)
+    between &= np.abs(local[..., 2]) <= HAND.hand_height / 2
+    assert between.any(axis=1).all()
+    s_local = np.einsum("mj,mjk->mk", grasps.samples - grasps.positions, grasps.rotations)
+    assert (s_local[:, 0] >= HAND.hand_depth - HAND.hand_depth - 1e-6).all()
+    assert (s_local[:, 0] <= HAND.hand_depth - HAND.init_bite + 1e-6).all()
+    assert (np.abs(s_local[:, 1]) < half).all()
+    # Side grasps closing across the cylinder measure its diameter (6 cm) and enclose its whole section.
+    across = (np.abs(grasps.axis[:, 2]) > 0.95) & (np.abs(grasps.approach[:, 2]) < 0.2)
+    assert across.sum() >= 5
+    assert np.all(grasps.widths[across] <= 0.0625)
+    assert np.median(grasps.widths[across]) > 0.045
+    full = np.stack([0.03 * np.cos(np.linspace(0, 2 * np.pi, 90)), 0.03 * np.sin(np.linspace(0, 2 * np.pi, 90))], 1)
+    enclosing = 0
+    for k in np.flatnonzero(across):
+        z = grasps.positions[k, 2]
+        ring = np.concatenate([full, np.full((90, 1), z)], axis=1)
+        ring_local = _hand_frame(ring, grasps[k])[0]
+        if not _in_fingers_or_palm(ring_local, HAND, margin=0.001).any():
+            enclosing += 1
+    assert enclosing >= across.sum() // 2
+
+
+def test_a_flat_wall_yields_no_hands(wall: ViewpointCloud) -> None:
+    scene = _scene(wall)
+    centre = np.linalg.norm(scene.points[:, 1:], axis=1) < 0.1  # far from the wall's edges
+    grasps = sample_candidates(scene, HAND, SamplingParams(num_samples=100, sample_pool=centre))
+    assert len(grasps) == 0
+
+
+def test_hand_axis_follows_the_cylinder_axis(cylinder_scene: ViewpointCloud) -> None:
+    scene = _scene(cylinder_scene)
+    side = (np.hypot(scene.points[:, 0], scene.points[:, 1]) < 0.035) & (scene.points[:, 2] > 0.03)
+    side &= scene.points[:, 2] < 0.09
+    idx = np.flatnonzero(side)[:50]
+    frames, _ = darboux_frames(scene, idx, 0.01)
+    # The curvature axis of a cylinder's side is its axis (z); the approach points into the surface.
+    assert np.all(np.abs(frames[:, 2, 2]) > 0.9)
+    radial = scene.points[idx, :2] / np.linalg.norm(scene.points[idx, :2], axis=1, keepdims=True)
+    assert np.all(np.einsum("ij,ij->i", frames[:, :2, 0], radial) < -0.9)
+    det = np.linalg.det(frames)
+    assert np.allclose(det, 1.0, atol=1e-6)
+
+
+def test_candidates_are_rotated_and_translated_with_the_cloud(cylinder_scene: ViewpointCloud) -> None:
+    pre = preprocess(cylinder_scene, PreprocessParams(voxel_size=0.003))
+    angle = np.radians(37.0)
+    r = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    r = r @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
+    t = np.array([0.3, -1.2, 0.7])
+    params = SamplingParams(num_samples=60, seed=3)
+    a, _ = search_hands(Scene.build(pre, HAND), HAND, params)
+    b, _ = search_hands(Scene.build(pre.transformed(r, t), HAND), HAND, params)
+    moved = a.transformed(r, t)
+    assert len(a) > 20 and abs(len(a) - len(b)) <= 0.03 * len(a)
+    # A two-finger hand is symmetric under a half turn about its approach: (binormal, axis) -> -(binormal, axis).
+    same_pos = np.linalg.norm(moved.positions[:, None] - b.positions[None], axis=2) < 1e-4
+    same_app = np.einsum("ik,jk->ij", moved.approach, b.approach) > 1 - 1e-6
+    same_axis = np.abs(np.einsum("ik,jk->ij", moved.axis, b.axis)) > 1 - 1e-6
+    matched = (same_pos & same_app & same_axis).any(axis=1)
+    assert matched.mean() > 0.97
+
+
+def test_grasp_frames_are_right_handed_rotations(cylinder_two_cameras: ViewpointCloud) -> None:
+    grasps = sample_candidates(_scene(cylinder_two_cameras), HAND, SamplingParams(num_samples=80))
+    assert len(grasps) > 0
+    r = grasps.rotations
+    assert np.allclose(np.einsum("mji,mjk->mik", r, r), np.eye(3), atol=1e-6)
+    assert np.allclose(np.cross(grasps.approach, grasps.binormal), grasps.axis, atol=1e-6)
+    assert np.all(np.isnan(grasps.scores))
