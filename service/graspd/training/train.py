@@ -43,6 +43,7 @@ class TrainConfig:
     max_train: int | None = None              # use at most this many training exemplars (random, seeded)
     max_val: int | None = 20000
     max_minutes: float | None = None          # stop after the epoch that passes this wall time
+    augment: bool = True                      # random mirror images across hand y and z (label-preserving)
     network: dict[str, Any] = field(default_factory=dict)  # extra FastNet arguments (width, hidden)
 
     def __post_init__(self) -> None:
@@ -133,15 +134,62 @@ def load_rows(directory: str | Path, kind: str, part: str, representation: str,
     return images, labels, cats
 
 
+_AXES = {"x": 0, "y": 1, "z": 2}
+_IMAGE_AXES = {0: (1, 2), 1: (0, 2), 2: (0, 1)}  # projection along hand axis p -> hand axes of (rows, cols)
+
+
+def mirror_images(images: NDArray[np.uint8], representation: str, axis: int) -> NDArray[np.uint8]:
+    """Grasp images (B,C,S,S) of the same grasps reflected through the hand plane normal to hand axis 1 (y, the
+    closing direction) or 2 (z, the hand axis).  The hand is symmetric under both reflections and antipodal
+    grasps stay antipodal, so the label is unchanged: a free, exact augmentation."""
+    from graspd.images import channel_layout
+
+    if axis not in (1, 2):
+        raise ValueError(f"axis must be 1 (hand y) or 2 (hand z), got {axis}")
+    layout = channel_layout(representation)
+    out = images.copy()
+    occupied: dict[str, NDArray[np.bool_]] = {}
+    for proj in "xyz":
+        normals = [layout.index(f"{proj}:{c}") for c in ("nx", "ny", "nz") if f"{proj}:{c}" in layout]
+        if normals:
+            occupied[proj] = np.any(images[:, normals] > 0, axis=1)
+    for c, name in enumerate(layout):
+        proj, kind = name.split(":")
+        p = _AXES[proj]
+        rows, cols = _IMAGE_AXES[p]
+        value = images[:, c]
+        if kind in ("nx", "ny", "nz") and _AXES[kind[1]] == axis:
+            value = np.where(occupied[proj], 255 - value, 0).astype(np.uint8)
+        elif kind in ("occ", "unobs") and p == axis:
+            hit = occupied[proj] if kind == "occ" and proj in occupied else value > 0
+            value = np.where(hit, 255 - value, 0).astype(np.uint8)
+        if rows == axis:
+            value = value[:, ::-1, :]
+        elif cols == axis:
+            value = value[:, :, ::-1]
+        out[:, c] = value
+    return out
+
+
+def augment(images: NDArray[np.uint8], representation: str, rng: np.random.Generator) -> NDArray[np.uint8]:
+    """Each image mirrored across hand y and/or hand z with probability 1/2 each (see mirror_images)."""
+    out = images.copy()
+    for axis in (1, 2):
+        sel = rng.random(len(out)) < 0.5
+        if sel.any():
+            out[sel] = mirror_images(out[sel], representation, axis)
+    return out
+
+
 def _batches(n: int, batch_size: int, rng: np.random.Generator | None) -> list[NDArray[np.int64]]:
     order = rng.permutation(n) if rng is not None else np.arange(n)
     return [order[a : a + batch_size] for a in range(0, n, batch_size)]
 
 
-def _to_tensor(images: NDArray[np.uint8], idx: NDArray[np.int64]) -> torch.Tensor:
+def _to_tensor(images: NDArray[np.uint8], idx: NDArray[np.int64] | None = None) -> torch.Tensor:
     from .export import INPUT_OFFSET, INPUT_SCALE
 
-    x = torch.from_numpy(images[idx]).float()
+    x = torch.from_numpy(images if idx is None else images[idx]).float()
     return x.mul_(INPUT_SCALE).add_(INPUT_OFFSET)
 
 
@@ -221,7 +269,7 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
         net.train()
         total, seen = 0.0, 0
         for idx in _batches(len(y_tr), config.batch_size, rng):
-            x = _to_tensor(x_tr, idx)
+            x = _to_tensor(augment(x_tr[idx], config.representation, rng) if config.augment else x_tr[idx])
             y = torch.from_numpy(y_tr[idx].astype(np.int64))
             opt.zero_grad(set_to_none=True)
             loss = loss_fn(net(x), y)
