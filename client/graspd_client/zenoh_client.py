@@ -36,12 +36,17 @@ class ZenohGraspClient:
     """Blocking Zenoh client: `.detect(points, viewpoints)` → Grasps; errors as for GraspClient."""
 
     def __init__(self, *, prefix: str = "graspd", connect: Sequence[str] = DEFAULT_ENDPOINTS,
-                 mode: str = "peer", timeout: float = 30.0, retries: int = 3, session: Any = None) -> None:
+                 mode: str = "peer", timeout: float = 30.0, retries: int = 3, session: Any = None,
+                 balance: bool = False) -> None:
         import zenoh
 
-        self.key = f"{prefix.rstrip('/')}/{ZENOH_DETECT_KEY}"
+        self.prefix = prefix.rstrip("/")
+        self.key = f"{self.prefix}/{ZENOH_DETECT_KEY}"
         self.timeout = timeout
         self.retries = retries
+        self.balance = balance
+        self._keys: list[str] = []
+        self._next = 0
         self._own = session is None
         self._session = session if session is not None else zenoh.open(zenoh_config(mode, connect))
 
@@ -55,14 +60,43 @@ class ZenohGraspClient:
         if self._own:
             self._session.close()
 
+    def instances(self) -> list[dict[str, Any]]:
+        """Every server answering on <prefix>/instances/* (their ids and per-instance detect keys)."""
+        import zenoh
+
+        out = []
+        for reply in self._session.get(f"{self.prefix}/instances/*", target=zenoh.QueryTarget.ALL,
+                                       timeout=min(self.timeout, 5.0)):
+            if reply.ok is not None:
+                try:
+                    out.append(json.loads(reply.ok.payload.to_bytes()))
+                except ValueError:
+                    continue
+        return sorted(out, key=lambda i: str(i.get("instance")))
+
+    def _target_key(self) -> str:
+        """The shared detect key, or with balance=True the next instance's own key (round robin)."""
+        if not self.balance:
+            return self.key
+        if not self._keys:
+            self._keys = [str(i["detect_key"]) for i in self.instances() if "detect_key" in i] or [self.key]
+        key = self._keys[self._next % len(self._keys)]
+        self._next += 1
+        return key
+
     def query(self, payload: bytes) -> Any:
         """The decoded JSON reply to one raw query payload (retrying busy answers)."""
         import time
 
+        import zenoh
+
         for attempt in range(self.retries + 1):
-            replies = list(self._session.get(self.key, payload=payload, timeout=self.timeout))
+            key = self._target_key()
+            replies = list(self._session.get(key, payload=payload, timeout=self.timeout,
+                                             target=zenoh.QueryTarget.BEST_MATCHING))
             if not replies:
-                raise TransportError(f"zenoh {self.key}: no reply within {self.timeout} s (is a server up?)")
+                self._keys = []  # an instance may have gone; rediscover next time
+                raise TransportError(f"zenoh {key}: no reply within {self.timeout} s (is a server up?)")
             reply = replies[0]
             if reply.ok is not None:
                 try:

@@ -15,11 +15,11 @@ from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any
 
 import numpy as np
-from graspd_client.codec import WireError
 from pydantic import ValidationError
 
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
+from graspd_client.codec import WireError
 
 from . import proposals
 from .metrics import Metrics
@@ -135,7 +135,7 @@ class DetectionEngine:
             model = self.registry.resolve(req.model)
             try:
                 hand = req.hand_geometry()
-                cloud = ViewpointCloud(points=req.cloud.points, viewpoints=req.cloud.viewpoints.astype(np.float32),
+                cloud = ViewpointCloud(points=req.cloud.points, viewpoints=np.asarray(req.cloud.viewpoints, np.float32),
                                        camera_source=(np.zeros(0, np.int32) if req.cloud.camera_source is None
                                                       else req.cloud.camera_source))
                 params = detection_params(req)

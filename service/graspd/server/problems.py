@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from graspd_client.codec import WireError
 from pydantic import ValidationError
+
+from graspd_client.codec import WireError
 
 
 class Problem(Exception):

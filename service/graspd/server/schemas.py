@@ -14,11 +14,11 @@ import math
 from typing import Annotated, Any
 
 import numpy as np
-from graspd_client import wire
-from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
 from pydantic import BaseModel, ConfigDict, Field, PlainValidator, ValidationInfo, WithJsonSchema, field_validator
 
 from graspd.hand import HAND_PRESETS, HandGeometry
+from graspd_client import wire
+from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
 
 MAX_POINTS = 5_000_000
 

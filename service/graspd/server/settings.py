@@ -29,28 +29,28 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="GRASPD_", extra="ignore")
 
     host: str = "127.0.0.1"
-    port: int = Field(8000, ge=0, le=65535)
-    models_dir: Path | None = Field(None, description="folder of <name>.onnx + <name>.json; None: models/")
-    default_model: str | None = Field(None, description="model used when a request names none")
-    model_threads: int = Field(1, ge=0, description="onnxruntime intra-op threads per model")
-    detect_workers: int = Field(0, ge=0, description="detections run at once; 0 = one per CPU core")
-    queue_size: int = Field(32, ge=0, description="requests that may wait for a worker before 503")
-    deadline_s: float = Field(30.0, gt=0, description="per-request deadline, queueing included (s)")
-    max_body_bytes: int = Field(64 << 20, gt=0, description="request size cap (bytes); larger gets 413")
-    token: SecretStr | None = Field(None, description="bearer token required on /detect and /models")
+    port: int = Field(default=8000, ge=0, le=65535)
+    models_dir: Path | None = Field(default=None, description="folder of <name>.onnx + <name>.json; None: models/")
+    default_model: str | None = Field(default=None, description="model used when a request names none")
+    model_threads: int = Field(default=1, ge=0, description="onnxruntime intra-op threads per model")
+    detect_workers: int = Field(default=0, ge=0, description="detections run at once; 0 = one per CPU core")
+    queue_size: int = Field(default=32, ge=0, description="requests that may wait for a worker before 503")
+    deadline_s: float = Field(default=30.0, gt=0, description="per-request deadline, queueing included (s)")
+    max_body_bytes: int = Field(default=64 << 20, gt=0, description="request size cap (bytes); larger gets 413")
+    token: SecretStr | None = Field(default=None, description="bearer token required on /detect and /models")
     log_level: str = "INFO"
     log_json: bool = True
     zenoh_enabled: bool = True
-    zenoh_mode: str = Field("peer", pattern="^(peer|client|router)$")
+    zenoh_mode: str = Field(default="peer", pattern="^(peer|client|router)$")
     zenoh_listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     zenoh_connect: list[str] = Field(default_factory=list)
-    zenoh_multicast: bool = Field(False, description="multicast scouting (off: loopback, no router)")
+    zenoh_multicast: bool = Field(default=False, description="multicast scouting (off: loopback, no router)")
     zenoh_prefix: str = "graspd"
-    zenoh_instance: str = Field("", description="instance id for <prefix>/instances/<id>; '' = host-pid")
-    zenoh_stream: bool = Field(True, description="subscribe <prefix>/cloud, publish <prefix>/grasps")
-    stream_viewpoint: tuple[float, float, float] = Field((0.0, 0.0, 0.0),
+    zenoh_instance: str = Field(default="", description="instance id for <prefix>/instances/<id>; '' = host-pid")
+    zenoh_stream: bool = Field(default=True, description="subscribe <prefix>/cloud, publish <prefix>/grasps")
+    stream_viewpoint: tuple[float, float, float] = Field(default=(0.0, 0.0, 0.0),
                                                          description="camera position for streamed clouds (m)")
-    stream_num_samples: int = Field(500, ge=1)
+    stream_num_samples: int = Field(default=500, ge=1)
 
     @property
     def workers(self) -> int:
