@@ -1,0 +1,55 @@
+"""Grasp templates from demonstrations, improved by failures (Herzog et al. 2012): graspd's second detector.
+
+Library API (what the service wires into endpoints; every error is a TemplateError or CloudError, both
+ValueError subclasses whose message names the offending field: answer them with 4xx):
+
+    from graspd.templates import TemplateLibrary, TemplateDetector, TemplateParams, TemplateError
+
+    library = TemplateLibrary(url)                 # SQLAlchemy URL; default sqlite:///graspd-templates.db.
+                                                   # Created and migrated on open; safe for many processes.
+                                                   # Optional hand=HandGeometry (fixed per library; the
+                                                   # template size is derived from it).
+    detector = TemplateDetector(library)           # one per process; thread-safe for detect()
+
+    POST /demonstrations  -> entry_id = library.add_demonstration(cloud: ViewpointCloud,
+                                          hand_pose: 4x4 (rotation columns [approach, binormal, axis],
+                                          translation = hand base centre, cloud frame), label=None,
+                                          workspace=None)          # -> int
+    POST /feedback        -> fb = library.add_feedback(grasp_id: str, success: bool, cloud=None, image=None)
+                                          # -> Feedback; fb.to_dict() is JSON-ready.  Unknown ids raise
+                                          # TemplateError("grasp_id ...") -> 404/422.
+    GET /library          -> library.summary()      # JSON-ready dict: counts, hand, template, entries[]
+    POST /detect method="templates"
+                          -> det = detector.detect(cloud, max_grasps=100, workspace=None)
+                             det.to_dict()          # {"method": "templates", "grasps": [GRASP + "id",
+                                                    #  "template_entry", "mismatch"], "timings": {...},
+                                                    #  "num_candidates", "num_points", "num_entries",
+                                                    #  "detection_id"}
+                             det.grasps is a graspd.grasp.GraspSet (DESIGN.md convention, best first,
+                             score = 1 / (1 + m) in (0, 1]); det.grasp_ids[k] is the id for feedback.
+                             The library's hand is used (a per-request hand override does not apply).
+                             An empty library answers no grasps (num_entries = 0).
+
+For fine-tuning GPD later: library.iter_outcomes(with_images_only=True) yields every outcome with its
+grasp pose, template and GPD grasp image (uint8 (15, 60, 60) by default).
+
+Modules: geometry (templates, table, hull axes, occlusion), matching (eq. 1, eq. 2), store (SQLAlchemy
+library, migrations), demonstration (template of a demonstrated grasp; grasp images), detector,
+synthetic (ray-cast table scenes for tests and benchmarks).
+"""
+
+from .detector import TemplateDetection, TemplateDetector, TemplateParams
+from .geometry import REGION_NAMES, TemplateError, TemplateGeometry
+from .store import DEFAULT_URL, Feedback, TemplateLibrary
+
+__all__ = [
+    "DEFAULT_URL",
+    "REGION_NAMES",
+    "Feedback",
+    "TemplateDetection",
+    "TemplateDetector",
+    "TemplateError",
+    "TemplateGeometry",
+    "TemplateLibrary",
+    "TemplateParams",
+]
