@@ -23,7 +23,7 @@ from graspd_client.codec import WireError
 
 from . import proposals
 from .metrics import Metrics
-from .pngio import decode_png_rgb, encode_png_b64
+from .pngio import encode_png_b64
 from .problems import Problem, from_validation, from_wire
 from .registry import ModelRegistry
 from .schemas import CropsRequest, DetectRequest
@@ -66,7 +66,8 @@ def detection_params(req: DetectRequest) -> DetectionParams:
 
 def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
     """One crop entry per grasp: PNG of the window around the projected point between the fingers."""
-    image = crops.image if crops.image is not None else decode_png_rgb(crops.image_png or "")
+    image = crops.image  # a PNG was decoded into image when the request was validated
+    assert image is not None
     intr = crops.intrinsics
     g = det.grasps
     centres = proposals.finger_centres(g.positions, g.approach, det.hand.hand_depth)

@@ -27,6 +27,6 @@ def decode_png_rgb(b64: str, max_pixels: int = 50_000_000) -> NDArray[np.uint8]:
         with Image.open(io.BytesIO(raw)) as img:
             if img.width * img.height > max_pixels:
                 raise ValueError(f"image of {img.width}x{img.height} pixels exceeds {max_pixels}")
-            return np.asarray(img.convert("RGB"), np.uint8)
-    except (OSError, SyntaxError) as exc:
+            return np.array(img.convert("RGB"), np.uint8)
+    except (OSError, SyntaxError, ValueError) as exc:
         raise ValueError(f"unreadable PNG ({exc})") from None

@@ -43,7 +43,11 @@ def from_validation(exc: ValidationError, status: int = 422) -> Problem:
     detail = []
     for err in exc.errors(include_url=False):
         message = str(err.get("msg", "invalid")).removeprefix("Value error, ")
-        detail.append({"field": _loc_text(tuple(err.get("loc", ()))), "message": message})
+        field = _loc_text(tuple(err.get("loc", ())))
+        if message.startswith(".") and ": " in message:  # a sub-field the array codec named (".data: ...")
+            sub, _, message = message.partition(": ")
+            field += sub
+        detail.append({"field": field, "message": message})
     first = detail[0] if detail else {"field": "", "message": "invalid request"}
     return Problem(status, first["message"], first["field"] or None, detail=detail)
 

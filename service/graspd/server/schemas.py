@@ -14,13 +14,23 @@ import math
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PlainValidator, ValidationInfo, WithJsonSchema, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PlainValidator,
+    ValidationInfo,
+    WithJsonSchema,
+    field_validator,
+    model_validator,
+)
 
 from graspd.hand import HAND_PRESETS, HandGeometry
 from graspd_client import wire
 from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
 
 MAX_POINTS = 5_000_000
+MAX_COORDINATE = 1e4  # metres
 
 ENCODED_ARRAY_SCHEMA: dict[str, Any] = {
     "oneOf": [
@@ -51,7 +61,7 @@ def _array(shape: tuple[int | None, ...], kind: str, dtype: str, finite: bool, d
             return decode_array(value, shape=shape, kind=kind, dtype=None if kind == "i" else dtype,
                                 finite=finite, max_bytes=MAX_POINTS * 3 * 8)
         except WireError as exc:
-            raise ValueError(str(exc).lstrip(": ")) from None
+            raise ValueError(f"{exc.field}: {exc.message}" if exc.field else exc.message) from None
 
     return Annotated[np.ndarray, PlainValidator(validate),
                      WithJsonSchema({**ENCODED_ARRAY_SCHEMA, "description": description})]
@@ -82,6 +92,8 @@ class Cloud(BaseModel):
             raise ValueError("empty cloud (0 points); send at least one point")
         if len(v) > MAX_POINTS:
             raise ValueError(f"{len(v)} points exceeds the limit of {MAX_POINTS}")
+        if np.abs(v).max() > MAX_COORDINATE:
+            raise ValueError(f"coordinates beyond +-{MAX_COORDINATE:g} m; send metres in a local frame")
         return v.astype(np.float32, copy=False)
 
     @field_validator("viewpoints")
@@ -196,6 +208,19 @@ class CropsRequest(BaseModel):
         if not raw.startswith(wire.PNG_MAGIC):
             raise ValueError("not a PNG (bad signature)")
         return v
+
+    @model_validator(mode="after")
+    def _one_image(self) -> CropsRequest:
+        if (self.image is None) == (self.image_png is None):
+            raise ValueError("give exactly one of image (array) or image_png (base64 PNG)")
+        if self.image_png is not None:
+            from .pngio import decode_png_rgb
+
+            try:
+                self.image = decode_png_rgb(self.image_png)  # type: ignore[assignment]
+            except ValueError as exc:
+                raise ValueError(f"image_png: {exc}") from None
+        return self
 
     @field_validator("camera_pose")
     @classmethod
