@@ -129,6 +129,18 @@ class TopDownBaseline:
         )
 
 
+#: Detection options for a robot above a tray: gravity down for the utility J(h), approaches within 80
+#: degrees of straight down (what the arm can reach), no sampling on the tray floor, enough grasps
+#: that some survive the benchmark's tray-wall filter.
+GPD_DEFAULTS: dict[str, Any] = {
+    "gravity": (0.0, 0.0, -1.0),
+    "approach_direction": (0.0, 0.0, -1.0),
+    "approach_max_angle_deg": 80.0,
+    "exclude_support_plane": True,
+    "max_grasps": 300,
+}
+
+
 @dataclass
 class InProcessGPD:
     """graspd's GraspDetector in this process; classifier None is the paper's "no classification"."""
@@ -140,21 +152,32 @@ class InProcessGPD:
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         from ..detector import DetectionParams, GraspDetector
 
+        options = {**GPD_DEFAULTS, **self.options}
         params = DetectionParams(workspace=workspace, seed=seed,
-                                 use_classifier=self.classifier is not None, **self.options)
+                                 use_classifier=self.classifier is not None, **options)
         return GraspDetector(classifier=self.classifier, hand=hand).detect(cloud, params, hand=hand).grasps
 
 
 @dataclass
 class ServiceGPD:
-    """The graspd service over HTTP, through the robot-side client library."""
+    """The graspd service over HTTP, through the robot-side client library (graspd_client.GraspClient).
+
+    The wire format has no gravity or support-plane switch, so the server ranks without the utility J(h)
+    and samples on the tray floor too; model None is the server's default model.
+    """
 
     url: str
     name: str = "gpd-service"
+    model: str | None = None
     options: dict[str, Any] = field(default_factory=dict)
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
-        from graspd_client import GraspClient  # type: ignore[import-not-found]
+        from graspd_client import GraspClient
 
-        with GraspClient(self.url) as client:
-            return client.detect(cloud, workspace=workspace, hand=hand, **self.options)
+        opts: dict[str, Any] = {"max_grasps": 300, "approach_direction": (0.0, 0.0, -1.0),
+                                "approach_max_angle_deg": 80.0, **self.options}
+        with GraspClient(self.url, timeout=120.0) as client:
+            g = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source, workspace=list(workspace),
+                              hand=hand.to_dict(), model=self.model, seed=seed % (2**32), **opts)
+        return GraspSet(positions=g.positions, rotations=g.rotations, widths=g.widths, scores=g.scores,
+                        samples=g.samples)

@@ -62,9 +62,35 @@ class RoundResult:
         return asdict(self)
 
 
-def feasible(grasps: GraspSet, hand: HandGeometry, max_angle_deg: float, floor_z: float) -> np.ndarray:
+@dataclass
+class StopRule:
+    """Table 1 step 6: stop after three detections in a row without a grasp, or the same failure on the same
+    object three times in a row (a success or another failure breaks the streak)."""
+
+    no_grasp: int = 0
+    streak: tuple[str, int | None] | None = None
+    streak_len: int = 0
+
+    def update(self, attempt: Attempt) -> str:
+        """Record one attempt; the reason to stop, or "" to go on."""
+        if attempt.outcome is Outcome.NO_GRASP:
+            self.no_grasp += 1
+            return "no grasp found 3 times" if self.no_grasp >= 3 else ""
+        self.no_grasp = 0
+        if attempt.outcome is Outcome.SUCCESS:
+            self.streak, self.streak_len = None, 0
+            return ""
+        key = (attempt.outcome.value, attempt.target)
+        self.streak_len = self.streak_len + 1 if key == self.streak else 1
+        self.streak = key
+        return "same failure on same object 3 times" if self.streak_len >= 3 else ""
+
+
+def feasible(grasps: GraspSet, hand: HandGeometry, max_angle_deg: float, floor_z: float,
+             interior: tuple[float, float, float, float]) -> np.ndarray:
     """Mask of grasps a robot above the tray could execute: approach within max_angle_deg of straight
-    down (reachable without IK failures), width within the aperture, fingertips above the floor."""
+    down (reachable without IK failures), width within the aperture, fingertips above the floor and
+    between the fingers a point of the tray's interior [xmin, xmax, ymin, ymax] (never the walls)."""
     if len(grasps) == 0:
         return np.zeros(0, bool)
     down = -grasps.approach[:, 2]
@@ -72,6 +98,10 @@ def feasible(grasps: GraspSet, hand: HandGeometry, max_angle_deg: float, floor_z
     ok &= grasps.widths <= hand.max_aperture
     tips = grasps.positions + hand.hand_depth * grasps.approach
     ok &= tips[:, 2] > floor_z
+    inset = 0.005
+    for pts in (grasps.positions + 0.5 * hand.hand_depth * grasps.approach, grasps.samples):
+        ok &= (pts[:, 0] > interior[0] + inset) & (pts[:, 0] < interior[1] - inset)
+        ok &= (pts[:, 1] > interior[2] + inset) & (pts[:, 1] < interior[3] - inset)
     return np.asarray(ok)
 
 
@@ -99,9 +129,7 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
     cams = cameras_for(setting)
     try:
         gripper = Gripper(world, setting.hand, execution)
-        no_grasp = 0
-        streak: tuple[str, int | None] | None = None
-        streak_len = 0
+        stop = StopRule()
         while True:
             if not world.objects:
                 result.end_reason = "tray empty"
@@ -113,29 +141,22 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
             td = time.perf_counter()
             grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
             result.detect_seconds += time.perf_counter() - td
-            ok = np.flatnonzero(feasible(grasps, setting.hand, setting.max_approach_angle_deg, 0.0))
+            ok = np.flatnonzero(feasible(grasps, setting.hand, setting.max_approach_angle_deg, 0.0,
+                                         (x0, x1, y0, y1)))
             if len(ok) == 0:
-                no_grasp += 1
-                result.outcomes.append(Outcome.NO_GRASP.value)
-                if no_grasp >= 3:
-                    result.end_reason = "no grasp found 3 times"
-                    break
-                continue
-            pick = int(ok[0] if setting.choice == "best" else rng.choice(ok))
-            attempt: Attempt = gripper.execute(grasps, pick)
-            result.attempts += 1
+                attempt = Attempt(Outcome.NO_GRASP, None)
+            else:
+                pick = int(ok[0] if setting.choice == "best" else rng.choice(ok))
+                attempt = gripper.execute(grasps, pick)
+                result.attempts += 1
+                world.remove_outside()
             result.outcomes.append(attempt.outcome.value)
-            world.remove_outside()
             if attempt.outcome is Outcome.SUCCESS:
                 result.successes += 1
                 result.cleared += len(attempt.removed)
-                streak, streak_len = None, 0
-                continue
-            key = (attempt.outcome.value, attempt.target)
-            streak_len = streak_len + 1 if key == streak else 1
-            streak = key
-            if streak_len >= 3:
-                result.end_reason = "same failure on same object 3 times"
+            reason = stop.update(attempt)
+            if reason:
+                result.end_reason = reason
                 break
     finally:
         world.close()

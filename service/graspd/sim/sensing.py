@@ -164,3 +164,11 @@ def active_cameras(target: tuple[float, float, float] = (0.0, 0.0, 0.03), radius
         pos = np.asarray(target) + radius * (pos - target) / np.linalg.norm(pos - target)
         cams.append(Camera(tuple(pos.tolist()), target, fov_deg=55.0))
     return cams
+
+
+def render_rgb(client: int, camera: Camera) -> NDArray[np.uint8]:
+    """Colour image (H, W, 3) of the world, for pictures of scenes and grasps."""
+    view, proj = camera.matrices()
+    _, _, rgba, _, _ = pb.getCameraImage(camera.width, camera.height, view, proj, renderer=pb.ER_TINY_RENDERER,
+                                         flags=pb.ER_NO_SEGMENTATION_MASK, physicsClientId=client)
+    return np.asarray(rgba, np.uint8).reshape(camera.height, camera.width, 4)[..., :3]

@@ -1,0 +1,294 @@
+"""Dense-clutter benchmark in simulation: IJRR Table 1 protocol, Table 3 ablations, VGN pile/packed scenes.
+
+One command runs N rounds per setting and writes a markdown table like the paper's Table 3, a PNG bar
+chart and a JSON file (with the git commit) into bench/results/.  A setting is DETECTOR@SCENE-SENSING:
+
+  detectors: baseline (top-down, no learning), gpd-noclass (GPD, no classification), gpd (GPD with the
+             --model classifier), gpd-noselect (same, random order instead of selection), gpd-rep15 /
+             gpd-rep12 / gpd-rep3 (the first model in models/ of that representation)
+  scenes:    pour-passive, pour-active (10 objects poured into a tray), pile-side, packed-side (5 objects)
+
+Examples:
+  PYTHONPATH=service:client .venv/bin/python bench/clutter.py --rounds 5 --settings baseline@pour-passive
+  PYTHONPATH=service:client .venv/bin/python bench/clutter.py --rounds 30 --jobs 2 --tag full
+  ... --service http://127.0.0.1:8000   (gpd detectors go through the running service and graspd_client)
+  ... --start-service                   (start the service on a free port for the run)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import socket
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+for sub in ("service", "client"):
+    if str(REPO / sub) not in sys.path:
+        sys.path.insert(0, str(REPO / sub))
+
+from graspd.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, TopDownBaseline  # noqa: E402
+from graspd.sim.protocol import RoundResult, Setting, Summary, run_round, summarize  # noqa: E402
+
+DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-rep15", "gpd-rep12", "gpd-rep3")
+SCENES: dict[str, Setting] = {
+    "pour-passive": Setting(scene="pour", num_objects=10, sensing="passive"),
+    "pour-active": Setting(scene="pour", num_objects=10, sensing="active"),
+    "pile-side": Setting(scene="pile", num_objects=5, sensing="side"),
+    "packed-side": Setting(scene="packed", num_objects=5, sensing="side"),
+}
+DEFAULT_SETTINGS = ("baseline@pour-passive", "baseline@pour-active", "baseline@pile-side",
+                    "gpd-noclass@pour-passive", "gpd-noclass@pour-active", "gpd-noclass@pile-side")
+TARGETS = {"pour-passive": (0.90, 0.85), "pour-active": (0.93, 0.90), "pile-side": (0.75, None)}
+
+
+def parse_setting(spec: str) -> tuple[str, str]:
+    """'DETECTOR@SCENE' -> (detector, scene); ValueError names what is unknown."""
+    det, _, scene = spec.partition("@")
+    if det not in DETECTORS:
+        raise ValueError(f"setting {spec!r}: detector must be one of {DETECTORS}")
+    if scene not in SCENES:
+        raise ValueError(f"setting {spec!r}: scene must be one of {tuple(SCENES)}")
+    return det, scene
+
+
+def model_for(detector: str, model: str | None) -> str | None:
+    """The classifier name a detector needs (None for baseline and gpd-noclass)."""
+    from graspd.classifier import available_models, read_card
+    from graspd.classifier import default_models_dir as models_dir
+
+    if detector in ("baseline", "gpd-noclass"):
+        return None
+    if detector.startswith("gpd-rep"):
+        rep = detector.removeprefix("gpd-rep")
+        for name in available_models():
+            if str(read_card(models_dir() / f"{name}.json").get("representation")) == rep:
+                return name
+        raise SystemExit(f"{detector}: no model of representation {rep} in {models_dir()}")
+    if model is None:
+        names = available_models()
+        if not names:
+            raise SystemExit(f"{detector}: no classifier in {models_dir()}; pass --model or train one")
+        return names[0]
+    return model
+
+
+def make_detector(detector: str, model: str | None, service: str | None) -> SimDetector:
+    """The detector object for a setting (built inside each worker process)."""
+    if detector == "baseline":
+        return TopDownBaseline()
+    options: dict[str, Any] = {}
+    if detector == "gpd-noselect":
+        options["use_selection"] = False
+    if service is not None:
+        if detector == "gpd-noselect":
+            options = {"selection": False}
+        return ServiceGPD(url=service, name=detector, model=model,
+                          options={**options, "max_grasps": 300} if detector != "gpd-noclass" else options)
+    classifier = None
+    if model is not None:
+        from graspd.classifier import load_model
+
+        classifier = load_model(model, threads=1)
+    return InProcessGPD(name=detector, classifier=classifier, options=options)
+
+
+def _one_round(args: tuple[str, str | None, str | None, Setting, int]) -> RoundResult:
+    detector, model, service, setting, seed = args
+    return run_round(make_detector(detector, model, service), setting, seed)
+
+
+def git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True, check=True)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "service", "bench/clutter.py"], cwd=REPO,
+                               capture_output=True, text=True).stdout.strip()
+        return out.stdout.strip() + ("-dirty" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def pct(x: float) -> str:
+    return "n/a" if x != x else f"{100 * x:.0f}%"
+
+
+def ci(lo_hi: tuple[float, float]) -> str:
+    lo, hi = lo_hi
+    return "" if lo != lo else f" [{100 * lo:.0f}, {100 * hi:.0f}]"
+
+
+def markdown(summaries: dict[str, Summary], meta: dict[str, Any]) -> str:
+    """A Table-3-like markdown table, one column per setting."""
+    names = list(summaries)
+    rows = [
+        ("Rounds", lambda s: str(s.rounds)),
+        ("Num objects", lambda s: str(s.objects)),
+        ("Num grasp attempts", lambda s: str(s.attempts)),
+        ("Num grasp successes", lambda s: str(s.successes)),
+        ("% grasps successful [95% CI]", lambda s: pct(s.success_rate) + ci(s.success_ci)),
+        ("% objects removed [95% CI]", lambda s: pct(s.cleared_rate) + ci(s.cleared_ci)),
+        ("Failures: collision", lambda s: str(s.failures.get("collision", 0))),
+        ("Failures: empty close", lambda s: str(s.failures.get("empty_close", 0))),
+        ("Failures: slipped", lambda s: str(s.failures.get("slipped", 0))),
+        ("No grasp found (detections)", lambda s: str(s.failures.get("no_grasp", 0))),
+        ("Wall time per round (s)", lambda s: f"{s.seconds_per_round:.0f}"),
+        ("Detection time per call (s)", lambda s: f"{s.detect_seconds_per_attempt:.1f}"),
+    ]
+    lines = [
+        "# Simulated dense-clutter benchmark (IJRR Table 1 protocol, Table 3 layout)",
+        "",
+        f"- command: `{meta['command']}`",
+        f"- commit: `{meta['commit']}`, date: {meta['date']}, {meta['cpus']} CPUs, jobs: {meta['jobs']}",
+        "- objects: pybullet_data random_urdfs 900-999 (held out from training), scaled to the hand",
+        "- models: " + (", ".join(f"{k}: {v}" for k, v in meta["models"].items() if v) or "none"),
+        "",
+        "| | " + " | ".join(names) + " |",
+        "|---|" + "---|" * len(names),
+    ]
+    lines += ["| " + label + " | " + " | ".join(fn(summaries[n]) for n in names) + " |" for label, fn in rows]
+    lines += ["", "Targets (issue 5): pour-passive success >= 90% and cleared >= 85%; pour-active >= 93% and"
+              " >= 90%; pile-side success >= 75%.  CIs: percentile bootstrap over rounds."]
+    return "\n".join(lines) + "\n"
+
+
+def bar_chart(summaries: dict[str, Summary], path: Path, title: str) -> None:
+    """Grasp success and objects removed per setting with 95% intervals and the issue's targets."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    names = list(summaries)
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.3 * len(names) + 2), 4.5))
+    for k, (key, ci_key, label) in enumerate([("success_rate", "success_ci", "grasp success"),
+                                              ("cleared_rate", "cleared_ci", "objects removed")]):
+        vals = np.array([getattr(summaries[n], key) for n in names]) * 100
+        lo = np.array([getattr(summaries[n], ci_key)[0] for n in names]) * 100
+        hi = np.array([getattr(summaries[n], ci_key)[1] for n in names]) * 100
+        err = np.nan_to_num(np.vstack([vals - lo, hi - vals]))
+        ax.bar(x + (k - 0.5) * 0.38, np.nan_to_num(vals), 0.38, yerr=err, capsize=3, label=label)
+    for i, n in enumerate(names):
+        target = TARGETS.get(n.split("@")[1])
+        if target:
+            ax.hlines(target[0] * 100, i - 0.4, i, colors="k", linestyles="--", linewidth=1)
+            if target[1]:
+                ax.hlines(target[1] * 100, i, i + 0.4, colors="k", linestyles=":", linewidth=1)
+    ax.set_xticks(x)
+    ax.set_xticklabels(names, rotation=25, ha="right", fontsize=8)
+    ax.set_ylim(0, 105)
+    ax.set_ylabel("%")
+    ax.set_title(title, fontsize=9)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def start_service() -> tuple[subprocess.Popen[bytes], str]:
+    """Run the graspd HTTP app under uvicorn on a free local port; wait until it is ready."""
+    from graspd_client import GraspClient
+
+    port = free_port()
+    env = {**os.environ, "PYTHONPATH": f"{REPO / 'service'}:{REPO / 'client'}", "GRASPD_ZENOH_ENABLED": "false",
+           "GRASPD_DEADLINE_S": "300", "GRASPD_LOG_LEVEL": "WARNING"}
+    proc = subprocess.Popen([sys.executable, "-m", "uvicorn", "--factory", "graspd.server.app:create_app",
+                             "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"], env=env)
+    url = f"http://127.0.0.1:{port}"
+    with GraspClient(url, timeout=2.0, retries=0) as client:
+        for _ in range(120):
+            if client.ready():
+                return proc, url
+            if proc.poll() is not None:
+                break
+            time.sleep(0.5)
+    proc.terminate()
+    raise SystemExit("the graspd service did not become ready")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--settings", nargs="+", default=list(DEFAULT_SETTINGS), help="DETECTOR@SCENE-SENSING ...")
+    ap.add_argument("--rounds", type=int, default=30, help="rounds per setting (seeds seed..seed+rounds-1)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--objects", type=int, default=None, help="objects per round (default: 10 pour, 5 pile)")
+    ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes")
+    ap.add_argument("--model", default=None, help="classifier for gpd / gpd-noselect (default: first in models/)")
+    ap.add_argument("--service", default=None, help="URL of a running graspd service for the gpd detectors")
+    ap.add_argument("--start-service", action="store_true", help="start the service for the run")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
+    ap.add_argument("--tag", default="clutter", help="output file stem")
+    args = ap.parse_args(argv)
+    if args.rounds < 1:
+        ap.error("--rounds must be >= 1")
+    try:
+        parsed = [parse_setting(s) for s in args.settings]
+    except ValueError as exc:
+        ap.error(str(exc))
+    proc = None
+    service = args.service
+    if args.start_service:
+        proc, service = start_service()
+    models = {spec: model_for(det, args.model) for spec, (det, _) in zip(args.settings, parsed, strict=True)}
+    summaries: dict[str, Summary] = {}
+    rounds: dict[str, list[dict[str, Any]]] = {}
+    try:
+        for spec, (det, scene) in zip(args.settings, parsed, strict=True):
+            setting = SCENES[scene]
+            if args.objects is not None:
+                setting = replace(setting, num_objects=args.objects)
+            jobs = [(det, models[spec], service, setting, args.seed + i) for i in range(args.rounds)]
+            t0 = time.perf_counter()
+            if args.jobs > 1:
+                with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+                    results = list(pool.map(_one_round, jobs))
+            else:
+                results = [_one_round(j) for j in jobs]
+            summaries[spec] = summarize(results)
+            rounds[spec] = [r.to_dict() for r in results]
+            s = summaries[spec]
+            print(f"{spec:28s} success {pct(s.success_rate)}{ci(s.success_ci)}  cleared {pct(s.cleared_rate)}"
+                  f"{ci(s.cleared_ci)}  attempts {s.attempts}  failures {s.failures}  "
+                  f"{s.seconds_per_round:.0f} s/round  ({time.perf_counter() - t0:.0f} s)", flush=True)
+    finally:
+        if proc is not None:
+            proc.terminate()
+            proc.wait(timeout=10)
+    meta = {
+        "command": "PYTHONPATH=service:client .venv/bin/python bench/clutter.py " + shlex.join(sys.argv[1:]
+                                                                                          if argv is None else argv),
+        "commit": git_commit(),
+        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "cpus": os.cpu_count(),
+        "jobs": args.jobs,
+        "service": service,
+        "models": {k: v for k, v in models.items()},
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    md = markdown(summaries, meta)
+    (args.out / f"{args.tag}.md").write_text(md)
+    (args.out / f"{args.tag}.json").write_text(json.dumps(
+        {"meta": meta, "summaries": {k: v.to_dict() for k, v in summaries.items()}, "rounds": rounds}, indent=1))
+    bar_chart(summaries, args.out / f"{args.tag}.png", f"{args.tag} @ {meta['commit'][:12]}")
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
