@@ -12,6 +12,7 @@ Writes OUT/classifier.md (tables) and PNG precision-recall curves:
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from pathlib import Path
@@ -139,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     lines.append("")
 
     lines += ["## LeNet (paper) vs fast network: accuracy and CPU speed\n",
-              f"onnxruntime CPU, {args.threads} intra-op threads, 1000 candidates (real test images), median of 7.\n",
+              f"onnxruntime CPU, {args.threads} intra-op threads, 1000 candidates (real test images), median of 7; "
+              f"machine load average before timing: {os.getloadavg()[0]:.2f} (the machine is shared).\n",
               "| model | architecture | multiply-adds/image | view accuracy | view RA99P | s per 1k candidates |",
               "|---|---|---:|---:|---:|---:|"]
     curves = []

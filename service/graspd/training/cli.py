@@ -19,6 +19,9 @@ def register(subparsers: Any) -> None:
         description="Train a CNN on a graspd dataset (graspd.training.dataset format), evaluate the exported "
                     "ONNX model on the test part of the split, and write models-dir/NAME.onnx with its card.")
     p.add_argument("--config", help="JSON training config (graspd.training.train.TrainConfig); flags override it")
+    p.add_argument("--plan", help="JSON plan of several models ({defaults, models: [...]}, e.g. models/plan.json); "
+                                  "trains them all in one process, reading the dataset once")
+    p.add_argument("--only", type=_categories, help="with --plan: comma-separated model names to make")
     p.add_argument("--dataset", help="dataset folder (manifest.json, chunk_*.npz, splits/)")
     p.add_argument("--name", help="model name (file stem in models-dir); default generic15")
     p.add_argument("--representation", choices=["15", "12", "3", "herzog"])
@@ -48,8 +51,20 @@ def _run(args: argparse.Namespace) -> int:
 
     from graspd.classifier import default_models_dir
 
-    from .train import TrainConfig, train_and_export
+    from .train import TrainConfig, train_and_export, train_plan
 
+    models_dir = Path(args.models_dir) if args.models_dir else default_models_dir()
+    command = "graspd " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else None
+    if args.plan:
+        try:
+            paths = train_plan(json.loads(Path(args.plan).read_text()), models_dir, args.dataset, args.only,
+                               command=command)
+        except (TypeError, ValueError) as exc:
+            print(f"graspd train: {exc}", file=sys.stderr)
+            return 2
+        for path in paths:
+            _print_card(path)
+        return 0
     data: dict[str, Any] = json.loads(Path(args.config).read_text()) if args.config else {}
     data.update({k: getattr(args, k) for k in _CONFIG_FLAGS if getattr(args, k) is not None})
     if "dataset" not in data:
@@ -60,12 +75,17 @@ def _run(args: argparse.Namespace) -> int:
     except (TypeError, ValueError) as exc:
         print(f"graspd train: {exc}", file=sys.stderr)
         return 2
-    models_dir = Path(args.models_dir) if args.models_dir else default_models_dir()
-    command = "graspd " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else None
     path = train_and_export(config, models_dir, args.work_dir, command=command)
+    _print_card(path)
+    return 0
+
+
+def _print_card(path: Any) -> None:
+    import json
+
     card = json.loads(path.with_suffix(".json").read_text())
+    print(f"{card['name']}:")
     for key, m in card["metrics"].items():
-        print(f"{key}: accuracy {m['accuracy']:.4f}  RA99P {m['ra99p']:.4f}  AP {m['average_precision']:.4f}  "
+        print(f"  {key}: accuracy {m['accuracy']:.4f}  RA99P {m['ra99p']:.4f}  AP {m['average_precision']:.4f}  "
               f"(n={m['n']})")
     print(f"wrote {path} and {path.with_suffix('.json')}")
-    return 0

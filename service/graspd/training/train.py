@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -134,6 +136,44 @@ def load_rows(directory: str | Path, kind: str, part: str, representation: str,
     return images, labels, cats
 
 
+_ROW_CACHE: dict[tuple[str, str, str], tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.uint8]]] | None = None
+
+
+@contextmanager
+def row_cache() -> Iterator[None]:
+    """Within this block, training keeps every split part it loads (15 channels, all categories) in memory,
+    so a plan of several models reads and decompresses the dataset once."""
+    global _ROW_CACHE
+    _ROW_CACHE = {}
+    try:
+        yield
+    finally:
+        _ROW_CACHE = None
+
+
+def training_rows(dataset: str, kind: str, part: str, categories: list[str] | None, limit: int | None,
+                  seed: int) -> tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.int64]]:
+    """(15-channel images, labels, row index) of a split part: the rows to use are images[index], restricted
+    to categories and to a seeded random subset of at most limit rows; nothing is copied."""
+    from .dataset import CATEGORIES
+
+    key = (str(Path(dataset).resolve()), kind, part)
+    if _ROW_CACHE is not None and key in _ROW_CACHE:
+        images, labels, cats = _ROW_CACHE[key]
+    else:
+        images, labels, cats = load_rows(dataset, kind, part, "15")
+        if _ROW_CACHE is not None:
+            _ROW_CACHE[key] = (images, labels, cats)
+    index = np.arange(len(labels))
+    if categories is not None:
+        index = np.flatnonzero(np.isin(cats, [CATEGORIES[c] for c in categories]))
+    if len(index) == 0:
+        raise ValueError(f"split {kind!r} part {part!r} has no rows of categories {categories} in {dataset}")
+    if limit is not None and limit < len(index):
+        index = np.sort(np.random.default_rng(seed).choice(index, limit, replace=False))
+    return images, labels, index
+
+
 _AXES = {"x": 0, "y": 1, "z": 2}
 _IMAGE_AXES = {0: (1, 2), 1: (0, 2), 2: (0, 1)}  # projection along hand axis p -> hand axes of (rows, cols)
 
@@ -203,9 +243,8 @@ def predict_logits(net: nn.Module, images: NDArray[np.uint8], batch_size: int = 
     return np.concatenate(out) if out else np.zeros((0, 2), np.float32)
 
 
-def recalibrate_batchnorm(net: nn.Module, images: NDArray[np.uint8], rng: np.random.Generator,
-                          rows: int = 4096, batch_size: int = 256) -> None:
-    """Recompute batch-norm running statistics from a random sample of training images with the current
+def recalibrate_batchnorm(net: nn.Module, images: NDArray[np.uint8], batch_size: int = 256) -> None:
+    """Recompute batch-norm running statistics from (a random sample of) training images with the current
     weights (exact averages instead of the lagging momentum estimate: matters on small datasets)."""
     bns = [m for m in net.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
     if not bns:
@@ -215,10 +254,9 @@ def recalibrate_batchnorm(net: nn.Module, images: NDArray[np.uint8], rng: np.ran
         bn.reset_running_stats()
         bn.momentum = None
     net.train()
-    idx = rng.choice(len(images), min(rows, len(images)), replace=False)
     with torch.no_grad():
-        for a in range(0, len(idx), batch_size):
-            net(_to_tensor(images, idx[a : a + batch_size]))
+        for a in range(0, len(images), batch_size):
+            net(_to_tensor(images[a : a + batch_size]))
     for bn, m in zip(bns, momenta, strict=True):
         bn.momentum = m
 
@@ -232,7 +270,7 @@ def grasp_probability(logits: NDArray[np.float32]) -> NDArray[np.float32]:
 
 def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[str, Any]:
     """Train one network; returns the metrics dict also written to out_dir/train_metrics.json."""
-    from .dataset import read_manifest
+    from .dataset import derive_images, read_manifest
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -241,10 +279,19 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
     rng = np.random.default_rng(config.seed)
     t0 = time.perf_counter()
     manifest = read_manifest(config.dataset)
-    x_tr, y_tr, _ = load_rows(config.dataset, config.split, "train", config.representation, config.categories,
-                              config.max_train, config.seed)
-    x_va, y_va, _ = load_rows(config.dataset, config.split, "val", config.representation, config.categories,
-                              config.max_val, config.seed + 1)
+    x_tr, y_all, tr_index = training_rows(config.dataset, config.split, "train", config.categories,
+                                          config.max_train, config.seed)
+    y_tr = y_all[tr_index]
+    x_va15, y_va_all, va_index = training_rows(config.dataset, config.split, "val", config.categories,
+                                               config.max_val, config.seed + 1)
+    x_va = derive_images(x_va15[va_index], config.representation)
+    y_va = y_va_all[va_index]
+    rep = config.representation
+
+    def batch_images(rows: NDArray[np.int64]) -> NDArray[np.uint8]:
+        images = x_tr[rows] if rep == "15" else derive_images(x_tr[rows], rep)
+        return augment(images, rep, rng) if config.augment else images
+
     load_s = time.perf_counter() - t0
     log(f"[{config.name}] loaded {len(y_tr)} train / {len(y_va)} val exemplars in {load_s:.1f} s "
         f"(train positives {y_tr.mean():.3f})")
@@ -269,7 +316,7 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
         net.train()
         total, seen = 0.0, 0
         for idx in _batches(len(y_tr), config.batch_size, rng):
-            x = _to_tensor(augment(x_tr[idx], config.representation, rng) if config.augment else x_tr[idx])
+            x = _to_tensor(batch_images(tr_index[idx]))
             y = torch.from_numpy(y_tr[idx].astype(np.int64))
             opt.zero_grad(set_to_none=True)
             loss = loss_fn(net(x), y)
@@ -278,7 +325,7 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
             total += loss.item() * len(idx)
             seen += len(idx)
         sched.step()
-        recalibrate_batchnorm(net, x_tr, rng)
+        recalibrate_batchnorm(net, batch_images(rng.choice(tr_index, min(4096, len(tr_index)), replace=False)))
         logits = predict_logits(net, x_va)
         val_loss = float(loss_fn(torch.from_numpy(logits), y_va_t))
         val_acc = float(np.mean((logits[:, 1] > logits[:, 0]) == (y_va == 1)))
@@ -402,3 +449,34 @@ def train_and_export(config: TrainConfig, models_dir: str | Path, work_dir: str 
     path = export_trained(net, config, metrics, models_dir, command or config_command(config, models_dir))
     log(f"[{config.name}] exported {path}")
     return path
+
+
+def train_plan(plan: dict[str, Any], models_dir: str | Path, dataset: str | None = None,
+               only: list[str] | None = None, command: str | None = None, log: Any = print) -> list[Path]:
+    """Train, evaluate and export every model of a plan, reading the dataset once (row_cache).
+
+    plan: {"defaults": {TrainConfig fields}, "models": [{TrainConfig fields, optional "subdir"}]}; dataset
+    overrides the plan's; only: names to make (default all).  Models go to models_dir/<subdir>/<name>.onnx.
+    """
+    defaults = dict(plan.get("defaults", {}))
+    if dataset is not None:
+        defaults["dataset"] = dataset
+    entries = plan.get("models")
+    if not isinstance(entries, list) or not entries:
+        raise ValueError("plan.models must be a non-empty list of model configs")
+    names = [e.get("name") for e in entries]
+    if only:
+        unknown = sorted(set(only) - set(names))
+        if unknown:
+            raise ValueError(f"unknown plan models {unknown}; the plan has {names}")
+    paths = []
+    with row_cache():
+        for entry in entries:
+            if only and entry.get("name") not in only:
+                continue
+            fields_ = {**defaults, **{k: v for k, v in entry.items() if k != "subdir"}}
+            config = TrainConfig.from_dict(fields_)
+            folder = Path(models_dir) / entry.get("subdir", "")
+            cmd = (command or "graspd train --plan PLAN") + f"  # model {config.name}"
+            paths.append(train_and_export(config, folder, Path(models_dir) / ".work" / config.name, cmd, log))
+    return paths
