@@ -94,8 +94,9 @@ def test_mirror_matches_mirrored_scene(scene_and_grasps, axis: int, representati
             both = (want[:, c] > 0) & (got[:, c] > 0)
             iou = both.sum() / hit.sum()
             assert iou > 0.85, (name, iou)
-            if name.endswith("unobs"):
-                assert np.abs(want[:, c] - got[:, c])[both].mean() < 16, name
+            if name.endswith("unobs"):  # depths agree to within one voxel along the projection axis
+                extent = {"x": HAND.hand_depth, "y": HAND.max_aperture, "z": HAND.hand_height}[name[0]]
+                assert np.abs(want[:, c] - got[:, c])[both].mean() < 255 * 0.004 / extent, name
             continue
         # float rounding moves the odd point across a pixel edge: allow 3% of the pixels to differ
         agree = float((np.abs(want[:, c] - got[:, c])[hit] <= 2).mean())
