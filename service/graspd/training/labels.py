@@ -11,13 +11,16 @@ raycasting (hand frame: x approach from the palm, y closing direction, z hand ax
   inside the object; grazing hits excepted), is a finger collision; otherwise the hit is a contact candidate at distance
   s = t - finger_width from the inner face.
 * Palm/finger rays along +x on a grid (y, z) from palm_depth behind the palm: a hit before the palm
-  (closing gap) or before the fingertips (finger columns), or a back face first, is a collision.
+  (closing gap) or before the fingertips (finger columns), or a back face first, is a collision
+  (cast only for candidates that are otherwise grasps: elsewhere they cannot change the label).
 * Each finger's contact region: its rays with s within 2 * tolerance of its first contact (a 1 mm
   vertex error can move either surface by 1 mm).
 * A pair of contacts on the same (x, z) ray line, one in each region, is antipodal when both surface
-  normals lie within a slack angle of the closing line: frictionless, the slack is the tilt the
-  tolerance allows the hit triangle, atan(2 tol / its smallest altitude), capped at max_slack_deg;
-  with friction (mu given), the friction cone half-angle atan(mu) (Nguyen's two-contact force closure).
+  normals lie within a slack angle of the closing line.  Frictionless, the slack is the tilt the
+  tolerance allows a surface patch the size of the finger pad: moving its edges by 1 mm each way
+  tilts it by atan(2 tol / contact_patch), contact_patch = finger_width by default (11.3 deg for
+  GPD's 1 cm fingers); independent of how finely the mesh is tessellated.  With friction (mu given),
+  the slack is the friction cone half-angle atan(mu) (Nguyen's two-contact force closure).
 A candidate is positive when it is collision-free and has an antipodal pair.
 """
 
@@ -37,12 +40,13 @@ from .render import MeshScene
 @dataclass(frozen=True)
 class LabelParams:
     """tolerance (m, the paper's 1 mm vertex error); mu None = frictionless antipodal, else the friction
-    coefficient; ray spacing (m) over finger faces and the palm; palm_depth (m) the palm's thickness
-    behind the hand base; max_slack_deg caps the frictionless normal slack of small triangles."""
+    coefficient; contact_patch (m, None = the hand's finger_width) sets the frictionless normal slack;
+    ray spacing (m) over finger faces and the palm; palm_depth (m) the palm's thickness behind the
+    hand base."""
 
     tolerance: float = 0.001
     mu: float | None = None
-    max_slack_deg: float = 15.0
+    contact_patch: float | None = None
     ray_spacing: float = 0.002
     palm_ray_spacing: float = 0.004
     rows: int = 5
@@ -56,7 +60,8 @@ class LabelParams:
 
 @dataclass(frozen=True)
 class Labels:
-    """Per candidate (M,): grasp (the label), collision, antipodal (ignoring collision), first-contact
+    """Per candidate (M,): grasp (the label), collision (fingers always; palm only where antipodal and
+    the fingers are free), antipodal (ignoring collision), first-contact
     distances of the left/right finger from its open inner face (m, inf = no contact), and the width
     between the first contacts (m)."""
 
@@ -73,18 +78,43 @@ class Labels:
 _BACK_FACE_COS = 0.2
 
 
-def triangle_slack(mesh: o3d.geometry.TriangleMesh, tolerance: float, max_slack_deg: float) -> NDArray[np.float32]:
-    """Cosine (T,) of the largest tilt (rad) of each triangle's normal reachable by moving its vertices by
-    at most tolerance: atan(2 tol / smallest altitude), at most max_slack_deg."""
-    v = np.asarray(mesh.vertices)
-    t = np.asarray(mesh.triangles)
-    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    longest = np.max(np.stack([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
-                               np.linalg.norm(a - c, axis=1)]), axis=0)
-    altitude = area2 / np.maximum(longest, 1e-12)
-    slack = np.minimum(np.arctan(2.0 * tolerance / np.maximum(altitude, 1e-9)), np.deg2rad(max_slack_deg))
-    return np.cos(slack).astype(np.float32)
+def normal_slack_deg(hand: HandGeometry, params: LabelParams) -> float:
+    """Largest angle (deg) between a contact normal and the closing line for the contact to count."""
+    if params.mu is not None:
+        if params.mu <= 0:
+            raise ValueError(f"label mu must be positive (or None for frictionless), got {params.mu}")
+        return float(np.rad2deg(np.arctan(params.mu)))
+    patch = hand.finger_width if params.contact_patch is None else params.contact_patch
+    if patch <= 0 or params.tolerance < 0:
+        raise ValueError("label contact_patch must be positive and tolerance non-negative")
+    return float(np.rad2deg(np.arctan(2.0 * params.tolerance / patch)))
+
+
+def _cone_pairs(cl: NDArray[np.floating], nl: NDArray[np.floating], ml: NDArray[np.bool_],
+                cr: NDArray[np.floating], nr: NDArray[np.floating], mr: NDArray[np.bool_], cos_cone: float
+                ) -> NDArray[np.bool_]:
+    """Whether some contact pair (one of each finger's region, masks ml/mr (n,g)) has the line between its
+    contacts (n,g,3) inside both friction cones about the inward normals (outward normals nl/nr)."""
+    u = cr[:, None, :, :] - cl[:, :, None, :]  # (n, g_left, g_right, 3)
+    u /= np.maximum(np.linalg.norm(u, axis=3, keepdims=True), 1e-9)
+    ok_l = -np.einsum("nlk,nlrk->nlr", nl, u) >= cos_cone
+    ok_r = np.einsum("nrk,nlrk->nlr", nr, u) >= cos_cone
+    return np.any(ok_l & ok_r & ml[:, :, None] & mr[:, None, :], axis=(1, 2))
+
+
+def _cast(scene: MeshScene, pos: NDArray[np.float32], rot: NDArray[np.float32], local: NDArray[np.float32],
+          axis: int, nthreads: int, sign: tuple[int, float] | None = None
+          ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Cast rays from hand-frame origins local (R,3) of every hand (n) along hand axis `axis` (the last
+    R - sign[0] rays reversed by sign[1]); returns t_hit (n,R) (m, inf = miss) and hit normals (n,R,3)."""
+    n, r = len(pos), len(local)
+    rays = np.empty((n, r, 6), np.float32)
+    rays[:, :, :3] = pos[:, None, :] + np.matmul(local[None], rot.transpose(0, 2, 1))
+    rays[:, :, 3:] = rot[:, None, :, axis]
+    if sign is not None:
+        rays[:, sign[0]:, 3:] *= sign[1]
+    hit = scene.cast_rays(rays.reshape(-1, 6), nthreads)
+    return hit["t_hit"].numpy().reshape(n, r), hit["primitive_normals"].numpy().reshape(n, r, 3)
 
 
 def _grid(lo: float, hi: float, spacing: float) -> NDArray[np.float64]:
@@ -97,15 +127,7 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
     """Labels of every candidate against the full meshes (world frame of the grasps, m)."""
     p = params or LabelParams()
     scene = meshes if isinstance(meshes, MeshScene) else MeshScene(list(meshes))
-    if p.mu is None:
-        cos_slack = [triangle_slack(m, p.tolerance, p.max_slack_deg) for m in scene.meshes]
-    else:
-        if p.mu <= 0:
-            raise ValueError(f"label mu must be positive (or None for frictionless), got {p.mu}")
-        cone = np.float32(np.cos(np.arctan(p.mu)))
-        cos_slack = [np.full(len(m.triangles), cone, np.float32) for m in scene.meshes]
-    slack_all = np.concatenate(cos_slack + [np.ones(1, np.float32)])
-    offsets = np.cumsum([0] + [len(s) for s in cos_slack])
+    cos_slack = float(np.cos(np.deg2rad(normal_slack_deg(hand, p))))
 
     od, fw, hd, hh = hand.hand_outer_diameter, hand.finger_width, hand.hand_depth, hand.hand_height
     gap = od / 2.0 - fw
@@ -117,6 +139,11 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
     in_gap = np.abs(py) < gap
     palm_limit = np.where(in_gap, p.palm_depth, p.palm_depth + hd)
 
+    left_local = np.stack([gx, np.full_like(gx, -od / 2), gz], axis=1).astype(np.float32)
+    right_local = left_local * np.array([1.0, -1.0, 1.0], np.float32)
+    palm_local = np.stack([np.full_like(py, -p.palm_depth), py, pz], axis=1).astype(np.float32)
+    g = len(gx)
+
     m = len(grasps)
     out_grasp = np.zeros(m, bool)
     out_coll = np.zeros(m, bool)
@@ -125,47 +152,45 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
     out_right = np.full(m, np.inf, np.float32)
     for a in range(0, m, p.chunk):
         sl = slice(a, min(a + p.chunk, m))
-        pos = grasps.positions[sl]
-        rot = grasps.rotations[sl]
-        ax_, bn, hz = rot[:, :, 0], rot[:, :, 1], rot[:, :, 2]
-        n = len(pos)
-        base = pos[:, None, :] + gx[None, :, None] * ax_[:, None, :] + gz[None, :, None] * hz[:, None, :]
-        left_o = base - (od / 2) * bn[:, None, :]
-        right_o = base + (od / 2) * bn[:, None, :]
-        dirs_l = np.broadcast_to(bn[:, None, :], left_o.shape)
-        palm_o = (pos[:, None, :] - p.palm_depth * ax_[:, None, :] + py[None, :, None] * bn[:, None, :]
-                  + pz[None, :, None] * hz[:, None, :])
-        dirs_p = np.broadcast_to(ax_[:, None, :], palm_o.shape)
-        origins = np.concatenate([left_o, right_o, palm_o], axis=1).astype(np.float32)
-        dirs = np.concatenate([dirs_l, -dirs_l, dirs_p], axis=1).astype(np.float32)
-        rays = np.concatenate([origins, dirs], axis=2).reshape(-1, 6)
-        hit = scene.cast_rays(rays, p.nthreads)
-        r = origins.shape[1]
-        t = hit["t_hit"].numpy().reshape(n, r)
-        nrm = hit["primitive_normals"].numpy().reshape(n, r, 3)
-        gid = hit["geometry_ids"].numpy().astype(np.int64).reshape(n, r)
-        pid = hit["primitive_ids"].numpy().astype(np.int64).reshape(n, r)
+        pos = grasps.positions[sl].astype(np.float32)
+        rot = grasps.rotations[sl].astype(np.float32)
+        bn = rot[:, :, 1]
+        # Closing rays: from each finger's outer face toward the other finger.
+        t, nrm = _cast(scene, pos, rot, np.concatenate([left_local, right_local]), 1, p.nthreads, sign=(g, -1.0))
+        dirs = np.concatenate([np.broadcast_to(bn[:, None, :], (len(pos), g, 3)),
+                               np.broadcast_to(-bn[:, None, :], (len(pos), g, 3))], axis=1)
         hit_ok = np.isfinite(t)
         facing = np.einsum("nrk,nrk->nr", nrm, dirs)
         back = hit_ok & (facing > _BACK_FACE_COS)
-        g = len(gx)
-        tl, tr, tp = t[:, :g], t[:, g : 2 * g], t[:, 2 * g :]
-        coll = (
-            np.any((tl < fw) | back[:, :g], axis=1)
-            | np.any((tr < fw) | back[:, g : 2 * g], axis=1)
-            | np.any((tp < palm_limit[None, :]) | back[:, 2 * g :], axis=1)
-        )
+        tl, tr = t[:, :g], t[:, g:]
+        coll = np.any((t < fw) | back, axis=1)
         sl_ = np.where((tl <= fw + 2 * gap) & ~back[:, :g], tl - fw, np.inf)
-        sr_ = np.where((tr <= fw + 2 * gap) & ~back[:, g : 2 * g], tr - fw, np.inf)
+        sr_ = np.where((tr <= fw + 2 * gap) & ~back[:, g:], tr - fw, np.inf)
         first_l = sl_.min(axis=1)
         first_r = sr_.min(axis=1)
         region_l = sl_ <= first_l[:, None] + 2 * p.tolerance
         region_r = sr_ <= first_r[:, None] + 2 * p.tolerance
-        tri = np.where(hit_ok, offsets[np.minimum(gid, len(cos_slack) - 1)] + pid, len(slack_all) - 1)
-        tri = np.where(gid < len(cos_slack), tri, len(slack_all) - 1)
-        cos_ok = -facing >= slack_all[tri]  # outward normal within the slack of the closing line
-        pair = region_l & region_r & cos_ok[:, :g] & cos_ok[:, g : 2 * g]
-        anti = np.any(pair, axis=1) & np.isfinite(first_l) & np.isfinite(first_r)
+        cos_ok = hit_ok & (-facing >= cos_slack)  # outward normal within the slack of the closing line
+        pair = region_l & region_r & cos_ok[:, :g] & cos_ok[:, g:]
+        both = np.isfinite(first_l) & np.isfinite(first_r)
+        anti = np.any(pair, axis=1) & both
+        if p.mu is not None:  # with friction the contacts need not face each other along y
+            todo = np.nonzero(~anti & both)[0]
+            nl = np.einsum("nrk,nkj->nrj", nrm[:, :g], rot)  # outward normals in the hand frame
+            nr = np.einsum("nrk,nkj->nrj", nrm[:, g:], rot)
+            gxb, gzb = np.broadcast_to(gx, sl_.shape), np.broadcast_to(gz, sl_.shape)
+            cl = np.stack([gxb, -gap + np.where(region_l, sl_, 0.0), gzb], axis=2)
+            cr = np.stack([gxb, gap - np.where(region_r, sr_, 0.0), gzb], axis=2)
+            for b in range(0, len(todo), 64):
+                i = todo[b : b + 64]
+                anti[i] = _cone_pairs(cl[i], nl[i], region_l[i], cr[i], nr[i], region_r[i], cos_slack)
+        # Palm and finger columns along the approach: only where they can still change the label.
+        check = np.flatnonzero(anti & ~coll)
+        if len(check):
+            tp, nrm_p = _cast(scene, pos[check], rot[check], palm_local, 0, p.nthreads)
+            facing_p = np.einsum("nrk,nk->nr", nrm_p, rot[check, :, 0])
+            back_p = np.isfinite(tp) & (facing_p > _BACK_FACE_COS)
+            coll[check] |= np.any((tp < palm_limit[None, :]) | back_p, axis=1)
         out_coll[sl] = coll
         out_anti[sl] = anti
         out_grasp[sl] = anti & ~coll
