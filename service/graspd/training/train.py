@@ -480,3 +480,25 @@ def train_plan(plan: dict[str, Any], models_dir: str | Path, dataset: str | None
             cmd = (command or "graspd train --plan PLAN") + f"  # model {config.name}"
             paths.append(train_and_export(config, folder, Path(models_dir) / ".work" / config.name, cmd, log))
     return paths
+
+
+#: A tiny dataset for tests and demos: a few procedural and pybullet_data objects, 4 views each.
+TINY_DATASET = {"exemplars": 600, "num_urdfs": 6, "procedural": (("box", 6), ("cylinder", 6), ("sphere", 2)),
+                "views_per_object": 4, "num_samples": 60}
+
+
+def train_tiny_model(out_dir: str | Path, seed: int = 0, name: str = "tiny15") -> Path:
+    """A small real classifier for tests: generates a tiny dataset (~700 exemplars from 20 objects) under
+    out_dir/dataset, trains the fast 15-channel network for a few epochs and exports out_dir/models/<name>.onnx
+    with its card; about a minute or less on 2 cores.  Returns the .onnx path (load it with
+    graspd.classifier.load_model)."""
+    from .dataset import GenerationParams, generate_dataset
+
+    out = Path(out_dir)
+    data = out / "dataset"
+    if not (data / "manifest.json").exists():
+        generate_dataset(data, GenerationParams(seed=seed, **TINY_DATASET), workers=1)  # type: ignore[arg-type]
+    config = TrainConfig(dataset=str(data), name=name, epochs=8, batch_size=32, patience=8, seed=seed,
+                         max_val=None)
+    command = f"graspd.training.train.train_tiny_model({str(out)!r}, seed={seed})"
+    return train_and_export(config, out / "models", out / "work", command=command, log=lambda *a: None)

@@ -1,0 +1,79 @@
+"""The whole classifier pipeline on a tiny generated dataset: data -> train -> ONNX + card -> load -> score."""
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from graspd.classifier import GraspClassifier, load_model
+from graspd.training import cli
+from graspd.training.dataset import read_manifest
+from graspd.training.evaluate import classification_metrics
+from graspd.training.export import check_parity
+from graspd.training.train import TrainConfig, load_checkpoint, load_rows, train, train_tiny_model
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return train_tiny_model(tmp_path_factory.mktemp("tiny"), seed=0)
+
+
+def test_tiny_model_beats_chance_on_held_out_views(tiny: Path) -> None:
+    root = tiny.parent.parent
+    clf = load_model(tiny)
+    assert isinstance(clf, GraspClassifier) and clf.name == "tiny15" and clf.representation == "15"
+    images, labels, _ = load_rows(root / "dataset", "view", "test", "15")
+    scores = clf.score(images)
+    m = classification_metrics(scores, labels)
+    n = len(labels)
+    assert n >= 100 and 0.3 < labels.mean() < 0.7
+    assert m["accuracy"] > 0.5 + 3.0 * np.sqrt(0.25 / n), m  # three standard errors above a coin flip
+    assert m["average_precision"] > 0.7, m
+    # the card reports what we just measured, on the exported model
+    card = clf.card
+    assert card["metrics"]["view_test"]["accuracy"] == pytest.approx(m["accuracy"])
+    assert card["training"]["dataset_manifest_sha256"] == read_manifest(root / "dataset")["dataset_sha256"]
+    assert card["hand"]["hand_depth"] == 0.06 and card["output"]["range"] == [0.0, 1.0]
+    assert card["input"]["scale"] == pytest.approx(1 / 255) and "train_tiny_model" in card["command"]
+
+
+def test_onnx_matches_the_trained_checkpoint(tiny: Path) -> None:
+    root = tiny.parent.parent
+    net, config = load_checkpoint(root / "work" / "checkpoint.pt")
+    images, _, _ = load_rows(root / "dataset", "view", "test", "15", limit=64)
+    clf = load_model(tiny)
+    assert check_parity(net, tiny, clf.card, images) <= 1e-4
+    assert config.name == "tiny15" and config.seed == 0
+
+
+def test_training_is_reproducible_from_config_and_seed(tiny: Path, tmp_path: Path) -> None:
+    data = str(tiny.parent.parent / "dataset")
+    config = TrainConfig(dataset=data, name="rep", representation="herzog", epochs=1, max_train=96, seed=5)
+    train(config, tmp_path / "a", log=lambda *a: None)
+    train(config, tmp_path / "b", log=lambda *a: None)
+    a = torch.load(tmp_path / "a" / "checkpoint.pt", weights_only=True)["state_dict"]
+    b = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=True)["state_dict"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    metrics = json.loads((tmp_path / "a" / "train_metrics.json").read_text())
+    assert metrics["num_train"] == 96 and len(metrics["history"]) == 1
+
+
+def test_cli_trains_evaluates_and_exports(tiny: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    parser = argparse.ArgumentParser()
+    cli.register(parser.add_subparsers())
+    data = str(tiny.parent.parent / "dataset")
+    args = parser.parse_args(["train", "--dataset", data, "--name", "box3", "--representation", "3",
+                              "--categories", "box", "--epochs", "1", "--models-dir", str(tmp_path / "m")])
+    assert args.func(args) == 0
+    card = json.loads((tmp_path / "m" / "box3.json").read_text())
+    assert card["representation"] == "3" and card["channels"] == 3 and card["categories"] == ["box"]
+    assert set(card["metrics"]) == {"view_test", "view_test_box"}
+    assert card["metrics"]["view_test_box"]["n"] < card["metrics"]["view_test"]["n"]
+    assert "box3" in capsys.readouterr().out
+    bad = parser.parse_args(["train", "--dataset", data, "--representation", "15", "--split", "view",
+                             "--categories", "bowl"])
+    assert bad.func(bad) == 2
+    assert "categories must be among" in capsys.readouterr().err
