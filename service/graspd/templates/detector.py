@@ -49,12 +49,14 @@ class TemplateParams:
 @dataclass(frozen=True)
 class TemplateDetection:
     """Grasps best first (score = 1 / (1 + m), m the eq. 2 mismatch), the id of each for feedback, the
-    library entry each came from, per-stage timings (s) and counts."""
+    library entry each came from, the candidate template frame (4x4, columns x, y, height axis; origin on
+    the hull; grasps.samples is its origin), per-stage timings (s) and counts."""
 
     grasps: GraspSet
     grasp_ids: list[str]
     entry_ids: NDArray[np.int64]
     mismatch: F64
+    frames: F64
     timings: dict[str, float]
     num_candidates: int
     num_points: int
@@ -154,8 +156,8 @@ class TemplateDetector:
         snap = self.library.snapshot()
         t3 = time.perf_counter()
         times["library"] = t3 - t2
-        empty = TemplateDetection(GraspSet(), [], np.zeros(0, np.int64), np.zeros(0), times, len(heights),
-                                  len(cloud), len(snap))
+        empty = TemplateDetection(GraspSet(), [], np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 4, 4)), times,
+                                  len(heights), len(cloud), len(snap))
         if len(snap) == 0:
             times["total"] = time.perf_counter() - t0
             return empty
@@ -176,7 +178,7 @@ class TemplateDetector:
         if p.reject_collisions:
             keep = ~hand_collisions(scene, poses[:, :3, 3], poses[:, :3, :3], hand)
         sel = np.flatnonzero(keep)[:max_grasps]
-        rows, poses = order[sel], poses[sel]
+        rows, poses, cand_pose = order[sel], poses[sel], cand_pose[sel]
         widths = closing_widths(scene, poses[:, :3, 3], poses[:, :3, :3], hand, snap.widths[best[rows]])
         mism = best_m[rows]
         grasps = GraspSet(positions=poses[:, :3, 3].copy(), rotations=poses[:, :3, :3].copy(), widths=widths,
@@ -192,4 +194,5 @@ class TemplateDetector:
         t6 = time.perf_counter()
         times["record"] = t6 - t5
         times["total"] = t6 - t0
-        return TemplateDetection(grasps, ids, entry_ids, mism, times, len(heights), len(cloud), len(snap), det_id)
+        return TemplateDetection(grasps, ids, entry_ids, mism, cand_pose, times, len(heights), len(cloud), len(snap),
+                                 det_id)

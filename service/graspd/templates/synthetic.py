@@ -71,3 +71,36 @@ def render_cloud(meshes: list[o3d.geometry.TriangleMesh], cameras: F64, look_at:
         src.append(np.full(ok.sum(), k, np.int32))
     return ViewpointCloud(points=np.concatenate(pts).astype(np.float32), viewpoints=cams.astype(np.float32),
                           camera_source=np.concatenate(src))
+
+
+def box_top_grasp(box_pose: F64, extents: tuple[float, float, float], hand_depth: float = 0.06,
+                  bite: float = 0.02) -> F64:
+    """A vertical hand pose on a box (pose 4x4, extents m) closing across its local x side, fingertips
+    bite (m) below the top face; rotation columns [approach, binormal, axis] (DESIGN.md)."""
+    approach = np.array([0.0, 0.0, -1.0])
+    binormal = box_pose[:3, :3] @ np.array([1.0, 0.0, 0.0])
+    rot = np.column_stack([approach, binormal, np.cross(approach, binormal)])
+    top = box_pose[:3, 3] + box_pose[:3, :3] @ np.array([0.0, 0.0, extents[2] / 2])
+    return pose_from(rot, top - approach * (hand_depth - bite))
+
+
+def box_side_grasp(box_pose: F64, extents: tuple[float, float, float], hand_depth: float = 0.06,
+                   bite: float = 0.03, height: float = 0.2) -> F64:
+    """A horizontal hand pose approaching a box's local +x face along -x, closing along its local y,
+    at `height` (fraction of the box height) above its centre."""
+    approach = box_pose[:3, :3] @ np.array([-1.0, 0.0, 0.0])
+    binormal = box_pose[:3, :3] @ np.array([0.0, 1.0, 0.0])
+    rot = np.column_stack([approach, binormal, np.cross(approach, binormal)])
+    face = box_pose[:3, 3] + box_pose[:3, :3] @ np.array([extents[0] / 2, 0.0, extents[2] * height])
+    return pose_from(rot, face - approach * (hand_depth - bite))
+
+
+def grasp_angle_deg(rot_a: F64, rot_b: F64) -> float:
+    """Angle (deg) between two hand orientations, counting a half turn about the approach as no change
+    (a parallel-jaw hand is symmetric under it)."""
+    flip = np.diag([1.0, -1.0, -1.0])
+    best = 180.0
+    for b in (rot_b, rot_b @ flip):
+        c = (np.trace(rot_a.T @ b) - 1.0) / 2.0
+        best = min(best, float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))))
+    return best
