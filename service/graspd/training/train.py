@@ -136,13 +136,15 @@ def load_rows(directory: str | Path, kind: str, part: str, representation: str,
     return images, labels, cats
 
 
-_ROW_CACHE: dict[tuple[str, str, str], tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.uint8]]] | None = None
+_RowKey = tuple[str, str, str, tuple[str, ...] | None, int | None, int]
+_Rows = tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.uint8]]
+_ROW_CACHE: dict[_RowKey, _Rows] | None = None
 
 
 @contextmanager
 def row_cache() -> Iterator[None]:
-    """Within this block, training keeps every split part it loads (15 channels, all categories) in memory,
-    so a plan of several models reads and decompresses the dataset once."""
+    """Within this block, training keeps the train and val rows it loaded last (15 channels) in memory, so
+    consecutive models of a plan that differ only in representation or network read the dataset once."""
     global _ROW_CACHE
     _ROW_CACHE = {}
     try:
@@ -152,26 +154,20 @@ def row_cache() -> Iterator[None]:
 
 
 def training_rows(dataset: str, kind: str, part: str, categories: list[str] | None, limit: int | None,
-                  seed: int) -> tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.int64]]:
-    """(15-channel images, labels, row index) of a split part: the rows to use are images[index], restricted
-    to categories and to a seeded random subset of at most limit rows; nothing is copied."""
-    from .dataset import CATEGORIES
-
-    key = (str(Path(dataset).resolve()), kind, part)
+                  seed: int) -> _Rows:
+    """(15-channel images, labels, categories) of a split part, restricted to categories and to a seeded
+    random subset of at most limit rows; served from the row cache when one is active (one entry per part)."""
+    key: _RowKey = (str(Path(dataset).resolve()), kind, part, None if categories is None else tuple(categories),
+                    limit, seed)
     if _ROW_CACHE is not None and key in _ROW_CACHE:
-        images, labels, cats = _ROW_CACHE[key]
-    else:
-        images, labels, cats = load_rows(dataset, kind, part, "15")
-        if _ROW_CACHE is not None:
-            _ROW_CACHE[key] = (images, labels, cats)
-    index = np.arange(len(labels))
-    if categories is not None:
-        index = np.flatnonzero(np.isin(cats, [CATEGORIES[c] for c in categories]))
-    if len(index) == 0:
-        raise ValueError(f"split {kind!r} part {part!r} has no rows of categories {categories} in {dataset}")
-    if limit is not None and limit < len(index):
-        index = np.sort(np.random.default_rng(seed).choice(index, limit, replace=False))
-    return images, labels, index
+        return _ROW_CACHE[key]
+    if _ROW_CACHE is not None:  # free the previous rows of this part before loading new ones
+        for old in [k for k in _ROW_CACHE if k[2] == part]:
+            del _ROW_CACHE[old]
+    rows = load_rows(dataset, kind, part, "15", categories, limit, seed)
+    if _ROW_CACHE is not None:
+        _ROW_CACHE[key] = rows
+    return rows
 
 
 _AXES = {"x": 0, "y": 1, "z": 2}
@@ -279,13 +275,12 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
     rng = np.random.default_rng(config.seed)
     t0 = time.perf_counter()
     manifest = read_manifest(config.dataset)
-    x_tr, y_all, tr_index = training_rows(config.dataset, config.split, "train", config.categories,
-                                          config.max_train, config.seed)
-    y_tr = y_all[tr_index]
-    x_va15, y_va_all, va_index = training_rows(config.dataset, config.split, "val", config.categories,
-                                               config.max_val, config.seed + 1)
-    x_va = derive_images(x_va15[va_index], config.representation)
-    y_va = y_va_all[va_index]
+    x_tr, y_tr, _ = training_rows(config.dataset, config.split, "train", config.categories, config.max_train,
+                                  config.seed)
+    tr_index = np.arange(len(y_tr))
+    x_va15, y_va, _ = training_rows(config.dataset, config.split, "val", config.categories, config.max_val,
+                                    config.seed + 1)
+    x_va = derive_images(x_va15, config.representation)
     rep = config.representation
 
     def batch_images(rows: NDArray[np.int64]) -> NDArray[np.uint8]:
@@ -382,8 +377,8 @@ def export_trained(net: nn.Module, config: TrainConfig, train_metrics: dict[str,
     from graspd.classifier import OnnxGraspClassifier
     from graspd.images import channel_layout
 
-    from .dataset import read_manifest
-    from .evaluate import evaluate_classifier
+    from .dataset import CATEGORIES, derive_images, read_manifest
+    from .evaluate import classification_metrics
     from .export import base_card, check_parity, export_onnx, write_card
     from .network import count_parameters, multiply_adds
 
@@ -394,16 +389,20 @@ def export_trained(net: nn.Module, config: TrainConfig, train_metrics: dict[str,
     onnx_path = export_onnx(net, models / f"{config.name}.onnx", channels, size)
     card = base_card(config.name, config.representation, channels, size, config.architecture, manifest["hand"],
                      channel_layout(config.representation))
-    x_par, _, _ = load_rows(config.dataset, config.split, "test", config.representation, config.categories,
-                            parity_rows, config.seed)
-    card["parity_max_abs_diff"] = check_parity(net, onnx_path, card, x_par)
     clf = OnnxGraspClassifier(onnx_path, card, threads=config.threads)
     if evaluate_on is None:
         evaluate_on = [(config.split, None)] + [(config.split, [c]) for c in (config.categories or [])]
     metrics: dict[str, Any] = {}
     for kind, cats in evaluate_on:
+        images15, labels, row_cats = training_rows(config.dataset, kind, "test", None, None, 0)
+        rows = np.arange(len(labels)) if cats is None else np.flatnonzero(
+            np.isin(row_cats, [CATEGORIES[c] for c in cats]))
+        images = derive_images(images15[rows], config.representation)
+        if "parity_max_abs_diff" not in card:
+            card["parity_max_abs_diff"] = check_parity(net, onnx_path, card, images[:parity_rows])
         key = f"{kind}_test" + ("" if cats is None else "_" + "+".join(cats))
-        metrics[key], _, _ = evaluate_classifier(clf, config.dataset, kind, "test", cats)
+        metrics[key] = {"split": kind, "part": "test", "categories": cats or "all",
+                        **classification_metrics(clf.score(images), labels[rows])}
     card.update({
         "categories": config.categories or "all",
         "metrics": metrics,
