@@ -97,5 +97,6 @@ def grasp_image(cloud: ViewpointCloud, pose: F64, width: float, hand: HandGeomet
 
 
 def cloud_from_arrays(arrays: dict[str, Any]) -> ViewpointCloud:
-    return ViewpointCloud(points=arrays["points"], viewpoints=arrays["viewpoints"],
-                          camera_source=arrays["camera_source"])
+    """The cloud kept with a detection (see graspd.templates.detector.cloud_arrays)."""
+    return ViewpointCloud(points=(arrays["offsets"].astype(np.float64) + arrays["centre"]).astype(np.float32),
+                          viewpoints=arrays["viewpoints"], camera_source=arrays["camera_source"].astype(np.int32))

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from ..cloud import CloudError, ViewpointCloud
 from ..grasp import GraspSet
 from ..hand import HandGeometry
+from ..preprocess import voxelize
 from ..scene import ball_pairs, closing_region_points
 from .geometry import TemplateError, TemplateScene, candidate_templates, prepare_scene
 from .matching import match
@@ -120,8 +121,13 @@ def closing_widths(scene: TemplateScene, positions: F64, rotations: F64, hand: H
     return out
 
 
-def cloud_arrays(cloud: ViewpointCloud) -> dict[str, NDArray[Any]]:
-    return {"points": cloud.points, "viewpoints": cloud.viewpoints, "camera_source": cloud.camera_source}
+def cloud_arrays(cloud: ViewpointCloud, voxel: float = 0.003) -> dict[str, NDArray[Any]]:
+    """The cloud to keep with a detection, small: voxelized at GPD's default 3 mm (graspd.preprocess, which
+    GPD's grasp images start from anyway), stored as float16 offsets (~0.1 mm steps) from its centre."""
+    pts, src, _ = voxelize(cloud.points, cloud.camera_source, voxel)
+    centre = pts.astype(np.float64).mean(axis=0) if len(pts) else np.zeros(3)
+    return {"centre": centre, "offsets": (pts - centre).astype(np.float16), "viewpoints": cloud.viewpoints,
+            "camera_source": src.astype(np.int16)}
 
 
 class TemplateDetector:
@@ -175,8 +181,13 @@ class TemplateDetector:
         cand_pose[:, 3, 3] = 1.0
         poses = cand_pose @ snap.grasps[best[order]]
         keep = np.ones(len(order), bool)
-        if p.reject_collisions:
-            keep = ~hand_collisions(scene, poses[:, :3, 3], poses[:, :3, :3], hand)
+        if p.reject_collisions:  # in rank order, a chunk at a time, until max_grasps are collision-free
+            step, done = max(2 * int(max_grasps), 32), 0
+            while done < len(order) and keep[:done].sum() < max_grasps:
+                end = min(done + step, len(order))
+                keep[done:end] = ~hand_collisions(scene, poses[done:end, :3, 3], poses[done:end, :3, :3], hand)
+                done = end
+            keep[done:] = False
         sel = np.flatnonzero(keep)[:max_grasps]
         rows, poses, cand_pose = order[sel], poses[sel], cand_pose[sel]
         widths = closing_widths(scene, poses[:, :3, 3], poses[:, :3, :3], hand, snap.widths[best[rows]])

@@ -23,6 +23,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from ..cloud import CloudError, ViewpointCloud
 from ..hand import HandGeometry
+from ..preprocess import voxelize
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
@@ -88,37 +89,39 @@ class TablePlane:
 
 
 def segment_table(points: F32, viewpoints: F32, distance: float = 0.005, min_fraction: float = 0.1,
-                  seed: int = 0) -> tuple[TablePlane | None, NDArray[np.bool_]]:
-    """The dominant plane (open3d RANSAC) as the table if it holds min_fraction of the points, and its
-    inlier mask; (None, all False) if there is no such plane."""
+                  seed: int = 0, max_fit_points: int = 20000) -> tuple[TablePlane | None, NDArray[np.bool_]]:
+    """The dominant plane (open3d RANSAC on at most max_fit_points, seeded) as the table if it holds
+    min_fraction of the points, and the mask of points within distance (m) of it; (None, all False)
+    if there is no such plane."""
     import open3d as o3d
 
     mask = np.zeros(len(points), bool)
     if len(points) < 50:
         return None, mask
+    fit = points
+    if len(points) > max_fit_points:
+        fit = points[np.random.default_rng(seed).choice(len(points), max_fit_points, replace=False)]
     o3d.utility.random.seed(seed)
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(fit.astype(np.float64)))
     model, inliers = pcd.segment_plane(distance_threshold=distance, ransac_n=3, num_iterations=200)
-    if len(inliers) < min_fraction * len(points):
+    if len(inliers) < min_fraction * len(fit):
         return None, mask
     normal = np.asarray(model[:3], np.float64)
     scale = float(np.linalg.norm(normal))
     normal, offset = normal / scale, float(model[3]) / scale
     if float(np.mean(viewpoints.astype(np.float64) @ normal + offset)) < 0.0:
         normal, offset = -normal, -offset
-    mask[np.asarray(inliers, np.int64)] = True
-    return TablePlane(normal=normal, offset=offset), mask
+    plane = TablePlane(normal=normal, offset=offset)
+    mask = np.abs(plane.height(points)) < distance
+    return plane, mask
 
 
 def voxel_downsample(points: F64, voxel: float) -> F64:
-    """One point (the mean) per occupied voxel of side voxel (m)."""
+    """One point (the mean) per occupied voxel of side voxel (m) (graspd.preprocess.voxelize)."""
     if len(points) == 0:
         return points
-    keys = np.floor(points / voxel).astype(np.int64)
-    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    out = np.stack([np.bincount(inv, points[:, a]) for a in range(3)], axis=1)
-    return out / counts[:, None]
+    out, _, _ = voxelize(points.astype(np.float32), np.zeros(len(points), np.int32), voxel)
+    return out.astype(np.float64)
 
 
 @dataclass(frozen=True)

@@ -170,9 +170,9 @@ def migrate(engine: Engine, target: int = SCHEMA_VERSION) -> int:
     raise AssertionError("unreachable")
 
 
-def to_npz(**arrays: NDArray[Any]) -> bytes:
+def to_npz(compress: bool = True, **arrays: NDArray[Any]) -> bytes:
     buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)  # type: ignore[arg-type]
+    (np.savez_compressed if compress else np.savez)(buf, **arrays)  # type: ignore[operator]
     return buf.getvalue()
 
 
@@ -326,7 +326,7 @@ class TemplateLibrary:
                          widths=np.asarray(widths, np.float64), mismatch=np.asarray(mismatch, np.float64))
         with self.engine.begin() as conn:
             conn.execute(detections.insert().values(id=det_id, created_at=time.time(), payload=payload,
-                                                    cloud=None if cloud is None else to_npz(**cloud)))
+                                                    cloud=None if cloud is None else to_npz(False, **cloud)))
         return det_id
 
     def detection_grasp(self, grasp_id: str) -> tuple[dict[str, Any], dict[str, NDArray[Any]] | None]:

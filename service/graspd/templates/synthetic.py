@@ -104,3 +104,22 @@ def grasp_angle_deg(rot_a: F64, rot_b: F64) -> float:
         c = (np.trace(rot_a.T @ b) - 1.0) / 2.0
         best = min(best, float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))))
     return best
+
+
+def random_urdf_mesh(object_id: int, size: float, yaw: float = 0.0, xy: tuple[float, float] = (0.0, 0.0)
+                     ) -> o3d.geometry.TriangleMesh:
+    """pybullet_data's random_urdfs/<id> mesh scaled so its largest extent is size (m), turned by yaw (rad)
+    about z and set on the table plane z = 0 at xy.  Ids 900-999 are held out (DESIGN.md): tests and
+    demonstrations use 000-899 only."""
+    import pybullet_data
+
+    path = f"{pybullet_data.getDataPath()}/random_urdfs/{object_id:03d}/{object_id:03d}.obj"
+    mesh = o3d.io.read_triangle_mesh(path)
+    if len(mesh.vertices) == 0:
+        raise FileNotFoundError(f"object_id {object_id}: no mesh at {path}")
+    verts = np.asarray(mesh.vertices)
+    mesh.translate(-(verts.min(axis=0) + verts.max(axis=0)) / 2)
+    mesh.scale(size / float(np.ptp(verts, axis=0).max()), center=np.zeros(3))
+    mesh.rotate(rot_z(yaw), center=np.zeros(3))
+    mesh.translate(np.array([xy[0], xy[1], -float(np.asarray(mesh.vertices)[:, 2].min())]))
+    return mesh
