@@ -172,7 +172,7 @@ def migrate(engine: Engine, target: int = SCHEMA_VERSION) -> int:
 
 def to_npz(compress: bool = True, **arrays: NDArray[Any]) -> bytes:
     buf = io.BytesIO()
-    (np.savez_compressed if compress else np.savez)(buf, **arrays)  # type: ignore[operator]
+    (np.savez_compressed if compress else np.savez)(buf, **arrays)  # type: ignore[operator, arg-type]
     return buf.getvalue()
 
 

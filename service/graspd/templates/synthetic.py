@@ -111,9 +111,11 @@ def random_urdf_mesh(object_id: int, size: float, yaw: float = 0.0, xy: tuple[fl
     """pybullet_data's random_urdfs/<id> mesh scaled so its largest extent is size (m), turned by yaw (rad)
     about z and set on the table plane z = 0 at xy.  Ids 900-999 are held out (DESIGN.md): tests and
     demonstrations use 000-899 only."""
+    from pathlib import Path
+
     import pybullet_data
 
-    path = f"{pybullet_data.getDataPath()}/random_urdfs/{object_id:03d}/{object_id:03d}.obj"
+    path = Path(pybullet_data.getDataPath()) / "random_urdfs" / f"{object_id:03d}" / f"{object_id:03d}.obj"
     mesh = o3d.io.read_triangle_mesh(path)
     if len(mesh.vertices) == 0:
         raise FileNotFoundError(f"object_id {object_id}: no mesh at {path}")
