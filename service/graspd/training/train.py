@@ -44,7 +44,7 @@ class TrainConfig:
     threads: int = 2
     max_train: int | None = None              # use at most this many training exemplars (random, seeded)
     max_val: int | None = 20000
-    max_minutes: float | None = None          # stop after the epoch that passes this wall time
+    max_minutes: float | None = None          # training time budget (after loading); the LR decays over it
     augment: bool = True                      # random mirror images across hand y and z (label-preserving)
     network: dict[str, Any] = field(default_factory=dict)  # extra FastNet arguments (width, hidden)
 
@@ -299,7 +299,12 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
     net = build_network(config.architecture, channels, size, **config.network)
     loss_fn = nn.CrossEntropyLoss(weight=class_weight)
     opt = torch.optim.Adam(net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.epochs)
+    steps_per_epoch = -(-len(y_tr) // config.batch_size)
+    total_steps = config.epochs * steps_per_epoch
+    limit_s = None if config.max_minutes is None else 60.0 * config.max_minutes
+    t_train = time.perf_counter()
+    step = 0
+    out_of_time = False
     y_va_t = torch.from_numpy(y_va.astype(np.int64))
     best: dict[str, Any] = {"val_loss": float("inf")}
     best_state: dict[str, torch.Tensor] = {}
@@ -311,6 +316,16 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
         net.train()
         total, seen = 0.0, 0
         for idx in _batches(len(y_tr), config.batch_size, rng):
+            # cosine learning-rate decay over the run: over the steps, or over the time budget if that ends first
+            progress = step / total_steps
+            if limit_s is not None:
+                progress = max(progress, (time.perf_counter() - t_train) / limit_s)
+            if progress >= 1.0:
+                out_of_time = True
+                break
+            for group in opt.param_groups:
+                group["lr"] = config.learning_rate * 0.5 * (1.0 + np.cos(np.pi * progress))
+            step += 1
             x = _to_tensor(batch_images(tr_index[idx]))
             y = torch.from_numpy(y_tr[idx].astype(np.int64))
             opt.zero_grad(set_to_none=True)
@@ -319,13 +334,15 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
             opt.step()
             total += loss.item() * len(idx)
             seen += len(idx)
-        sched.step()
+        if seen == 0:  # the time budget ran out at the end of the previous epoch
+            stopped = "time_limit"
+            break
         recalibrate_batchnorm(net, batch_images(rng.choice(tr_index, min(4096, len(tr_index)), replace=False)))
         logits = predict_logits(net, x_va)
         val_loss = float(loss_fn(torch.from_numpy(logits), y_va_t))
         val_acc = float(np.mean((logits[:, 1] > logits[:, 0]) == (y_va == 1)))
-        row = {"epoch": epoch + 1, "train_loss": total / seen, "val_loss": val_loss, "val_accuracy": val_acc,
-               "seconds": time.perf_counter() - te}
+        row = {"epoch": epoch + 1, "train_loss": total / seen, "exemplars_seen": seen, "val_loss": val_loss,
+               "val_accuracy": val_acc, "seconds": time.perf_counter() - te}
         history.append(row)
         log(f"[{config.name}] epoch {epoch + 1}: train loss {row['train_loss']:.4f}  val loss {val_loss:.4f}  "
             f"val acc {val_acc:.4f}  ({row['seconds']:.1f} s)")
@@ -338,7 +355,7 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
             if stale >= config.patience:
                 stopped = "early_stopping"
                 break
-        if config.max_minutes is not None and time.perf_counter() - t0 > 60.0 * config.max_minutes:
+        if out_of_time:
             stopped = "time_limit"
             break
     net.load_state_dict(best_state)
