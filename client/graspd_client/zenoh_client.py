@@ -66,6 +66,7 @@ class ZenohGraspClient:
 
         out = []
         for reply in self._session.get(f"{self.prefix}/instances/*", target=zenoh.QueryTarget.ALL,
+                                       consolidation=zenoh.ConsolidationMode.NONE,
                                        timeout=min(self.timeout, 5.0)):
             if reply.ok is not None:
                 try:
