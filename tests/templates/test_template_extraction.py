@@ -101,3 +101,22 @@ def test_candidates_cover_every_axis_and_rotation(render_box, box_pose) -> None:
     top = np.argmax(frames[::16, 2, 2])
     counts = (types[16 * top : 16 * top + 16] == SURFACE).sum(axis=1)
     assert counts.min() >= 0.85 * counts.max()
+
+
+def test_separate_pieces_get_their_own_axes_and_outliers_are_dropped(render_box, box_pose) -> None:
+    from graspd.cloud import ViewpointCloud
+    from graspd.templates.synthetic import box_mesh, render_cloud, table_mesh
+
+    cams = np.array([[0.5, 0.1, 0.5]])
+    left, right = box_pose(xy=(-0.06, 0.0)), box_pose(yaw=1.0, xy=(0.07, 0.02))
+    cloud = render_cloud([table_mesh(), box_mesh(BOX, left), box_mesh(BOX, right)], cams, (0.0, 0.0, 0.04),
+                         width=320, height=240)
+    stray = np.array([[0.0, -0.1, 0.3], [0.01, -0.1, 0.31], [0.2, 0.2, 0.25]], np.float32)  # flying pixels
+    noisy = ViewpointCloud(points=np.concatenate([cloud.points, stray]), viewpoints=cloud.viewpoints)
+    scene = prepare_scene(noisy, GEOM)
+    assert scene.segments.max() == 1  # two boxes, the stray points dropped
+    assert scene.object_points[:, 2].max() < 0.085
+    centres, normals = height_axes(scene)
+    tops = centres[normals[:, 2] > 0.99]
+    assert len(tops) == 2
+    assert sorted(np.round(tops[:, 0], 2).tolist()) == [-0.06, 0.07]

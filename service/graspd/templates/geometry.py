@@ -187,6 +187,7 @@ class TemplateScene:
     their kd-tree, the table plane, and one depth map per camera for the occlusion test."""
 
     object_points: F64
+    segments: NDArray[np.int64]  # (N,) connected piece of each object point (0..S-1)
     tree: cKDTree
     table: TablePlane | None
     depth_maps: tuple[DepthMap, ...]
@@ -226,6 +227,7 @@ def prepare_scene(cloud: ViewpointCloud, geometry: TemplateGeometry, workspace: 
     else:
         keep = np.ones(len(pts), bool)
     obj = voxel_downsample(pts[keep], 0.6 * geometry.tile)
+    obj, segments = connected_pieces(obj, 1.5 * geometry.tile)
     if len(obj) < 4:
         raise TemplateError("cloud.points: fewer than 4 object points above the table")
     sub = pts[:: max(1, len(pts) // 4000)]
@@ -239,8 +241,31 @@ def prepare_scene(cloud: ViewpointCloud, geometry: TemplateGeometry, workspace: 
             dm = depth_map(seen, vps[k], centre, spacing)
             if dm is not None:
                 maps.append(dm)
-    return TemplateScene(object_points=obj, tree=cKDTree(obj), table=plane, depth_maps=tuple(maps),
+    return TemplateScene(object_points=obj, segments=segments, tree=cKDTree(obj), table=plane, depth_maps=tuple(maps),
                          viewpoints=vps, geometry=geometry, num_points=len(cloud))
+
+
+def connected_pieces(points: F64, link: float, min_points: int = 20, min_fraction: float = 0.02
+                     ) -> tuple[F64, NDArray[np.int64]]:
+    """Points linked within link (m) grouped into pieces; pieces smaller than min_points or min_fraction of
+    all points (sensor outliers) dropped.  The kept points and their piece labels 0..S-1."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if len(points) < 4:
+        return points, np.zeros(len(points), np.int64)
+    pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
+    _, labels = connected_components(graph, directed=False)
+    sizes = np.bincount(labels)
+    big = np.flatnonzero(sizes >= max(min_points, min_fraction * len(points)))
+    if len(big) == 0:
+        return points[:0], np.zeros(0, np.int64)
+    relabel = np.full(len(sizes), -1, np.int64)
+    relabel[big] = np.arange(len(big))
+    lab = relabel[labels]
+    keep = lab >= 0
+    return points[keep], lab[keep]
 
 
 def reference_x(normals: F64) -> F64:
@@ -254,26 +279,39 @@ def reference_x(normals: F64) -> F64:
 
 def height_axes(scene: TemplateScene, merge_angle_deg: float = 20.0, merge_offset: float | None = None
                 ) -> tuple[F64, F64]:
-    """Height axes (centres (A,3), outward unit normals (A,3)) from the convex-hull polygons of the object
-    that face at least one camera.  Hull triangles are merged into polygons, biggest first: a triangle
-    joins when its normal is within merge_angle_deg and its centroid within merge_offset (default one
-    tile) of the seed's plane.  Each axis starts at its polygon's area-weighted centroid, moved onto the
-    supporting plane so that no object point lies above it."""
-    pts = scene.object_points
+    """Height axes (centres (A,3), outward unit normals (A,3)) from the convex-hull polygons of each
+    connected piece of the object that face at least one camera.  Hull triangles are merged into polygons,
+    biggest first: a triangle joins when its normal is within merge_angle_deg and its centroid within
+    merge_offset (default one tile) of the seed's plane.  Each axis starts at its polygon's area-weighted
+    centroid, moved onto the piece's supporting plane so that none of its points lies above it."""
+    centres, normals = [], []
+    for piece in range(int(scene.segments.max()) + 1 if len(scene.segments) else 0):
+        c, n = hull_axes(scene.object_points[scene.segments == piece], scene.viewpoints, merge_angle_deg,
+                         scene.geometry.tile if merge_offset is None else merge_offset)
+        centres.append(c)
+        normals.append(n)
+    if not centres or sum(len(c) for c in centres) == 0:
+        raise TemplateError("cloud.points: the object points span no volume facing a camera "
+                            "(cloud.viewpoints must see the object)")
+    return np.concatenate(centres), np.concatenate(normals)
+
+
+def hull_axes(pts: F64, viewpoints: F64, merge_angle_deg: float, tol: float) -> tuple[F64, F64]:
+    """The height axes of one piece (see height_axes); none if its points span no volume."""
+    empty = np.zeros((0, 3))
     try:
         hull = ConvexHull(pts)
-    except (QhullError, ValueError) as exc:
-        raise TemplateError(f"cloud.points: the object points span no volume ({exc.__class__.__name__})") from None
+    except (QhullError, ValueError):
+        return empty, empty
     tri = pts[hull.simplices]
     normals = hull.equations[:, :3]
     cents = tri.mean(axis=1)
     areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    to_cam = scene.viewpoints[None, :, :] - cents[:, None, :]
+    to_cam = viewpoints[None, :, :] - cents[:, None, :]
     front = (np.einsum("fkj,fj->fk", to_cam, normals) > 0.0).any(axis=1)
     normals, cents, areas = normals[front], cents[front], areas[front]
     if len(normals) == 0:
-        raise TemplateError("cloud.viewpoints: no convex-hull facet of the object faces a camera")
-    tol = scene.geometry.tile if merge_offset is None else merge_offset
+        return empty, empty
     cos_lim = np.cos(np.radians(merge_angle_deg))
     left = np.ones(len(normals), bool)
     out_c, out_n = [], []
@@ -290,8 +328,7 @@ def height_axes(scene: TemplateScene, merge_angle_deg: float = 20.0, merge_offse
         out_c.append(c)
         out_n.append(n)
     centres, norms = np.array(out_c), np.array(out_n)
-    hull_pts = pts[hull.vertices]
-    support = (hull_pts @ norms.T).max(axis=0)
+    support = (pts[hull.vertices] @ norms.T).max(axis=0)
     centres += (support - np.einsum("ij,ij->i", centres, norms))[:, None] * norms
     return centres, norms
 
