@@ -1,0 +1,59 @@
+"""`graspd serve`: run the HTTP app (uvicorn) with its embedded Zenoh node; settings from GRASPD_* env
+variables, command-line flags override them."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    """Add the `serve` subcommand to graspd's argparse subparsers."""
+    p = subparsers.add_parser("serve", help="run the grasp-detection service (HTTP + Zenoh)")
+    p.add_argument("--host", help="bind address (default 127.0.0.1; 0.0.0.0 in the container)")
+    p.add_argument("--port", type=int, help="HTTP port (default 8000)")
+    p.add_argument("--models-dir", help="folder of ONNX models with JSON cards (default: models/)")
+    p.add_argument("--model", dest="default_model", help="default model name")
+    p.add_argument("--workers", dest="detect_workers", type=int, help="concurrent detections (default: cores)")
+    p.add_argument("--no-zenoh", dest="zenoh_enabled", action="store_false", default=None,
+                   help="HTTP only")
+    p.add_argument("--zenoh-listen", action="append", help="Zenoh endpoint to listen on (repeatable)")
+    p.add_argument("--zenoh-connect", action="append", help="Zenoh endpoint to connect to (repeatable)")
+    p.add_argument("--zenoh-instance", help="instance id under <prefix>/instances/ (several servers)")
+    p.set_defaults(func=serve)
+
+
+def settings_from_args(args: argparse.Namespace) -> Any:
+    from .settings import Settings
+
+    overrides = {k: getattr(args, k, None) for k in ("host", "port", "models_dir", "default_model", "detect_workers",
+                                                     "zenoh_enabled", "zenoh_listen", "zenoh_connect",
+                                                     "zenoh_instance")}
+    return Settings(**{k: v for k, v in overrides.items() if v is not None})
+
+
+def serve(args: argparse.Namespace) -> int:
+    """Run until SIGINT/SIGTERM; running detections finish before the process exits."""
+    import uvicorn
+
+    from .app import create_app
+    from .logs import configure_logging
+
+    settings = settings_from_args(args)
+    configure_logging(settings.log_level, settings.log_json)
+    config = uvicorn.Config(create_app(settings), host=settings.host, port=settings.port, log_config=None,
+                            access_log=False, timeout_graceful_shutdown=int(settings.deadline_s) + 1)
+    uvicorn.Server(config).run()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m graspd.server.cli` without the graspd CLI wired in."""
+    parser = argparse.ArgumentParser(prog="graspd")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
