@@ -110,3 +110,14 @@ def test_labels_are_vectorised_and_order_free() -> None:
     bad = [0.0, 0.0, 0.0]
     lab = label_grasps([box], hands([good, bad, good, bad] * 300), HAND, LabelParams(chunk=100))
     assert lab.grasp.tolist() == [True, False, True, False] * 300
+
+
+def test_palm_may_touch_within_the_approach_tolerance() -> None:
+    """The sampler places hands against a noisy cloud: a palm 2 mm into the face is a grasp (the hand stops
+    2 mm short), 6 mm is a collision (default approach_tolerance 3 mm)."""
+    box = box_mesh(0.04, 0.04, 0.10)  # front face at x = -0.02, 4 cm deep: fingertips pass beyond
+    lab = label_grasps([box], hands([[-0.02 + 0.002, 0.0, 0.0], [-0.02 + 0.006, 0.0, 0.0]]), HAND)
+    assert lab.grasp.tolist() == [True, False]
+    assert lab.collision.tolist() == [False, True]
+    strict = label_grasps([box], hands([[-0.02 + 0.002, 0.0, 0.0]]), HAND, LabelParams(approach_tolerance=0.0))
+    assert strict.collision[0] and not strict.grasp[0]

@@ -7,12 +7,13 @@ any pair of contacts in them is antipodal.  Implementation, vectorised over cand
 raycasting (hand frame: x approach from the palm, y closing direction, z hand axis):
 
 * Closing rays on a grid (x, z) over each finger's inner face, cast from the finger's outer face
-  toward the other finger.  A hit closer than finger_width, or a back face first (the finger starts
-  inside the object; grazing hits excepted), is a finger collision; otherwise the hit is a contact candidate at distance
-  s = t - finger_width from the inner face.
-* Palm/finger rays along +x on a grid (y, z) from palm_depth behind the palm: a hit before the palm
-  (closing gap) or before the fingertips (finger columns), or a back face first, is a collision
-  (cast only for candidates that are otherwise grasps: elsewhere they cannot change the label).
+  toward the other finger.  A hit more than tolerance inside the finger's width, or a back face first
+  (the finger starts inside the object; grazing hits excepted), is a finger collision; otherwise the
+  hit is a contact candidate at distance s = t - finger_width from the inner face.
+* Palm/finger rays along +x on a grid (y, z) from palm_depth behind the palm: a hit more than
+  approach_tolerance before the palm (closing gap) or the fingertips (finger columns), or a back face
+  first, is a collision (cast only for candidates that are otherwise grasps: elsewhere they cannot
+  change the label).
 * Each finger's contact region: its rays with s within 2 * tolerance of its first contact (a 1 mm
   vertex error can move either surface by 1 mm).
 * A pair of contacts on the same (x, z) ray line, one in each region, is antipodal when both surface
@@ -40,11 +41,14 @@ from .render import MeshScene
 @dataclass(frozen=True)
 class LabelParams:
     """tolerance (m, the paper's 1 mm vertex error); mu None = frictionless antipodal, else the friction
-    coefficient; contact_patch (m, None = the hand's finger_width) sets the frictionless normal slack;
+    coefficient; approach_tolerance (m) how far the object may reach past the palm or fingertip plane
+    (the hand then stops that much short: it was placed against a noisy cloud, about 2 sigma of the
+    sensor noise); contact_patch (m, None = the hand's finger_width) sets the frictionless normal slack;
     ray spacing (m) over finger faces and the palm; palm_depth (m) the palm's thickness behind the
     hand base."""
 
     tolerance: float = 0.001
+    approach_tolerance: float = 0.003
     mu: float | None = None
     contact_patch: float | None = None
     ray_spacing: float = 0.002
@@ -163,7 +167,7 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
         facing = np.einsum("nrk,nrk->nr", nrm, dirs)
         back = hit_ok & (facing > _BACK_FACE_COS)
         tl, tr = t[:, :g], t[:, g:]
-        coll = np.any((t < fw) | back, axis=1)
+        coll = np.any((t < fw - p.tolerance) | back, axis=1)
         sl_ = np.where((tl <= fw + 2 * gap) & ~back[:, :g], tl - fw, np.inf)
         sr_ = np.where((tr <= fw + 2 * gap) & ~back[:, g:], tr - fw, np.inf)
         first_l = sl_.min(axis=1)
@@ -190,7 +194,7 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
             tp, nrm_p = _cast(scene, pos[check], rot[check], palm_local, 0, p.nthreads)
             facing_p = np.einsum("nrk,nk->nr", nrm_p, rot[check, :, 0])
             back_p = np.isfinite(tp) & (facing_p > _BACK_FACE_COS)
-            coll[check] |= np.any((tp < palm_limit[None, :]) | back_p, axis=1)
+            coll[check] |= np.any((tp < palm_limit[None, :] - p.approach_tolerance) | back_p, axis=1)
         out_coll[sl] = coll
         out_anti[sl] = anti
         out_grasp[sl] = anti & ~coll
