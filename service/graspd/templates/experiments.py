@@ -32,6 +32,7 @@ from .detector import TemplateDetector, TemplateParams
 from .geometry import TemplateError
 from .store import TemplateLibrary
 
+NDArrayInt = np.ndarray
 REGION = (-0.15, 0.15, -0.15, 0.15, -0.005, 0.4)
 MESH_SCALE = 0.015  # random_urdfs URDF mesh scale (mesh units -> m), as graspd.sim.objects
 TRAINING_IDS = tuple(range(0, 900))
@@ -107,9 +108,6 @@ def feasible_order(grasps: GraspSet, hand: HandGeometry) -> NDArrayInt:
     return np.flatnonzero(feasible(grasps, hand, 80.0, 0.0, REGION[:4]))
 
 
-NDArrayInt = np.ndarray
-
-
 def scripted_demonstrations(library: TemplateLibrary, object_ids: list[int], demos: int, seed: int = 0,
                             max_tries: int = 6, log: Any = print) -> list[dict[str, Any]]:
     """Teach `demos` grasps spread over the training objects: per demonstration a new resting pose; the
@@ -179,16 +177,34 @@ def attempt(detector: TemplateDetector, object_id: int, seed: int, feedback: boo
         trial.close()
 
 
+def other_attempt(detector: Any, object_id: int, seed: int, hand: HandGeometry) -> str:
+    """One trial as `attempt`, with a graspd.sim SimDetector (e.g. the top-down baseline or GPD)."""
+    trial = make_trial(object_id, seed, hand)
+    try:
+        grasps = detector.detect(trial.cloud, REGION, hand, seed)
+        order = feasible_order(grasps, hand)
+        return "no_grasp" if len(order) == 0 else execute(trial, grasps, int(order[0]), hand)
+    finally:
+        trial.close()
+
+
 def generalisation(library: TemplateLibrary, test_ids: list[int], poses: int, seed: int = 0,
-                   log: Any = print) -> TrialLog:
-    """Experiment (a): each held-out object in `poses` resting poses, one grasp each, no feedback."""
+                   log: Any = print, compare: Any = None) -> TrialLog:
+    """Experiment (a): each held-out object in `poses` resting poses, one grasp each, no feedback; with
+    compare (a graspd.sim SimDetector) that detector grasps instead, on the very same poses and views."""
     det = TemplateDetector(library, TemplateParams(keep_cloud=False))
     out = TrialLog()
     for oid in test_ids:
         if oid in TRAINING_IDS:
             raise ValueError(f"test object {oid} is a training object; use the held-out ids 900-999")
         for p in range(poses):
-            outcome, spent = attempt(det, oid, 1_000_000 + seed * 1000 + oid * 10 + p, feedback=False)
+            t_seed = 1_000_000 + seed * 1000 + oid * 10 + p
+            if compare is not None:
+                t0 = time.perf_counter()
+                outcome = other_attempt(compare, oid, t_seed, library.hand)
+                spent = time.perf_counter() - t0
+            else:
+                outcome, spent = attempt(det, oid, t_seed, feedback=False)
             out.outcomes.append(outcome)
             out.objects.append(oid)
             out.detect_seconds.append(spent)
@@ -208,6 +224,14 @@ def improvement(library: TemplateLibrary, object_id: int, trials: int, feedback:
         out.detect_seconds.append(spent)
         log(f"  trial {t + 1}: {outcome}")
     return out
+
+
+def copy_entries(src: TemplateLibrary, dst: TemplateLibrary) -> None:
+    """Copy every library entry (not the failure sets) from src to dst."""
+    for e in src.snapshot().entry_ids:
+        entry = src.entry(int(e))
+        dst.insert_entry(entry["heights"].ravel(), entry["types"].ravel(), entry["frame"], entry["grasp"],
+                         entry["width"], entry["label"])
 
 
 def last_ten(successes: NDArrayInt) -> NDArrayInt:
@@ -247,20 +271,23 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--trials", type=int, default=34, help="trials on one object (b)")
     ap.add_argument("--object", type=int, default=905, help="held-out object for (b)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--library", default=None, help="SQLAlchemy URL of a library to reuse (else a new one)")
+    ap.add_argument("--compare", action="store_true", help="(a): also run graspd.sim's top-down baseline")
+    ap.add_argument("--library", default=None,
+                    help="SQLAlchemy URL of the demonstration library (default OUT/library-seed<seed>.db; "
+                         "taught first if empty, reused otherwise)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/graspd-templates-experiments"))
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     hand = HandGeometry()
     tmp = tempfile.mkdtemp()
-    url = args.library or f"sqlite:///{os.path.join(tmp, 'experiment.db')}"
+    url = args.library or f"sqlite:///{args.out / f'library-seed{args.seed}.db'}"
     library = TemplateLibrary(url, hand=hand)
     t0 = time.perf_counter()
     train_ids = list(range(args.seed * 7, args.seed * 7 + args.objects))
     if len(library.snapshot()) == 0:
         print(f"teaching {args.demos} scripted demonstrations on training objects {train_ids}")
         scripted_demonstrations(library, train_ids, args.demos, seed=args.seed)
-    result: dict[str, Any] = {"experiment": args.experiment, "entries": len(library.snapshot()),
+    result: dict[str, Any] = {"experiment": args.experiment, "library": url, "entries": len(library.snapshot()),
                               "training_objects": train_ids}
     if args.experiment == "a":
         test_ids = list(range(900, 900 + args.tests))
@@ -268,28 +295,34 @@ def main(argv: list[str] | None = None) -> None:
         ok = log_a.successes
         result.update(test_objects=test_ids, poses=args.poses, attempts=len(ok), successes=int(ok.sum()),
                       success_rate=float(ok.mean()) if len(ok) else float("nan"), outcomes=log_a.outcomes,
-                      detect_seconds_median=float(np.median(log_a.detect_seconds)), paper_success_rate=0.87)
+                      objects=log_a.objects, detect_seconds_median=float(np.median(log_a.detect_seconds)),
+                      paper_success_rate=0.87)
         print(f"(a) success {int(ok.sum())}/{len(ok)} = {100 * ok.mean():.0f}% (paper: 83/95 = 87% on the PR2)")
+        if args.compare:
+            from ..sim.detectors import TopDownBaseline
+
+            log_c = generalisation(library, test_ids, args.poses, seed=args.seed, compare=TopDownBaseline())
+            okc = log_c.successes
+            result.update(baseline_successes=int(okc.sum()), baseline_success_rate=float(okc.mean()),
+                          baseline_outcomes=log_c.outcomes)
+            print(f"(a) top-down baseline on the same poses: {int(okc.sum())}/{len(okc)} = {100 * okc.mean():.0f}%")
     else:
-        with_fb = improvement(TemplateLibrary(url), args.object, args.trials, feedback=True, seed=args.seed)
-        # the control: a copy of the library as it was before any feedback, same poses, no feedback
-        ctrl_url = f"sqlite:///{os.path.join(tmp, 'control.db')}"
-        control_lib = TemplateLibrary(ctrl_url, hand=hand)
-        snap = library.snapshot()
-        for e in snap.entry_ids:
-            entry = library.entry(int(e))
-            control_lib.insert_entry(entry["heights"].ravel(), entry["types"].ravel(), entry["frame"], entry["grasp"],
-                                     entry["width"], entry["label"])
-        without = improvement(control_lib, args.object, args.trials, feedback=False, seed=args.seed)
-        curve_fb, curve_no = last_ten(with_fb.successes), last_ten(without.successes)
+        # both arms start from a copy of the demonstrations: one reports every outcome, the control none
+        arms = {}
+        for arm in ("feedback", "control"):
+            arm_lib = TemplateLibrary(f"sqlite:///{os.path.join(tmp, arm + '.db')}", hand=hand)
+            copy_entries(library, arm_lib)
+            arms[arm] = improvement(arm_lib, args.object, args.trials, feedback=arm == "feedback", seed=args.seed)
+            if arm == "feedback":
+                result["failures_in_library"] = arm_lib.summary()["num_failures"]
+        with_fb, without = arms["feedback"], arms["control"]
         first = float(with_fb.successes[:10].mean())
         last = float(with_fb.successes[-10:].mean())
         result.update(object=args.object, trials=args.trials, outcomes_feedback=with_fb.outcomes,
-                      outcomes_control=without.outcomes, last_ten_feedback=curve_fb.tolist(),
-                      last_ten_control=curve_no.tolist(), first_ten=first, last_ten=last,
+                      outcomes_control=without.outcomes, last_ten_feedback=last_ten(with_fb.successes).tolist(),
+                      last_ten_control=last_ten(without.successes).tolist(), first_ten=first, last_ten=last,
                       control_first_ten=float(without.successes[:10].mean()),
-                      control_last_ten=float(without.successes[-10:].mean()),
-                      failures_in_library=library.summary()["num_failures"])
+                      control_last_ten=float(without.successes[-10:].mean()))
         png = args.out / f"templates_improvement_{args.object}.png"
         plot_improvement(with_fb, without, png, args.object)
         print(f"(b) with feedback: first ten {100 * first:.0f}% -> last ten {100 * last:.0f}%; "

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import minimum_filter
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from ..cloud import CloudError, ViewpointCloud
+from ..cloud import ViewpointCloud
 from ..hand import HandGeometry
 from ..preprocess import voxelize
 
@@ -455,9 +455,3 @@ def candidate_templates(scene: TemplateScene, rotations: int = 16, merge_angle_d
     heights, types = extract_templates(scene, centres, base, angles)
     origins = np.repeat(centres, rotations, axis=0)
     return origins, rotated_frames(base, angles), heights, types
-
-
-def check_cloud(cloud: ViewpointCloud) -> None:
-    """Raise CloudError naming the field if the cloud cannot be templated."""
-    if len(cloud) == 0:
-        raise CloudError("cloud.points is empty")
