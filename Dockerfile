@@ -1,0 +1,36 @@
+# graspd: the grasp-detection service (HTTP :8000, Zenoh peer on :7447), shipped models baked in.
+# Build: docker build -t graspd .    Run: docker run -p 8000:8000 -p 7447:7447 graspd
+# CI has no Docker engine: tests/server/test_container_install.py (slow) replays the pip steps below.
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1
+
+# open3d's shared libraries: OpenMP, libusb (RealSense IO), and the GL/EGL/X11 stubs it links against.
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends libusb-1.0-0 libgomp1 libgl1 libegl1 libx11-6 \
+    && rm -rf /var/lib/apt/lists/*
+
+RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin graspd
+
+WORKDIR /opt/graspd
+COPY client/ client/
+RUN pip install ./client
+COPY pyproject.toml README.md ./
+COPY service/ service/
+RUN pip install .
+COPY models/ models/
+
+ENV GRASPD_MODELS_DIR=/opt/graspd/models \
+    GRASPD_HOST=0.0.0.0 \
+    GRASPD_PORT=8000 \
+    GRASPD_ZENOH_LISTEN='["tcp/0.0.0.0:7447"]'
+
+USER graspd
+EXPOSE 8000 7447
+HEALTHCHECK --interval=15s --timeout=3s --start-period=60s --retries=3 \
+    CMD ["python", "-c", "import sys, urllib.request; sys.exit(urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=2).status != 200)"]
+STOPSIGNAL SIGTERM
+CMD ["graspd", "serve"]

@@ -1,0 +1,80 @@
+"""The Dockerfile's install steps, replayed in a fresh virtual environment (no Docker engine here):
+pip-install the client and the server as the Dockerfile does, start `graspd serve` from that venv, pass
+the image's HEALTHCHECK command, and stop gracefully on SIGTERM.
+
+By default third-party dependencies come from the project venv (a .pth file; nothing is downloaded);
+GRASPD_FULL_INSTALL=1 resolves them from the package index exactly as `docker build` would."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import signal
+import site
+import subprocess
+import time
+import venv
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def dockerfile_steps() -> tuple[list[list[str]], list[str], dict[str, str]]:
+    """The `RUN pip install ...` commands, the HEALTHCHECK exec form and the ENV values of the Dockerfile."""
+    text = (ROOT / "Dockerfile").read_text().replace("\\\n", " ")
+    pip = [shlex.split(m)[2:] for m in re.findall(r"^RUN (pip install .+)$", text, re.M)]
+    health = json.loads(re.search(r"HEALTHCHECK .*?CMD (\[.+\])", text).group(1))  # type: ignore[union-attr]
+    env: dict[str, str] = {}
+    for block in re.findall(r"^ENV (.+)$", text, re.M):
+        for key, value in re.findall(r"(\w+)=('[^']*'|\S+)", block):
+            env[key] = value.strip("'")
+    return pip, health, env
+
+
+@pytest.mark.slow
+def test_dockerfile_install_steps_in_fresh_venv(tmp_path: Path) -> None:
+    pip_steps, health, docker_env = dockerfile_steps()
+    assert pip_steps == [["./client"], ["."]], pip_steps
+    env_dir = tmp_path / "venv"
+    venv.EnvBuilder(with_pip=True).create(env_dir)
+    py = env_dir / "bin" / "python"
+    full = os.environ.get("GRASPD_FULL_INSTALL") == "1"
+    if not full:
+        purelib = subprocess.check_output([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                                          text=True).strip()
+        Path(purelib, "project-deps.pth").write_text("\n".join(site.getsitepackages()) + "\n")
+        # build with the project's setuptools (>= 68, has bdist_wheel), not the venv's bundled older one
+        subprocess.run([str(py), "-m", "pip", "uninstall", "-q", "-y", "setuptools"], check=True)
+    build = tmp_path / "context"  # a copy of the build context, so the checkout gets no build/ folders
+    parts = " ".join(p for p in ("client", "service", "pyproject.toml", "README.md", "models") if (ROOT / p).exists())
+    subprocess.run(f"tar -C {ROOT} --exclude=__pycache__ -cf - {parts} | (mkdir -p {build} && tar -C {build} -xf -)",
+                   shell=True, check=True)
+    for args in pip_steps:
+        extra = [] if full else ["--no-deps", "--no-build-isolation", "--no-index"]
+        subprocess.run([str(py), "-m", "pip", "install", "-q", *extra, *args], cwd=build, check=True, timeout=1800)
+    port = 18000 + os.getpid() % 1000
+    env = {**docker_env, "GRASPD_MODELS_DIR": str(build / "models"), "GRASPD_HOST": "127.0.0.1",
+           "GRASPD_PORT": str(port), "GRASPD_ZENOH_ENABLED": "false", "PATH": f"{env_dir / 'bin'}:/usr/bin:/bin",
+           "HOME": str(tmp_path)}
+    server = subprocess.Popen([str(env_dir / "bin" / "graspd"), "serve"], env=env, cwd=tmp_path,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        check = [str(py) if health[0] == "python" else health[0], *health[1:]]
+        check = [c.replace("8000", str(port)) for c in check]
+        deadline = time.monotonic() + 120
+        while subprocess.run(check, env=env, capture_output=True).returncode != 0:
+            assert server.poll() is None, server.stdout.read() if server.stdout else ""
+            assert time.monotonic() < deadline, "HEALTHCHECK never passed"
+            time.sleep(0.5)
+        imported = subprocess.check_output([str(py), "-c", "import graspd, graspd_client; print(graspd.__file__)"],
+                                           text=True, cwd=tmp_path)
+        assert str(env_dir) in imported  # the installed copy, not the checkout
+    finally:
+        server.send_signal(signal.SIGTERM)
+        out, _ = server.communicate(timeout=60)
+    assert server.returncode in (0, -signal.SIGTERM), out  # uvicorn re-raises SIGTERM after a clean shutdown
+    assert '"msg": "graspd shutting down' in out and "Application shutdown complete" in out
