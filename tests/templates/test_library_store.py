@@ -64,16 +64,19 @@ def test_library_survives_a_restart(render_box, box_pose, library_url) -> None:
     assert again.add_feedback(det.grasp_ids[1], success=True).entry_id == entry
 
 
-def test_eight_concurrent_processes_lose_nothing(library_url) -> None:
-    url = library_url("procs")
-    TemplateLibrary(url).close()
-    count = 6
+def _eight_writers(url: str, count: int) -> dict:
+    """Eight processes open the (new) library at once, then each adds count entries, detections and failures."""
     env = {"PYTHONPATH": f"{REPO / 'service'}:{REPO / 'client'}", "PATH": "/usr/bin:/bin"}
     procs = [subprocess.Popen([sys.executable, "-c", WRITER, url, str(w), str(count)], env=env,
                               stderr=subprocess.PIPE) for w in range(8)]
     errors = [p.communicate(timeout=240)[1].decode() for p in procs]
     assert all(p.returncode == 0 for p in procs), errors
-    summary = TemplateLibrary(url).summary()
+    return TemplateLibrary(url).summary()
+
+
+def test_eight_concurrent_processes_lose_nothing(library_url) -> None:
+    count = 6
+    summary = _eight_writers(library_url("procs"), count)
     assert summary["num_entries"] == 8 * count
     assert summary["num_failures"] == 8 * count and summary["num_outcomes"] == 8 * count
     assert summary["num_detections"] == 8 * count
@@ -162,3 +165,45 @@ def test_bad_input_names_the_field(render_box, box_pose, library_url) -> None:
         TemplateLibrary(url, hand=HandGeometry(hand_depth=0.05))
     with pytest.raises(TemplateError, match="library_url"):
         TemplateLibrary("not a url")
+
+
+@pytest.fixture(scope="module")
+def postgres_url():
+    """A throwaway PostgreSQL server (the system's initdb/pg_ctl, run as the postgres user when root)."""
+    import os
+    import pwd
+    import shutil
+    import tempfile
+
+    pytest.importorskip("psycopg")
+    if not (shutil.which("initdb") and shutil.which("pg_ctl")):
+        pytest.skip("PostgreSQL server binaries (initdb, pg_ctl) not installed")
+    run_as: list[str] = []
+    if os.geteuid() == 0:
+        try:
+            pwd.getpwnam("postgres")
+        except KeyError:
+            pytest.skip("running as root without a postgres user to run the server")
+        run_as = ["runuser", "-u", "postgres", "--"]
+    base = Path(tempfile.mkdtemp(prefix="graspd-pg-"))  # outside pytest's 0700 folders: the server user reads it
+    os.chmod(base, 0o777)
+    data, port = base / "data", 54000 + os.getpid() % 1000
+    subprocess.run([*run_as, "initdb", "-D", str(data), "-A", "trust", "-U", "postgres"], check=True,
+                   capture_output=True)
+    subprocess.run([*run_as, "pg_ctl", "-D", str(data), "-w", "-l", str(base / "log"), "-o",
+                    f"-p {port} -k {base} -c listen_addresses=''", "start"], check=True, capture_output=True)
+    try:
+        subprocess.run([*run_as, "createdb", "-h", str(base), "-p", str(port), "-U", "postgres", "graspd"],
+                       check=True, capture_output=True)
+        yield f"postgresql+psycopg://postgres@/graspd?host={base}&port={port}"
+    finally:
+        subprocess.run([*run_as, "pg_ctl", "-D", str(data), "-m", "immediate", "stop"], capture_output=True)
+        shutil.rmtree(base, ignore_errors=True)
+
+
+@pytest.mark.slow
+def test_eight_concurrent_processes_on_postgresql(postgres_url) -> None:
+    count = 5
+    summary = _eight_writers(postgres_url, count)
+    assert summary["num_entries"] == summary["num_failures"] == summary["num_outcomes"] == 8 * count
+    assert summary["schema_version"] == SCHEMA_VERSION
