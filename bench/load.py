@@ -246,7 +246,8 @@ def main(argv: list[str] | None = None) -> int:
     body = build_detect_request(cloud.points, cloud.viewpoints, cloud.camera_source, num_samples=args.num_samples)
     payload = json.dumps(body).encode()
     print(f"cloud: rendered tabletop, {len(cloud)} points, {cloud.num_cameras} cameras; "
-          f"request {len(payload) / 1e6:.2f} MB JSON; num_samples {args.num_samples} ({time.perf_counter() - t:.1f} s to make)")
+          f"request {len(payload) / 1e6:.2f} MB JSON; num_samples {args.num_samples} "
+          f"({time.perf_counter() - t:.1f} s to make)")
 
     proc = None
     url, zenoh_ep, pid = args.url, args.zenoh, args.pid
