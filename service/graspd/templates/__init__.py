@@ -30,12 +30,21 @@ ValueError subclasses whose message names the offending field: answer them with 
                              The library's hand is used (a per-request hand override does not apply).
                              An empty library answers no grasps (num_entries = 0).
 
+A fleet shares one library through PostgreSQL: TemplateLibrary("postgresql+psycopg://user@host/db")
+(needs the psycopg package); SQLite files work for many processes on one machine (WAL, queued writers).
+Grasp ids are "<detection id>.<k>" and stay valid across restarts and processes.
+
 For fine-tuning GPD later: library.iter_outcomes(with_images_only=True) yields every outcome with its
 grasp pose, template and GPD grasp image (uint8 (15, 60, 60) by default).
 
+Shell: `graspd templates {demonstrate,detect,feedback,library}` (graspd.templates.cli.register; add
+"graspd.templates.cli" to graspd.cli.SUBCOMMAND_MODULES).  Simulation experiments (scripted
+demonstrations, the paper's generalisation and improvement-over-time runs): python -m
+graspd.templates.experiments {a,b}.
+
 Modules: geometry (templates, table, hull axes, occlusion), matching (eq. 1, eq. 2), store (SQLAlchemy
-library, migrations), demonstration (template of a demonstrated grasp; grasp images), detector,
-synthetic (ray-cast table scenes for tests and benchmarks).
+library, migrations), demonstration (template of a demonstrated grasp; grasp images), detector, cli,
+experiments (graspd.sim), synthetic (ray-cast table scenes for tests and benchmarks).
 """
 
 from .detector import TemplateDetection, TemplateDetector, TemplateParams
