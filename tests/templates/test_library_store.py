@@ -85,8 +85,9 @@ def test_eight_concurrent_processes_lose_nothing(library_url) -> None:
     assert all(e["failures"] == 1 for e in summary["entries"])
 
 
-def test_eight_concurrent_threads_lose_nothing(library_url) -> None:
-    lib = TemplateLibrary(library_url("threads"))
+@pytest.mark.parametrize("where", ["file", "memory"])
+def test_eight_concurrent_threads_lose_nothing(library_url, where) -> None:
+    lib = TemplateLibrary(library_url("threads") if where == "file" else "sqlite://")
     errors: list[BaseException] = []
 
     def write(who: int) -> None:

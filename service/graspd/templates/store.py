@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import io
 import json
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -127,14 +129,16 @@ def make_engine(url: str) -> Engine:
         raise TemplateError(f"library_url is not an SQLAlchemy URL: {url!r}") from None
     if parsed.get_backend_name() != "sqlite":
         return sa.create_engine(url, pool_pre_ping=True)
-    engine = sa.create_engine(url, connect_args={"timeout": 60, "check_same_thread": False})
+    memory = parsed.database in (None, "", ":memory:")
+    engine = sa.create_engine(url, connect_args={"timeout": 60, "check_same_thread": False},
+                              **({"poolclass": sa.pool.StaticPool} if memory else {}))  # one shared in-memory db
 
     @sa.event.listens_for(engine, "connect")
     def _connect(dbapi_conn: Any, _record: Any) -> None:
         dbapi_conn.isolation_level = None  # let the "begin" hook below own transactions
         cur = dbapi_conn.cursor()
         cur.execute("PRAGMA busy_timeout = 60000")
-        if parsed.database not in (None, "", ":memory:"):
+        if not memory:
             cur.execute("PRAGMA journal_mode = WAL")
         cur.execute("PRAGMA foreign_keys = ON")
         cur.close()
@@ -227,13 +231,16 @@ class TemplateLibrary:
                  geometry: TemplateGeometry | None = None) -> None:
         self.url = url
         self.engine = make_engine(url)
-        migrate(self.engine)
+        # one shared in-memory SQLite connection: transactions from several threads must take turns
+        self._lock = threading.RLock() if self.engine.pool.__class__ is sa.pool.StaticPool else None
+        with self._locked():
+            migrate(self.engine)
         self.hand, self.geometry = self._settle_meta(hand, geometry)
         self._snapshot: LibrarySnapshot | None = None
 
     def _settle_meta(self, hand: HandGeometry | None, geometry: TemplateGeometry | None
                      ) -> tuple[HandGeometry, TemplateGeometry]:
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             rows = dict(conn.execute(sa.select(meta.c.key, meta.c.value)).all())
             if "hand" not in rows:
                 h = hand or HandGeometry()
@@ -248,6 +255,26 @@ class TemplateLibrary:
         if geometry is not None and geometry != g0:
             raise TemplateError(f"template geometry: this library uses {g0.__dict__}, not {geometry.__dict__}")
         return h0, g0
+
+    @contextmanager
+    def _locked(self) -> Iterator[None]:
+        if self._lock is None:
+            yield
+        else:
+            with self._lock:
+                yield
+
+    @contextmanager
+    def _begin(self) -> Iterator[Connection]:
+        """A write transaction (committed on success)."""
+        with self._locked(), self.engine.begin() as conn:
+            yield conn
+
+    @contextmanager
+    def _connect(self) -> Iterator[Connection]:
+        """A read-only connection."""
+        with self._locked(), self.engine.connect() as conn:
+            yield conn
 
     def close(self) -> None:
         self.engine.dispose()
@@ -308,7 +335,7 @@ class TemplateLibrary:
                      label: str | None = None) -> int:
         """Store one library entry (template, its frame and the hand pose relative to it); its id."""
         self._check_template(heights, types, "template")
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             res = conn.execute(entries.insert().values(
                 created_at=time.time(), label=label, heights=np.asarray(heights, np.float32).tobytes(),
                 types=np.asarray(types, np.uint8).tobytes(), frame=np.asarray(frame, np.float64).tobytes(),
@@ -324,7 +351,7 @@ class TemplateLibrary:
         payload = to_npz(heights=np.asarray(heights, np.float32), types=np.asarray(types, np.uint8),
                          entry_ids=np.asarray(entry_ids, np.int64), poses=np.asarray(poses, np.float64),
                          widths=np.asarray(widths, np.float64), mismatch=np.asarray(mismatch, np.float64))
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             conn.execute(detections.insert().values(id=det_id, created_at=time.time(), payload=payload,
                                                     cloud=None if cloud is None else to_npz(False, **cloud)))
         return det_id
@@ -333,7 +360,7 @@ class TemplateLibrary:
         """The stored template, entry, pose and width of a returned grasp, and the detection's cloud arrays
         (None if not kept).  TemplateError naming grasp_id if unknown."""
         det_id, k = parse_grasp_id(grasp_id)
-        with self.engine.connect() as conn:
+        with self._connect() as conn:
             row = conn.execute(sa.select(detections.c.payload, detections.c.cloud)
                                .where(detections.c.id == det_id)).first()
         if row is None:
@@ -349,7 +376,7 @@ class TemplateLibrary:
                       image: NDArray[np.uint8] | None, representation: str | None) -> Feedback:
         """Store an outcome; on failure add the candidate template to F_l of its entry (once per grasp id)."""
         entry_id = grasp["entry_id"]
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             res = conn.execute(outcomes.insert().values(
                 grasp_id=grasp_id, success=bool(success), entry_id=entry_id, created_at=time.time(),
                 heights=np.asarray(grasp["heights"], np.float32).tobytes(),
@@ -375,7 +402,7 @@ class TemplateLibrary:
 
     def remove_entry(self, entry_id: int) -> bool:
         """Delete a library entry and its failure set; whether it existed."""
-        with self.engine.begin() as conn:
+        with self._begin() as conn:
             conn.execute(failures.delete().where(failures.c.entry_id == entry_id))
             return bool(conn.execute(entries.delete().where(entries.c.id == entry_id)).rowcount)
 
@@ -391,7 +418,7 @@ class TemplateLibrary:
         from .matching import entry_gammas
 
         t = self.geometry.num_tiles
-        with self.engine.connect() as conn:
+        with self._connect() as conn:
             key = self._key(conn)
             if self._snapshot is not None and self._snapshot.key == key:
                 return self._snapshot
@@ -418,7 +445,7 @@ class TemplateLibrary:
     def entry(self, entry_id: int) -> dict[str, Any]:
         """One entry: id, label, created_at, template heights/types (n x n), frame, grasp, width, failures."""
         n = self.geometry.n
-        with self.engine.connect() as conn:
+        with self._connect() as conn:
             r = conn.execute(sa.select(entries).where(entries.c.id == entry_id)).first()
             if r is None:
                 raise TemplateError(f"entry_id {entry_id}: no such library entry")
@@ -433,7 +460,7 @@ class TemplateLibrary:
     def summary(self) -> dict[str, Any]:
         """JSON-ready: counts, the hand and template geometry, and one line per entry (id, label,
         created_at, failures, outcomes, successes)."""
-        with self.engine.connect() as conn:
+        with self._connect() as conn:
             erows = conn.execute(sa.select(entries.c.id, entries.c.label, entries.c.created_at)
                                  .order_by(entries.c.id)).all()
             fcount: dict[int, int] = {int(e): int(c) for e, c in conn.execute(
@@ -460,7 +487,7 @@ class TemplateLibrary:
         q = sa.select(outcomes).order_by(outcomes.c.id)
         if with_images_only:
             q = q.where(outcomes.c.image.is_not(None))
-        with self.engine.connect() as conn:
+        with self._connect() as conn:
             for r in conn.execute(q):
                 img = None
                 if r.image is not None:
