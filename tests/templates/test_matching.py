@@ -62,6 +62,8 @@ def test_surface_overlap_normalisation() -> None:
     raw = np.sum(W[a[1], half[1]] * np.abs(a[0] - half[0])) / T
     assert np.isclose(_sigma(a, half), o_half * raw, rtol=1e-5)
     assert _sigma(a, none) == np.inf  # no common surface: no match at all
+    empty = _template(slice(0, 0))
+    assert _sigma(empty, empty) == np.inf  # nothing to grasp in either
 
 
 def test_matching_function_equation_2() -> None:

@@ -270,7 +270,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--poses", type=int, default=2, help="poses per test object (a)")
     ap.add_argument("--trials", type=int, default=34, help="trials on one object (b)")
     ap.add_argument("--object", type=int, default=905, help="held-out object for (b)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="demonstration seed (training objects 7*seed ..)")
+    ap.add_argument("--pose-seed", type=int, default=None, help="seed of the test poses (default: --seed)")
     ap.add_argument("--compare", action="store_true", help="(a): also run graspd.sim's top-down baseline")
     ap.add_argument("--library", default=None,
                     help="SQLAlchemy URL of the demonstration library (default OUT/library-seed<seed>.db; "
@@ -287,11 +288,12 @@ def main(argv: list[str] | None = None) -> None:
     if len(library.snapshot()) == 0:
         print(f"teaching {args.demos} scripted demonstrations on training objects {train_ids}")
         scripted_demonstrations(library, train_ids, args.demos, seed=args.seed)
+    pose_seed = args.seed if args.pose_seed is None else args.pose_seed
     result: dict[str, Any] = {"experiment": args.experiment, "library": url, "entries": len(library.snapshot()),
-                              "training_objects": train_ids}
+                              "training_objects": train_ids, "pose_seed": pose_seed}
     if args.experiment == "a":
         test_ids = list(range(900, 900 + args.tests))
-        log_a = generalisation(library, test_ids, args.poses, seed=args.seed)
+        log_a = generalisation(library, test_ids, args.poses, seed=pose_seed)
         ok = log_a.successes
         result.update(test_objects=test_ids, poses=args.poses, attempts=len(ok), successes=int(ok.sum()),
                       success_rate=float(ok.mean()) if len(ok) else float("nan"), outcomes=log_a.outcomes,
@@ -301,7 +303,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.compare:
             from ..sim.detectors import TopDownBaseline
 
-            log_c = generalisation(library, test_ids, args.poses, seed=args.seed, compare=TopDownBaseline())
+            log_c = generalisation(library, test_ids, args.poses, seed=pose_seed, compare=TopDownBaseline())
             okc = log_c.successes
             result.update(baseline_successes=int(okc.sum()), baseline_success_rate=float(okc.mean()),
                           baseline_outcomes=log_c.outcomes)
@@ -312,7 +314,7 @@ def main(argv: list[str] | None = None) -> None:
         for arm in ("feedback", "control"):
             arm_lib = TemplateLibrary(f"sqlite:///{os.path.join(tmp, arm + '.db')}", hand=hand)
             copy_entries(library, arm_lib)
-            arms[arm] = improvement(arm_lib, args.object, args.trials, feedback=arm == "feedback", seed=args.seed)
+            arms[arm] = improvement(arm_lib, args.object, args.trials, feedback=arm == "feedback", seed=pose_seed)
             if arm == "feedback":
                 result["failures_in_library"] = arm_lib.summary()["num_failures"]
         with_fb, without = arms["feedback"], arms["control"]
@@ -323,13 +325,14 @@ def main(argv: list[str] | None = None) -> None:
                       last_ten_control=last_ten(without.successes).tolist(), first_ten=first, last_ten=last,
                       control_first_ten=float(without.successes[:10].mean()),
                       control_last_ten=float(without.successes[-10:].mean()))
-        png = args.out / f"templates_improvement_{args.object}.png"
+        png = args.out / f"templates_improvement_{args.object}_poses{pose_seed}.png"
         plot_improvement(with_fb, without, png, args.object)
         print(f"(b) with feedback: first ten {100 * first:.0f}% -> last ten {100 * last:.0f}%; "
               f"control {100 * result['control_first_ten']:.0f}% -> {100 * result['control_last_ten']:.0f}%; "
               f"wrote {png}")
     result["seconds"] = time.perf_counter() - t0
-    path = args.out / f"templates_experiment_{args.experiment}.json"
+    tag = f"_{args.object}" if args.experiment == "b" else ""
+    path = args.out / f"templates_experiment_{args.experiment}{tag}_poses{pose_seed}.json"
     path.write_text(json.dumps(result, indent=1))
     print(f"wrote {path}")
 

@@ -43,7 +43,7 @@ def distances(c_heights: F32, c_types: U8, l_heights: F32, l_types: U8, chunk: i
     both = cs.astype(np.float32) @ ls.T.astype(np.float32)  # (K, L) surface overlap counts
     surf_c = cs.sum(axis=1).astype(np.float64)
     surf_l = ls.sum(axis=1).astype(np.float64)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
         o = np.maximum(surf_c[:, None], surf_l[None, :]) / both
     extra = np.float32(W_HIGH - W_LOW)
     low = np.float32(W_LOW)
@@ -58,7 +58,7 @@ def distances(c_heights: F32, c_types: U8, l_heights: F32, l_types: U8, chunk: i
             d = np.abs(ch[rows] - lh)
             w = (cs[rows] | lsj) * extra + low
             out[rows, j] = np.einsum("kt,kt->k", d, w, dtype=np.float32) / t
-    return o * out
+    return np.where(both > 0, o * out, np.inf)
 
 
 def matching(alpha: F64, beta: F64, gamma: F64) -> F64:
