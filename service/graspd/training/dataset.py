@@ -12,7 +12,7 @@ On-disk format (one directory per dataset; the training code reads it with load_
       categories  uint8 (M,)             0 = box, 1 = cylinder, 2 = other (CATEGORIES)
       positions   float32 (M, 3)         hand base centre (m, object/world frame of the view)
       rotations   float32 (M, 3, 3)      columns [approach, binormal, axis]
-      widths      float32 (M,)           object extent between the fingers (m)
+      widths      float32 (M,)           GraspSet.widths: extent of the observed points between the fingers (m)
   DIR/splits/view.json     the paper's split over views: {"kind": "view", "train"|"val"|"test":
                            [[object_id, view_id], ...]}; every object appears in every part,
                            no (object, view) pair in two parts.
@@ -208,7 +208,7 @@ class GenerationParams:
 
     def object_specs(self) -> list[tuple[str, int]]:
         """(kind, index) of every object, in a seeded order that mixes the kinds across chunks."""
-        specs = object_catalogue(self.num_urdfs, dict(self.procedural), self.seed)
+        specs = object_catalogue(self.num_urdfs, dict(self.procedural))
         order = np.random.default_rng([self.seed, 1]).permutation(len(specs))
         return [specs[i] for i in order]
 

@@ -196,8 +196,8 @@ def procedural_object(kind: str, index: int, seed: int = 0, hand: HandGeometry |
                        category=category, mesh=mesh, scale=factor)
 
 
-def object_catalogue(num_urdfs: int = 900, procedural_per_kind: dict[str, int] | None = None,
-                     seed: int = 0) -> list[tuple[str, int]]:
+def object_catalogue(num_urdfs: int = 900, procedural_per_kind: dict[str, int] | None = None
+                     ) -> list[tuple[str, int]]:
     """Object specs (kind, index) for a dataset: kind "urdf" for random_urdfs 000..num_urdfs-1 (at most
     900: the held-out objects are never listed), or a procedural kind."""
     if not 0 <= num_urdfs <= len(TRAINING_URDFS):
