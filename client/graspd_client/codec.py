@@ -70,8 +70,8 @@ def _from_encoded(obj: dict[str, Any], field: str, max_bytes: int) -> NDArray[An
     expected = count * dt.itemsize
     if expected > max_bytes:
         raise WireError(field, f"{expected} bytes for shape {shape} exceeds the limit of {max_bytes}")
-    try:
-        raw = base64.b64decode(data, validate=True)
+    try:  # strict: any character outside the base64 alphabet or bad padding is an error
+        raw = binascii.a2b_base64(data.encode("ascii"), strict_mode=True)
     except (binascii.Error, ValueError) as exc:
         raise WireError(f"{field}.data", f"invalid base64 ({exc})") from None
     if len(raw) != expected:
