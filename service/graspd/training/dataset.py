@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..candidates import SamplingParams, sample_candidates
+from ..grasp import GraspSet
 from ..hand import HAND_PRESETS, HandGeometry, hand_preset
 from ..images import channel_layout, encode_images
 from ..preprocess import PreprocessParams, preprocess
@@ -171,9 +172,10 @@ DEFAULT_PROCEDURAL: dict[str, int] = {"box": 150, "cylinder": 150, "sphere": 40,
 
 @dataclass(frozen=True)
 class GenerationParams:
-    """Everything that determines a dataset (with the code): seed, size target, objects, views, sampling,
-    sensor noise and labels.  per_view is the most exemplars kept per view (half positives); None
-    derives it from exemplars / (objects x views) with a margin for views short of positives."""
+    """Everything that determines a dataset (with the code): seed, size target, objects, views, sampling
+    (rounds of num_samples cloud points, at most max_samples per view), sensor noise and labels.
+    per_view is the most exemplars kept per view (half positives); None derives it from
+    exemplars / (objects x views) with a margin for views short of positives."""
 
     seed: int = 0
     exemplars: int = 200_000
@@ -183,7 +185,8 @@ class GenerationParams:
     single_camera_fraction: float = 0.25
     camera_distance: tuple[float, float] = (0.5, 0.8)
     camera_separation_deg: float = PAPER_CAMERA_SEPARATION_DEG
-    num_samples: int = 100
+    num_samples: int = 50
+    max_samples: int = 250
     per_view: int | None = None
     margin: float = 1.1
     objects_per_chunk: int = 16
@@ -201,8 +204,9 @@ class GenerationParams:
             raise ValueError(f"views_per_object must be >= 3 (train, val and test views), got {self.views_per_object}")
         if not 0.0 <= self.single_camera_fraction <= 1.0:
             raise ValueError(f"single_camera_fraction must lie in [0, 1], got {self.single_camera_fraction}")
-        if self.num_samples <= 0:
-            raise ValueError(f"num_samples must be positive, got {self.num_samples}")
+        if self.num_samples <= 0 or self.max_samples < self.num_samples:
+            raise ValueError(f"num_samples must be positive and max_samples >= num_samples, got "
+                             f"{self.num_samples} and {self.max_samples}")
         if self.objects_per_chunk <= 0:
             raise ValueError(f"objects_per_chunk must be positive, got {self.objects_per_chunk}")
 
@@ -241,40 +245,43 @@ def _view_exemplars(obj: GraspObject, scene: MeshScene, object_id: int, view_id:
         return empty, record
     oriented = preprocess(cloud, params.preprocess)
     gscene = Scene.build(oriented, params.hand)
-    sampling = replace(params.sampling, num_samples=params.num_samples, seed=int(rng.integers(2**31)),
-                       sample_indices=None)
-    grasps = sample_candidates(gscene, params.hand, sampling)
-    record["num_candidates"] = len(grasps)
-    if len(grasps) == 0:
-        return empty, record
-    # Label in random order, a batch at a time, until both classes fill their half of the quota: the
-    # same uniform choice per class as labelling everything, at a fraction of the cost.
+    # Sample in rounds of num_samples cloud points (a seeded permutation, up to max_samples) and label the
+    # candidates in random order, a batch at a time, until both classes fill their half of the quota: per
+    # class the same uniform choice as labelling everything, at a fraction of the cost for easy objects,
+    # and more candidates for objects with few grasps (boxes).
     half = quota // 2
-    order = rng.permutation(len(grasps))
-    pos: list[NDArray[np.int64]] = []
-    neg: list[NDArray[np.int64]] = []
-    n_pos = n_neg = labelled = 0
-    for start in range(0, len(order), _LABEL_BATCH):
-        batch = order[start : start + _LABEL_BATCH]
-        lab = label_grasps(scene, grasps[batch], params.hand, params.labels)
-        pos.append(batch[lab.grasp])
-        neg.append(batch[~lab.grasp])
-        n_pos, n_neg, labelled = n_pos + int(lab.grasp.sum()), n_neg + int((~lab.grasp).sum()), labelled + len(batch)
+    points = rng.permutation(len(oriented))
+    pos: list[GraspSet] = []
+    neg: list[GraspSet] = []
+    n_pos = n_neg = labelled = candidates = 0
+    for r0 in range(0, min(len(points), params.max_samples), params.num_samples):
+        idx = np.sort(points[r0 : min(r0 + params.num_samples, params.max_samples)])
+        sampling = replace(params.sampling, sample_indices=tuple(int(i) for i in idx))
+        grasps = sample_candidates(gscene, params.hand, sampling)
+        candidates += len(grasps)
+        order = rng.permutation(len(grasps))
+        for start in range(0, len(order), _LABEL_BATCH):
+            batch = grasps[order[start : start + _LABEL_BATCH]]
+            lab = label_grasps(scene, batch, params.hand, params.labels)
+            pos.append(batch[lab.grasp])
+            neg.append(batch[~lab.grasp])
+            n_pos, n_neg = n_pos + int(lab.grasp.sum()), n_neg + int((~lab.grasp).sum())
+            labelled += len(batch)
+            if n_pos >= half and n_neg >= half:
+                break
         if n_pos >= half and n_neg >= half:
             break
-    record.update(num_labelled=labelled, num_positive=n_pos, num_negative=n_neg)
+    record.update(num_candidates=candidates, num_labelled=labelled, num_positive=n_pos, num_negative=n_neg)
     k = min(half, n_pos, n_neg)
     if k == 0:
         return empty, record
-    keep = np.sort(np.concatenate([np.concatenate(pos)[:k], np.concatenate(neg)[:k]]))
-    labels = np.zeros(len(grasps), np.uint8)
-    labels[np.concatenate(pos)] = 1
-    chosen = grasps[keep]
+    chosen = GraspSet.concatenate([GraspSet.concatenate(pos)[:k], GraspSet.concatenate(neg)[:k]])
+    labels = np.repeat(np.array([1, 0], np.uint8), k)
     images = encode_images(gscene, chosen, params.hand, STORED_REPRESENTATION)
     record["kept"] = 2 * k
-    rows = {
+    rows: dict[str, NDArray[Any]] = {
         "images": images,
-        "labels": labels[keep],
+        "labels": labels,
         "object_ids": np.full(2 * k, object_id, np.int32),
         "view_ids": np.full(2 * k, view_id, np.int32),
         "categories": np.full(2 * k, CATEGORIES[obj.category], np.uint8),
@@ -437,7 +444,8 @@ def command_line(params: GenerationParams, out: str) -> str:
     parts = ["python -m graspd.training.dataset", f"--out {out}", f"--exemplars {params.exemplars}",
              f"--seed {params.seed}", "--representation 15", f"--urdfs {params.num_urdfs}",
              f"--procedural {proc or 'none'}", f"--views {params.views_per_object}",
-             f"--samples {params.num_samples}", f"--single-camera-fraction {params.single_camera_fraction}"]
+             f"--samples {params.num_samples}", f"--max-samples {params.max_samples}",
+             f"--single-camera-fraction {params.single_camera_fraction}"]
     if params.per_view is not None:
         parts.append(f"--per-view {params.per_view}")
     if params.labels.mu is not None:
@@ -471,7 +479,9 @@ def main(argv: list[str] | None = None) -> int:
                     default=tuple(DEFAULT_PROCEDURAL.items()),
                     help="procedural objects, e.g. box=150,cylinder=150,sphere=40 (or none)")
     ap.add_argument("--views", type=int, default=8, help="views per object")
-    ap.add_argument("--samples", type=int, default=100, help="cloud points sampled per view (Algorithm 2)")
+    ap.add_argument("--samples", type=int, default=50,
+                    help="cloud points sampled per round (Algorithm 2); more rounds while a class is short")
+    ap.add_argument("--max-samples", type=int, default=250, help="most cloud points sampled per view")
     ap.add_argument("--per-view", type=int, default=None, help="exemplars kept per view (default: from --exemplars)")
     ap.add_argument("--single-camera-fraction", type=float, default=0.25,
                     help="fraction of views seen by one camera instead of two 53 deg apart")
@@ -483,7 +493,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         params = GenerationParams(
             seed=args.seed, exemplars=args.exemplars, num_urdfs=args.urdfs, procedural=args.procedural,
-            views_per_object=args.views, num_samples=args.samples, per_view=args.per_view,
+            views_per_object=args.views, num_samples=args.samples, max_samples=args.max_samples, per_view=args.per_view,
             single_camera_fraction=args.single_camera_fraction, hand=hand_preset(args.hand),
             labels=LabelParams(mu=args.mu), objects_per_chunk=args.objects_per_chunk)
     except (ValueError, KeyError) as exc:
