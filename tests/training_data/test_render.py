@@ -101,3 +101,14 @@ def test_noise_helpers() -> None:
     with pytest.raises(ValueError, match="num_cameras"):
         look_at_rig(np.zeros(3), np.ones(3), 0.5, num_cameras=3)
     assert Camera(position=(0.0, 0.0, 1.0)).rotation().shape == (3, 3)
+
+
+def test_random_tabletop_is_deterministic() -> None:
+    from graspd.training.render import random_tabletop
+
+    a = random_tabletop(4, seed=2)
+    b = random_tabletop(4, seed=2)
+    c = random_tabletop(4, seed=2, held_out=True)
+    assert len(a) == 5 and len(c) == 5
+    assert all(np.array_equal(np.asarray(x.vertices), np.asarray(y.vertices)) for x, y in zip(a, b, strict=True))
+    assert not np.array_equal(np.asarray(a[1].vertices), np.asarray(c[1].vertices))

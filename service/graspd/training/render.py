@@ -16,6 +16,7 @@ import open3d as o3d
 from numpy.typing import NDArray
 
 from ..cloud import ViewpointCloud
+from ..hand import HandGeometry
 from .noise import DepthNoise, apply_depth_noise
 
 F64 = NDArray[np.float64]
@@ -263,3 +264,23 @@ def tabletop_cameras(num_cameras: int = 2, distance: float = 0.7, elevation_deg:
     d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     return look_at_rig(np.asarray(target, float), d, distance, num_cameras, separation_deg,
                        roll_axis=np.array([0.0, 0.0, 1.0]), **camera_kwargs)
+
+
+def random_tabletop(num_objects: int, seed: int = 0, held_out: bool = False, hand: HandGeometry | None = None,
+                    table_size: tuple[float, float] = (0.6, 0.6)) -> list[o3d.geometry.TriangleMesh]:
+    """tabletop_scene of num_objects objects drawn (seeded) from the training catalogue (procedural shapes
+    and random_urdfs 000-899) or, with held_out, from the held-out test objects random_urdfs 900-999 (for
+    benchmarks only: never train or tune on such a scene)."""
+    from .objects import HELD_OUT_URDFS, PROCEDURAL_KINDS, procedural_object, random_urdf_mesh
+
+    rng = np.random.default_rng([seed, 5])
+    meshes = []
+    for _ in range(num_objects):
+        if held_out:
+            meshes.append(random_urdf_mesh(int(rng.choice(HELD_OUT_URDFS)), hand, held_out_ok=True).mesh)
+        elif rng.random() < 0.5:
+            meshes.append(random_urdf_mesh(int(rng.integers(0, HELD_OUT_URDFS.start)), hand).mesh)
+        else:
+            kind = str(rng.choice(PROCEDURAL_KINDS))
+            meshes.append(procedural_object(kind, int(rng.integers(10_000)), seed, hand).mesh)
+    return tabletop_scene(meshes, seed, table_size)
