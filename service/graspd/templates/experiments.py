@@ -188,6 +188,19 @@ def other_attempt(detector: Any, object_id: int, seed: int, hand: HandGeometry) 
         trial.close()
 
 
+def comparison_detector(name: str) -> Any:
+    """A graspd.sim SimDetector by name: "baseline" (top-down) or "gpd" (default shipped classifier)."""
+    from ..sim.detectors import InProcessGPD, TopDownBaseline
+
+    if name == "baseline":
+        return TopDownBaseline()
+    if name == "gpd":
+        from ..classifier import default_model_name, load_model
+
+        return InProcessGPD(classifier=load_model(default_model_name()))
+    raise ValueError(f"compare must name baseline or gpd, got {name!r}")
+
+
 def generalisation(library: TemplateLibrary, test_ids: list[int], poses: int, seed: int = 0,
                    log: Any = print, compare: Any = None) -> TrialLog:
     """Experiment (a): each held-out object in `poses` resting poses, one grasp each, no feedback; with
@@ -272,7 +285,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--object", type=int, default=905, help="held-out object for (b)")
     ap.add_argument("--seed", type=int, default=0, help="demonstration seed (training objects 7*seed ..)")
     ap.add_argument("--pose-seed", type=int, default=None, help="seed of the test poses (default: --seed)")
-    ap.add_argument("--compare", action="store_true", help="(a): also run graspd.sim's top-down baseline")
+    ap.add_argument("--compare", default="",
+                    help="(a): comma-separated other detectors on the same poses: baseline (graspd.sim's top-down "
+                         "baseline), gpd (GraspDetector with the default shipped classifier)")
     ap.add_argument("--library", default=None,
                     help="SQLAlchemy URL of the demonstration library (default OUT/library-seed<seed>.db; "
                          "taught first if empty, reused otherwise)")
@@ -300,14 +315,14 @@ def main(argv: list[str] | None = None) -> None:
                       objects=log_a.objects, detect_seconds_median=float(np.median(log_a.detect_seconds)),
                       paper_success_rate=0.87)
         print(f"(a) success {int(ok.sum())}/{len(ok)} = {100 * ok.mean():.0f}% (paper: 83/95 = 87% on the PR2)")
-        if args.compare:
-            from ..sim.detectors import TopDownBaseline
-
-            log_c = generalisation(library, test_ids, args.poses, seed=pose_seed, compare=TopDownBaseline())
+        for name in [c for c in (args.compare or "").split(",") if c]:
+            other = comparison_detector(name)
+            log_c = generalisation(library, test_ids, args.poses, seed=pose_seed, compare=other)
             okc = log_c.successes
-            result.update(baseline_successes=int(okc.sum()), baseline_success_rate=float(okc.mean()),
-                          baseline_outcomes=log_c.outcomes)
-            print(f"(a) top-down baseline on the same poses: {int(okc.sum())}/{len(okc)} = {100 * okc.mean():.0f}%")
+            result[f"{name}_successes"] = int(okc.sum())
+            result[f"{name}_success_rate"] = float(okc.mean())
+            result[f"{name}_outcomes"] = log_c.outcomes
+            print(f"(a) {name} on the same poses: {int(okc.sum())}/{len(okc)} = {100 * okc.mean():.0f}%")
     else:
         # both arms start from a copy of the demonstrations: one reports every outcome, the control none
         arms = {}
