@@ -4,7 +4,8 @@ On-disk format (one directory per dataset; the training code reads it with load_
 
   DIR/manifest.json        format, seed, parameters, hand geometry, image size, representation,
                            objects, views, chunks (file name, rows, sha256), counts; see below.
-  DIR/chunk_00000.npz ...  np.savez_compressed, rows in generation order, each file holds
+  DIR/chunk_00000.npz ...  deflated .npz (np.load reads it; fixed zip timestamps so equal data gives
+                           equal sha256), a group of whole objects per chunk, each file holds
       images      uint8 (M, 15, 60, 60)  channels first, graspd.images.encode_images(..., "15")
       labels      uint8 (M,)             1 = grasp (antipodal under graspd.training.labels), 0 = not
       object_ids  int32 (M,)             index into manifest["objects"]
@@ -12,7 +13,7 @@ On-disk format (one directory per dataset; the training code reads it with load_
       categories  uint8 (M,)             0 = box, 1 = cylinder, 2 = other (CATEGORIES)
       positions   float32 (M, 3)         hand base centre (m, object/world frame of the view)
       rotations   float32 (M, 3, 3)      columns [approach, binormal, axis]
-      widths      float32 (M,)           GraspSet.widths: extent of the observed points between the fingers (m)
+      widths      float32 (M,)           GraspSet.widths: extent of the observed points between fingers (m)
   DIR/splits/view.json     the paper's split over views: {"kind": "view", "train"|"val"|"test":
                            [[object_id, view_id], ...]}; every object appears in every part,
                            no (object, view) pair in two parts.
@@ -21,7 +22,8 @@ On-disk format (one directory per dataset; the training code reads it with load_
 Only the 15-channel images are stored; the other representations are channel subsets of them
 (derive_images): "12" drops the three unobserved channels, "3" keeps the normals seen along the hand
 axis, "herzog" keeps the occupied and unobserved depth along the approach and adds free = neither.
-Labels are balanced per object (as in the IJRR paper: surplus of the majority class discarded).
+Labels are balanced per view, hence per object (as in the IJRR paper: surplus of the majority class
+discarded); within a view the positive rows come first.
 
 manifest.json keys: format ("graspd-grasp-images/1"), seed, representation ("15"), derivable
 (["15", "12", "3", "herzog"]), image_size (60), channels (graspd.images.channel_layout("15")),
