@@ -13,7 +13,9 @@ import numpy as np
 from .detector import Scorer
 
 #: Modules exposing register(subparsers) for further subcommands (serve, train, ...).
-SUBCOMMAND_MODULES: tuple[str, ...] = ()
+SUBCOMMAND_MODULES: tuple[str, ...] = ("graspd.training.cli",)
+#: Registered only when importable (the server module needs the service extras).
+OPTIONAL_SUBCOMMAND_MODULES: tuple[str, ...] = ("graspd.server.cli",)
 
 
 def _detect(args: argparse.Namespace) -> int:
@@ -40,7 +42,11 @@ def _detect(args: argparse.Namespace) -> int:
         return 2
     classifier = None
     if not args.no_classifier:
-        classifier = _load_classifier(args.model, args.models_dir)
+        try:
+            classifier = _load_classifier(args.model, args.models_dir)
+        except ValueError as exc:
+            print(f"graspd detect: {exc}", file=sys.stderr)
+            return 2
     detection = GraspDetector(classifier, hand).detect(cloud, params)
     out = detection.to_dict()
     if classifier is None:
@@ -56,7 +62,7 @@ def _detect(args: argparse.Namespace) -> int:
         shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
         title = f"{Path(args.cloud).name}: top {min(args.top, len(detection.grasps))} of " \
                 f"{detection.num_candidates} candidates, model {detection.model or 'none (unscored)'}"
-        plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title)
+        plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title, gravity=params.gravity)
     t = detection.timings
     print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates on {detection.num_points} points "
           f"in {t['total']:.2f} s (" + ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k != "total") + ")",
@@ -66,19 +72,43 @@ def _detect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _demo(args: argparse.Namespace) -> int:
+    from .detector import DetectionParams, GraspDetector
+    from .plot import plot_grasps
+    from .preprocess import PreprocessParams, preprocess
+    from .scenes import GRAVITY, cluttered_tabletop
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cloud = cluttered_tabletop(num_objects=args.objects, seed=args.seed)
+    classifier = None if args.no_classifier else _load_classifier(args.model, args.models_dir)
+    params = DetectionParams(num_samples=args.samples, exclude_support_plane=True, gravity=GRAVITY,
+                             approach_direction=GRAVITY, approach_max_angle_deg=80.0, max_grasps=20)
+    detection = GraspDetector(classifier).detect(cloud, params)
+    result = detection.to_dict()
+    if classifier is None:
+        result["note"] = "no classifier in models/: candidates are unscored (the paper's 'no classification' ablation)"
+    (out / "grasps.json").write_text(json.dumps(result, indent=1))
+    shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size))
+    title = (f"demo tabletop ({args.objects} objects, {len(cloud)} points, 2 cameras): top {args.top} of "
+             f"{detection.num_candidates} candidates, model {detection.model or 'none (unscored)'}")
+    plot_grasps(shown, detection.grasps, detection.hand, out / "grasps.png", top=args.top, title=title,
+                gravity=GRAVITY)
+    t = detection.timings
+    print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates in {t['total']:.2f} s "
+          f"(model: {detection.model or 'none'}); wrote {out / 'grasps.png'} and {out / 'grasps.json'}")
+    return 0
+
+
 def _load_classifier(name: str | None, models_dir: str | None) -> Scorer | None:
-    """The named (or default) ONNX classifier from models/, or None if the project has none yet."""
-    try:
-        classifier = importlib.import_module("graspd.classifier")
-    except ImportError:
-        return None
-    directory = Path(models_dir) if models_dir else None
-    try:
-        return classifier.load_model(name, directory)  # type: ignore[no-any-return]
-    except FileNotFoundError:
-        if name:
-            raise
-        return None
+    """The named ONNX classifier, or the default one if it is there (None: run unscored)."""
+    from .classifier import available_models, default_model_name, load_model
+
+    if name is None:
+        if default_model_name() not in available_models(models_dir):
+            return None
+        name = default_model_name()
+    return load_model(name, models_dir)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -104,8 +134,24 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--plot", help="write a PNG of the cloud with the top grasps")
     d.add_argument("--top", type=int, default=10, help="grasps to draw")
     d.set_defaults(func=_detect)
+    demo = sub.add_parser("demo", help="detect grasps on a bundled rendered tabletop scene and draw them")
+    demo.add_argument("--out", default="out/demo", help="folder for grasps.png and grasps.json")
+    demo.add_argument("--objects", type=int, default=6)
+    demo.add_argument("--samples", type=int, default=800)
+    demo.add_argument("--seed", type=int, default=7)
+    demo.add_argument("--top", type=int, default=8)
+    demo.add_argument("--model")
+    demo.add_argument("--models-dir")
+    demo.add_argument("--no-classifier", action="store_true")
+    demo.set_defaults(func=_demo)
     for name in SUBCOMMAND_MODULES:
         importlib.import_module(name).register(sub)
+    for name in OPTIONAL_SUBCOMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ImportError:
+            continue
+        module.register(sub)
     return parser
 
 

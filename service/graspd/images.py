@@ -80,7 +80,8 @@ def unobserved_grids(scene: Scene, grasps: GraspSet, hand: HandGeometry, chunk: 
                      ) -> NDArray[np.bool_]:
     """Which cells of a regular grid over each closing region (M, nx, ny, nz), at the scene's shadow
     voxel pitch, lie in unobserved space."""
-    v = scene.shadow_voxel
+    grid = scene.unobserved
+    v = grid.voxel
     half_w = hand.hand_outer_diameter / 2.0 - hand.finger_width
     n = [max(int(np.ceil(e / v)), 1) for e in (hand.hand_depth, 2 * half_w, hand.hand_height)]
     axes = [(np.arange(k) + 0.5) / k for k in n]
@@ -92,7 +93,7 @@ def unobserved_grids(scene: Scene, grasps: GraspSet, hand: HandGeometry, chunk: 
         rot = grasps.rotations[a : a + chunk].astype(np.float32)
         pos = grasps.positions[a : a + chunk].astype(np.float32)
         world = pos[:, None, :] + np.matmul(local[None, :, :], rot.transpose(0, 2, 1))
-        out[a : a + chunk] = scene.is_unobserved(world).reshape(len(rot), *n)
+        out[a : a + chunk] = grid.contains(world).reshape(len(rot), *n)
     return out
 
 

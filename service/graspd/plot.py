@@ -24,22 +24,33 @@ def gripper_segments(grasps: GraspSet, hand: HandGeometry, stem: float = 0.04) -
     return grasps.positions[:, None, None, :] + np.einsum("mij,abj->mabi", grasps.rotations, local)
 
 
-def _view_basis(cloud: ViewpointCloud) -> NDArray[np.float64]:
-    """Image axes (2,3) for a view from the first camera toward the cloud centroid."""
-    centre = cloud.points.mean(axis=0).astype(np.float64)
-    forward = centre - cloud.viewpoints[0].astype(np.float64)
+def _camera_basis(cloud: ViewpointCloud) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(origin, rows right/up/forward) of a view from the first camera toward the cloud's centroid."""
+    centre = np.median(cloud.points, axis=0).astype(np.float64)
+    eye = cloud.viewpoints[0].astype(np.float64)
+    forward = centre - eye
     forward /= max(float(np.linalg.norm(forward)), 1e-9)
     up_guess = np.array([0.0, -1.0, 0.0]) if abs(forward[1]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    if abs(forward[2]) < 0.95 and cloud.viewpoints[0, 2] > centre[2] + 0.1:
+        up_guess = np.array([0.0, 0.0, 1.0])  # a camera above a table: world z up
     right = np.cross(forward, up_guess)
     right /= max(float(np.linalg.norm(right)), 1e-9)
-    up = np.cross(right, forward)
-    return np.stack([right, up])
+    return eye, np.stack([right, np.cross(right, forward), forward])
+
+
+def _project(xyz: NDArray[np.floating], eye: NDArray[np.float64], basis: NDArray[np.float64],
+             perspective: bool) -> NDArray[np.float64]:
+    """Image coordinates (...,2): pinhole (normalised) when perspective, else orthographic (m)."""
+    c = (np.asarray(xyz, np.float64) - eye) @ basis.T
+    if not perspective:
+        return c[..., :2]
+    return c[..., :2] / np.maximum(c[..., 2:3], 1e-6)
 
 
 def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, path: str | Path,
-                top: int = 10, title: str = "") -> Path:
-    """Write a PNG: the cloud seen from its first camera and from the side, top grasps as grippers
-    (best in green, then by rank from yellow to red)."""
+                top: int = 10, title: str = "", gravity: tuple[float, float, float] | None = None) -> Path:
+    """Write a PNG: the cloud seen from its first camera and from above (along gravity when given,
+    else along the camera's up axis), top grasps drawn as grippers (best thick green, then yellow to red)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -48,30 +59,45 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
     path = Path(path)
     g = grasps[: max(top, 0)]
     segs = gripper_segments(g, hand)
-    basis = _view_basis(cloud)
-    side = np.stack([basis[0], np.cross(basis[0], basis[1])])  # looking along the up axis
-    fig, axes = plt.subplots(1, 2, figsize=(12, 6), dpi=110)
+    eye, cam = _camera_basis(cloud)
+    if gravity is not None:
+        down = np.asarray(gravity, np.float64) / max(float(np.linalg.norm(gravity)), 1e-9)
+        right = cam[0] - (cam[0] @ down) * down
+        right /= max(float(np.linalg.norm(right)), 1e-9)
+        above = np.stack([right, np.cross(right, down), down])  # image up = away from the camera
+        height = -(cloud.points @ down)
+    else:
+        above = np.stack([cam[0], cam[2], -cam[1]])
+        height = cloud.points @ cam[1]
     rng = np.random.default_rng(0)
-    pts = cloud.points
-    if len(pts) > 40_000:
-        pts = pts[rng.choice(len(pts), 40_000, replace=False)]
+    keep = np.arange(len(cloud.points))
+    if len(keep) > 60_000:
+        keep = np.sort(rng.choice(len(keep), 60_000, replace=False))
+    pts, colour_by = cloud.points[keep], height[keep]
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2), dpi=110)
     colours = plt.get_cmap("autumn")(np.linspace(0.0, 0.9, max(len(g), 1)))
-    for ax, b, name in ((axes[0], basis, "camera view"), (axes[1], side, "view from above the camera's up axis")):
-        uv = pts @ b.T
-        depth = pts @ np.cross(b[0], b[1])
-        ax.scatter(uv[:, 0], uv[:, 1], s=1.0, c=depth, cmap="viridis", alpha=0.8, linewidths=0)
+    views = ((axes[0], cam, True, "seen from camera 0"),
+             (axes[1], above, False, "seen from above" if gravity is not None else "seen from the side"))
+    for ax, basis, persp, name in views:
+        origin = eye if persp else np.zeros(3)
+        uv = _project(pts, origin, basis, persp)
+        order = np.argsort(colour_by)
+        ax.scatter(uv[order, 0], uv[order, 1], s=1.2, c=colour_by[order], cmap="viridis", linewidths=0)
         for k in range(len(g) - 1, -1, -1):
             colour = "limegreen" if k == 0 else colours[k]
-            width = 3.0 if k == 0 else 1.6
             for seg in segs[k]:
-                s2 = seg @ b.T
-                ax.plot(s2[:, 0], s2[:, 1], color=colour, lw=width, solid_capstyle="round")
-            c = g.positions[k] @ b.T
-            ax.annotate(str(k + 1), c, fontsize=7, color="black")
+                s2 = _project(seg, origin, basis, persp)
+                ax.plot(s2[:, 0], s2[:, 1], color="black", lw=(5.0 if k == 0 else 3.2), solid_capstyle="round")
+                ax.plot(s2[:, 0], s2[:, 1], color=colour, lw=(3.0 if k == 0 else 1.8), solid_capstyle="round")
+            ax.annotate(str(k + 1), _project(g.positions[k], origin, basis, persp), fontsize=8, weight="bold")
         ax.set_aspect("equal")
+        if persp:
+            ax.set_xticks([])
+            ax.set_yticks([])
+        else:
+            ax.set_xlabel("m")
         ax.set_title(name, fontsize=10)
-        ax.set_xlabel("m")
-    fig.suptitle(title or f"top {len(g)} grasps (green = best)")
+    fig.suptitle(title or f"top {len(g)} grasps (green = best)", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)

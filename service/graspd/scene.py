@@ -1,9 +1,10 @@
-"""A preprocessed cloud made ready for hand search and image encoding: kd-trees and the unobserved volume.
+"""A preprocessed cloud made ready for hand search and image encoding: a kd-tree and the unobserved volume.
 
-The unobserved volume follows the IJRR paper: space occluded from view by every camera.  We
-approximate it as GPD does, with "shadow" samples: from each surface point we march away from
-each camera for `shadow_length` metres; a voxel occluded from all cameras and not occupied is
-unobserved, and is represented by its centre.
+The unobserved volume follows the IJRR paper: space occluded from view by every camera.  As GPD does,
+we march "shadow" samples from each surface point away from each camera for `shadow_length` metres;
+a voxel shadowed from every camera and holding no point is unobserved.  The volume is a dense boolean
+voxel grid over the shadows' bounding box, built on first use (only the 15-channel and Herzog images
+need it).
 """
 
 from __future__ import annotations
@@ -17,46 +18,57 @@ from scipy.spatial import cKDTree
 from .cloud import CloudError, ViewpointCloud
 from .hand import HandGeometry
 
+MAX_GRID_CELLS = 48_000_000
+
+
+@dataclass(frozen=True)
+class VoxelGrid:
+    """Boolean voxels of edge `voxel` (m); cell (i, j, k) spans origin + [i, i+1) * voxel along each axis."""
+
+    origin: NDArray[np.float64]
+    voxel: float
+    cells: NDArray[np.bool_]
+
+    def contains(self, xyz: NDArray[np.floating]) -> NDArray[np.bool_]:
+        """Whether each position (...,3) lies in a true cell (False outside the grid)."""
+        g = np.floor((xyz.reshape(-1, 3) - self.origin) / self.voxel).astype(np.int64)
+        shape = np.array(self.cells.shape)
+        ok = np.all((g >= 0) & (g < shape), axis=1)
+        flat = np.where(ok, (g[:, 0] * shape[1] + g[:, 1]) * shape[2] + g[:, 2], 0)
+        return (self.cells.reshape(-1)[flat] & ok).reshape(xyz.shape[:-1])
+
+    def centres(self) -> NDArray[np.float32]:
+        """Centres (U,3) of the true cells (m)."""
+        return (self.origin + (np.argwhere(self.cells) + 0.5) * self.voxel).astype(np.float32)
+
 
 @dataclass(frozen=True)
 class Scene:
-    """Oriented cloud (points, normals, per-point camera) + kd-tree; unobserved voxel centres + kd-tree."""
+    """Oriented cloud (points, normals, per-point camera) + kd-tree; the unobserved volume on demand."""
 
     cloud: ViewpointCloud
     tree: cKDTree
-    unobserved_keys: NDArray[np.int64]
-    shadow_voxel: float
-    dense_origin: NDArray[np.int64] = field(default_factory=lambda: np.zeros(3, np.int64))
-    dense: NDArray[np.bool_] | None = None
+    shadow_voxel: float = 0.004
+    shadow_length: float = 0.10
+    _cache: dict[str, VoxelGrid] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def points(self) -> NDArray[np.float32]:
         return self.cloud.points
 
     @property
-    def unobserved(self) -> NDArray[np.float32]:
-        """Centres (U,3) of the unobserved voxels (m)."""
-        return voxel_centres(self.unobserved_keys, self.shadow_voxel)
-
-    def is_unobserved(self, xyz: NDArray[np.float32]) -> NDArray[np.bool_]:
-        """Whether each position (...,3) lies in an unobserved voxel."""
-        grid = np.floor(xyz.reshape(-1, 3) / self.shadow_voxel).astype(np.int64)
-        if self.dense is not None:
-            g = grid - self.dense_origin
-            shape = np.array(self.dense.shape)
-            ok = np.all((g >= 0) & (g < shape), axis=1)
-            flat = np.where(ok, (g[:, 0] * shape[1] + g[:, 1]) * shape[2] + g[:, 2], 0)
-            return (self.dense.reshape(-1)[flat] & ok).reshape(xyz.shape[:-1])
-        keys = _voxel_keys(grid)
-        if len(self.unobserved_keys) == 0:
-            return np.zeros(xyz.shape[:-1], bool)
-        pos = np.minimum(np.searchsorted(self.unobserved_keys, keys), len(self.unobserved_keys) - 1)
-        return (self.unobserved_keys[pos] == keys).reshape(xyz.shape[:-1])
-
-    @property
     def normals(self) -> NDArray[np.float32]:
         assert self.cloud.normals is not None
         return self.cloud.normals
+
+    @property
+    def unobserved(self) -> VoxelGrid:
+        """Space behind the surface from every camera (computed once)."""
+        if "unobserved" not in self._cache:
+            self._cache["unobserved"] = unobserved_grid(
+                self.cloud.points, self.cloud.viewpoints, self.shadow_voxel, self.shadow_length
+            )
+        return self._cache["unobserved"]
 
     @staticmethod
     def build(cloud: ViewpointCloud, hand: HandGeometry | None = None, shadow_voxel: float = 0.004,
@@ -66,69 +78,45 @@ class Scene:
         if cloud.normals is None:
             raise CloudError("cloud.normals are required: run graspd.preprocess.preprocess first")
         h = hand or HandGeometry()
-        length = h.max_aperture if shadow_length is None else shadow_length
-        keys = unobserved_voxels(cloud.points, cloud.viewpoints, shadow_voxel, length)
-        origin, dense = dense_grid(keys)
         return Scene(
             cloud=cloud,
             tree=cKDTree(cloud.points) if len(cloud) else cKDTree(np.zeros((0, 3))),
-            unobserved_keys=keys,
             shadow_voxel=shadow_voxel,
-            dense_origin=origin,
-            dense=dense,
+            shadow_length=h.max_aperture if shadow_length is None else shadow_length,
         )
 
 
-def _voxel_keys(grid: NDArray[np.int64]) -> NDArray[np.int64]:
-    """One int64 per voxel index triple (each coordinate offset into 21 bits)."""
-    g = grid + (1 << 20)
-    return (g[:, 0] << 42) | (g[:, 1] << 21) | g[:, 2]
+def unobserved_grid(points: NDArray[np.float32], viewpoints: NDArray[np.float32], voxel: float,
+                    length: float) -> VoxelGrid:
+    """Voxels within `length` behind the surface as seen from every camera, and holding no point.
 
-
-def voxel_centres(keys: NDArray[np.int64], voxel: float) -> NDArray[np.float32]:
-    """Voxel centres (U,3) of packed voxel keys."""
-    return (voxel_indices(keys).astype(np.float32) + 0.5) * np.float32(voxel)
-
-
-def voxel_indices(keys: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Integer voxel index triples (U,3) of packed voxel keys."""
-    mask = (1 << 21) - 1
-    return np.stack([(keys >> 42) & mask, (keys >> 21) & mask, keys & mask], 1) - (1 << 20)
-
-
-def dense_grid(keys: NDArray[np.int64], max_cells: int = 32_000_000
-               ) -> tuple[NDArray[np.int64], NDArray[np.bool_] | None]:
-    """A boolean voxel array over the keys' bounding box (origin index, array) for O(1) lookups;
-    None when it would exceed max_cells (lookups then use the sorted keys)."""
-    if len(keys) == 0:
-        return np.zeros(3, np.int64), None
-    idx = voxel_indices(keys)
-    lo = idx.min(axis=0)
-    shape = idx.max(axis=0) - lo + 1
-    if int(np.prod(shape)) > max_cells:
-        return lo, None
-    dense = np.zeros(tuple(int(v) for v in shape), bool)
-    g = idx - lo
-    dense[g[:, 0], g[:, 1], g[:, 2]] = True
-    return lo, dense
-
-
-def unobserved_voxels(points: NDArray[np.float32], viewpoints: NDArray[np.float32], voxel: float,
-                      length: float) -> NDArray[np.int64]:
-    """Sorted keys of voxels within `length` behind the surface from every camera, and not occupied."""
+    The grid's voxel grows past `voxel` only if the shadows' bounding box would exceed MAX_GRID_CELLS."""
     if len(points) == 0 or length <= 0.0:
-        return np.zeros(0, np.int64)
-    steps = np.arange(1, int(np.ceil(length / voxel)) + 1, dtype=np.float32) * voxel
-    occupied = np.unique(_voxel_keys(np.floor(points / voxel).astype(np.int64)))
-    shadowed: NDArray[np.int64] | None = None
-    for cam in viewpoints:
-        ray = points - cam
+        return VoxelGrid(np.zeros(3), voxel, np.zeros((1, 1, 1), bool))
+    pts = points.astype(np.float64)
+    lo = pts.min(axis=0) - length
+    hi = pts.max(axis=0) + length
+    v = max(voxel, float(np.cbrt(np.prod(hi - lo) / MAX_GRID_CELLS)))
+    shape = tuple(int(s) for s in np.ceil((hi - lo) / v).astype(np.int64) + 1)
+    # Surface points thinned to one per voxel: shadows are resolved at the voxel size anyway.
+    occ_idx = np.floor((pts - lo) / v).astype(np.int64)
+    flat = (occ_idx[:, 0] * shape[1] + occ_idx[:, 1]) * shape[2] + occ_idx[:, 2]
+    uniq, first = np.unique(flat, return_index=True)
+    occupied = np.zeros(int(np.prod(shape)), bool)
+    occupied[uniq] = True
+    surface = pts[first]
+    steps = np.arange(1, int(np.ceil(length / v)) + 1) * v
+    shadowed = np.ones(int(np.prod(shape)), bool)
+    for cam in viewpoints.astype(np.float64):
+        ray = surface - cam
         ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-9)
-        samples = points[:, None, :] + ray[:, None, :] * steps[None, :, None]
-        keys = np.unique(_voxel_keys(np.floor(samples.reshape(-1, 3) / voxel).astype(np.int64)))
-        shadowed = keys if shadowed is None else np.intersect1d(shadowed, keys, assume_unique=True)
-    assert shadowed is not None
-    return np.setdiff1d(shadowed, occupied, assume_unique=True)
+        mine = np.zeros(int(np.prod(shape)), bool)
+        for step in steps:
+            g = np.floor((surface + ray * step - lo) / v).astype(np.int64)
+            np.clip(g, 0, np.array(shape) - 1, out=g)
+            mine[(g[:, 0] * shape[1] + g[:, 1]) * shape[2] + g[:, 2]] = True
+        shadowed &= mine
+    return VoxelGrid(lo, v, (shadowed & ~occupied).reshape(shape))
 
 
 def ball_pairs(tree: cKDTree, centres: NDArray[np.floating], radius: float

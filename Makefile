@@ -1,0 +1,33 @@
+# graspd: `make demo` (first run installs everything), `make test`, `make serve`, `make bench`.
+VENV := .venv/bin
+PY := $(VENV)/python
+export PYTHONUNBUFFERED := 1
+
+.PHONY: setup demo serve test lint typecheck test-slow bench openapi clean
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	$(VENV)/graspd demo --out out/demo
+
+serve: setup
+	$(VENV)/graspd serve --host $${GRASPD_HOST:-127.0.0.1} --port $${GRASPD_PORT:-8000}
+
+lint: setup
+	$(VENV)/ruff check service client tests bench
+
+typecheck: setup
+	$(VENV)/mypy
+
+test: lint typecheck
+	$(VENV)/pytest
+
+test-slow: setup
+	$(VENV)/pytest -m slow
+
+bench: setup
+	$(PY) bench/perf.py
+
+clean:
+	rm -rf out .pytest_cache .mypy_cache .ruff_cache
