@@ -13,7 +13,7 @@ import numpy as np
 from .detector import Scorer
 
 #: Modules exposing register(subparsers) for further subcommands (serve, train, ...).
-SUBCOMMAND_MODULES: tuple[str, ...] = ("graspd.training.cli",)
+SUBCOMMAND_MODULES: tuple[str, ...] = ("graspd.training.cli", "graspd.templates.cli")
 #: Registered only when importable (the server module needs the service extras).
 OPTIONAL_SUBCOMMAND_MODULES: tuple[str, ...] = ("graspd.server.cli",)
 
