@@ -274,9 +274,44 @@ def plot_improvement(with_fb: TrialLog, without: TrialLog, path: Path, object_id
     fig.savefig(path, dpi=110)
 
 
+def pool_improvement(out: Path) -> dict[str, Any]:
+    """Pool every (b) result in out: per-run first/last ten, overall success by arm, and a PNG of the
+    mean last-ten curves with and without feedback."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = [json.loads(p.read_text()) for p in sorted(out.glob("templates_experiment_b_*.json"))]
+    if not runs:
+        raise FileNotFoundError(f"no templates_experiment_b_*.json in {out}")
+    arms = {arm: [np.array([o == "success" for o in r[f"outcomes_{arm}"]]) for r in runs]
+            for arm in ("feedback", "control")}
+    n = min(len(a) for a in arms["feedback"])
+    fig, ax = plt.subplots(figsize=(6, 4))
+    pooled: dict[str, Any] = {"runs": [{"object": r["object"], "pose_seed": r["pose_seed"],
+                                        "first_ten": r["first_ten"], "last_ten": r["last_ten"],
+                                        "control_first_ten": r["control_first_ten"],
+                                        "control_last_ten": r["control_last_ten"]} for r in runs]}
+    for arm, label in (("feedback", "with failure feedback"), ("control", "without feedback (same poses)")):
+        curves = np.array([last_ten(a[:n]) for a in arms[arm]])
+        ax.plot(np.arange(1, n + 1), 100 * curves.mean(axis=0), marker="o", ms=3, label=label)
+        allv = np.concatenate(arms[arm])
+        pooled[f"{arm}_success"] = float(allv.mean())
+        pooled[f"{arm}_trials"] = len(allv)
+    ax.set_xlabel("trial")
+    ax.set_ylabel("success over the last ten trials (%), mean of runs")
+    ax.set_ylim(-5, 105)
+    ax.set_title(f"improvement over time, {len(runs)} runs (cf. Herzog Fig. 6)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "templates_improvement_pooled.png", dpi=110)
+    return pooled
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("experiment", choices=("a", "b"))
+    ap.add_argument("experiment", choices=("a", "b", "pool"), help="pool: summarise every (b) run in OUT")
     ap.add_argument("--demos", type=int, default=15)
     ap.add_argument("--objects", type=int, default=7, help="training objects for the demonstrations")
     ap.add_argument("--tests", type=int, default=15, help="held-out test objects (a)")
@@ -294,6 +329,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=Path("/tmp/graspd-templates-experiments"))
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.experiment == "pool":
+        print(json.dumps(pool_improvement(args.out), indent=1))
+        return
     hand = HandGeometry()
     tmp = tempfile.mkdtemp()
     url = args.library or f"sqlite:///{args.out / f'library-seed{args.seed}.db'}"
