@@ -129,3 +129,12 @@ def test_cli_rejects_bad_arguments_and_existing_output(tiny: Path, capsys: pytes
     with pytest.raises(FileExistsError):
         generate_dataset(tiny, TINY, workers=1)
     json.loads((tiny / "timing.json").read_text())
+
+
+def test_preview_png(tiny: Path, tmp_path: Path) -> None:
+    from graspd.training.dataset import _params_from_dict, write_preview
+
+    assert _params_from_dict(read_manifest(tiny)["parameters"]) == TINY  # the manifest rebuilds the params
+    view = next(v for v in read_manifest(tiny)["views"] if v["kept"] > 0)
+    out = write_preview(tiny, tmp_path / "preview.png", view["object_id"], view["view_id"])
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000

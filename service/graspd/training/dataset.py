@@ -55,6 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..candidates import SamplingParams, sample_candidates
+from ..cloud import ViewpointCloud
 from ..grasp import GraspSet
 from ..hand import HAND_PRESETS, HandGeometry, hand_preset
 from ..images import channel_layout, encode_images
@@ -63,7 +64,7 @@ from ..scene import Scene
 from .labels import LabelParams, label_grasps, normal_slack_deg
 from .noise import DepthNoise
 from .objects import PROCEDURAL_KINDS, GraspObject, load_object, object_catalogue
-from .render import PAPER_CAMERA_SEPARATION_DEG, MeshScene, random_view, render_scene
+from .render import PAPER_CAMERA_SEPARATION_DEG, Camera, MeshScene, random_view, render_scene
 
 FORMAT = "graspd-grasp-images/1"
 CATEGORIES: dict[str, int] = {"box": 0, "cylinder": 1, "other": 2}
@@ -231,13 +232,19 @@ class GenerationParams:
         return d
 
 
-def _view_exemplars(obj: GraspObject, scene: MeshScene, object_id: int, view_id: int, quota: int,
-                    params: GenerationParams) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
-    """Balanced labelled grasp images of one view of one object, and the view's manifest record."""
+def _render_view(scene: MeshScene, object_id: int, view_id: int, params: GenerationParams
+                 ) -> tuple[np.random.Generator, list[Camera], ViewpointCloud]:
+    """The view's seeded generator (after rendering), its cameras and the cloud they see."""
     rng = np.random.default_rng([params.seed, 2, object_id, view_id])
     num_cameras = 1 if rng.random() < params.single_camera_fraction else 2
     cameras = random_view(rng, None, num_cameras, params.camera_distance, params.camera_separation_deg)
-    cloud = render_scene(scene, cameras, params.noise, rng)
+    return rng, cameras, render_scene(scene, cameras, params.noise, rng)
+
+
+def _view_exemplars(obj: GraspObject, scene: MeshScene, object_id: int, view_id: int, quota: int,
+                    params: GenerationParams) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+    """Balanced labelled grasp images of one view of one object, and the view's manifest record."""
+    rng, cameras, cloud = _render_view(scene, object_id, view_id, params)
     record: dict[str, Any] = {"object_id": object_id, "view_id": view_id,
                               "cameras": [list(map(float, c.position)) for c in cameras],
                               "num_points": len(cloud), "num_candidates": 0, "num_labelled": 0, "num_positive": 0,
@@ -455,6 +462,112 @@ def command_line(params: GenerationParams, out: str) -> str:
     return " ".join(parts)
 
 
+def write_preview(directory: str | Path, path: str | Path, object_id: int = 0, view_id: int = 0,
+                  show: int = 6) -> Path:
+    """A PNG to judge a dataset's labels by eye: one view's cloud (re-rendered from the manifest's
+    parameters) with its stored grasps as grippers (green = grasp, red = not), seen from the first camera
+    and from the side, the mesh's surface as grey dots, and the 15 channels of a few stored exemplars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..plot import gripper_segments
+
+    directory = Path(directory)
+    manifest = read_manifest(directory)
+    params = _params_from_dict(manifest["parameters"])
+    entry = manifest["objects"][object_id]
+    kind, index = _spec_of(entry)
+    obj = load_object(kind, index, params.seed, params.hand)
+    _, cameras, cloud = _render_view(MeshScene([obj.mesh]), object_id, view_id, params)
+    rows: dict[str, NDArray[Any]] | None = None
+    for chunk in iter_chunks(directory):
+        m = (chunk["object_ids"] == object_id) & (chunk["view_ids"] == view_id)
+        if m.any():
+            rows = {k: v[m] for k, v in chunk.items()}
+            break
+    if rows is None:
+        raise ValueError(f"no exemplars of object {object_id} view {view_id} in {directory}")
+    lab = rows["labels"].astype(bool)
+    pick = np.concatenate([np.flatnonzero(lab)[: show // 2], np.flatnonzero(~lab)[: show // 2]])
+    grasps = GraspSet(positions=rows["positions"][pick].astype(np.float64),
+                      rotations=rows["rotations"][pick].astype(np.float64),
+                      widths=rows["widths"][pick].astype(np.float64), scores=lab[pick].astype(np.float64),
+                      samples=rows["positions"][pick].astype(np.float64))
+    segs = gripper_segments(grasps, params.hand)
+    tri = np.asarray(obj.mesh.triangles)
+    verts = np.asarray(obj.mesh.vertices)
+    bary = np.random.default_rng(0).dirichlet(np.ones(3), 4000)
+    faces = np.random.default_rng(1).integers(0, len(tri), 4000)
+    surface = np.einsum("nk,nkj->nj", bary, verts[tri[faces]])  # mesh surface samples (not area-weighted)
+    rot = cameras[0].rotation()
+    side = rot @ np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]).T  # camera turned 90 deg
+
+    fig = plt.figure(figsize=(16, 4 + 1.3 * len(pick)), dpi=90)
+    grid = fig.add_gridspec(1 + len(pick), 15, height_ratios=[4.0] + [1.3] * len(pick))
+    for col, (basis, name) in enumerate(((rot, "camera 0"), (side, "side"))):
+        ax = fig.add_subplot(grid[0, 7 * col : 7 * col + 7])
+        for pts, size, colour in ((surface, 1.0, "0.8"), (cloud.points, 1.5, "tab:blue")):
+            uv = (pts - np.asarray(cameras[0].position)) @ basis
+            ax.scatter(uv[:, 0], -uv[:, 1], s=size, c=colour, linewidths=0)
+        for k in range(len(pick)):
+            colour = "limegreen" if lab[pick[k]] else "red"
+            for seg in segs[k]:
+                uv = (seg - np.asarray(cameras[0].position)) @ basis
+                ax.plot(uv[:, 0], -uv[:, 1], color=colour, lw=2)
+            c = (grasps.positions[k] - np.asarray(cameras[0].position)) @ basis
+            ax.annotate(str(k), (c[0], -c[1]), fontsize=9, weight="bold")
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"{entry['name']} view {view_id}, seen from {name} (orthographic)", fontsize=9)
+    names = channel_layout(STORED_REPRESENTATION)
+    for r, i in enumerate(pick):
+        for c in range(15):
+            ax = fig.add_subplot(grid[1 + r, c])
+            ax.imshow(rows["images"][i, c], cmap="gray", vmin=0, vmax=255)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(names[c], fontsize=7)
+            if c == 0:
+                ax.set_ylabel(f"{r}: {'grasp' if lab[i] else 'not'}", fontsize=8,
+                              color="green" if lab[i] else "red")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def _spec_of(entry: dict[str, Any]) -> tuple[str, int]:
+    """(kind, index) of a manifest object entry."""
+    kind, _, index = entry["name"].rpartition("_")
+    return ("urdf" if kind == "urdf" else kind), int(index)
+
+
+def _params_from_dict(d: dict[str, Any]) -> GenerationParams:
+    """GenerationParams from manifest["parameters"] (GenerationParams.to_dict)."""
+    d = dict(d)
+    d["procedural"] = tuple(d["procedural"].items())
+    d["camera_distance"] = tuple(d["camera_distance"])
+    d["split_fractions"] = tuple(d["split_fractions"])
+    d["hand"] = HandGeometry(**d["hand"])
+    d["noise"] = DepthNoise(**d["noise"])
+    pre = dict(d["preprocess"])
+    if pre.get("workspace") is not None:
+        pre["workspace"] = tuple(pre["workspace"])
+    d["preprocess"] = PreprocessParams(**pre)
+    samp = dict(d["sampling"])
+    if samp.get("sample_indices") is not None:
+        samp["sample_indices"] = tuple(samp["sample_indices"])
+    d["sampling"] = SamplingParams(**samp)
+    d["labels"] = LabelParams(**d["labels"])
+    return GenerationParams(**d)
+
+
 def _parse_procedural(text: str) -> tuple[tuple[str, int], ...]:
     if text in ("", "none"):
         return ()
@@ -491,6 +604,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mu", type=float, default=None, help="label with friction cones (default: frictionless)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--objects-per-chunk", type=int, default=16)
+    ap.add_argument("--preview", metavar="PNG", help="also write a PNG of object 0, view 0 and its exemplars")
     args = ap.parse_args(argv)
     try:
         params = GenerationParams(
@@ -506,6 +620,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{c['total']} exemplars ({c['positive']} positive) from {len(manifest['objects'])} objects x "
           f"{params.views_per_object} views in {timing['seconds']:.1f} s on {args.workers} workers: "
           f"{timing['exemplars_per_minute']:.0f} exemplars/min; dataset_sha256 {manifest['dataset_sha256']}")
+    if args.preview:
+        print(f"preview: {write_preview(args.out, args.preview)}")
     return 0
 
 
