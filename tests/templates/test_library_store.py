@@ -162,6 +162,8 @@ def test_bad_input_names_the_field(render_box, box_pose, library_url) -> None:
         TemplateDetector(lib).detect(cloud, max_grasps=0)
     with pytest.raises(TemplateError, match="workspace"):
         TemplateDetector(lib).detect(cloud, workspace=(0.0, 1.0))  # type: ignore[arg-type]
+    with pytest.raises(TemplateError, match="workspace"):
+        TemplateDetector(lib).detect(cloud, workspace=(1.0, 0.0, -1.0, 1.0, -1.0, 1.0))
     with pytest.raises(TemplateError, match="hand"):
         TemplateLibrary(url, hand=HandGeometry(hand_depth=0.05))
     with pytest.raises(TemplateError, match="library_url"):

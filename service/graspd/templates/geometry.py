@@ -216,6 +216,8 @@ def prepare_scene(cloud: ViewpointCloud, geometry: TemplateGeometry, workspace: 
         ws = np.asarray(workspace, np.float64)
         if ws.shape != (6,) or not np.isfinite(ws).all():
             raise TemplateError("workspace must be 6 finite numbers [xmin, xmax, ymin, ymax, zmin, zmax]")
+        if np.any(ws[1::2] < ws[0::2]):
+            raise TemplateError("workspace: each max must be >= its min ([xmin, xmax, ymin, ymax, zmin, zmax])")
         finite &= np.all((pts >= ws[0::2]) & (pts <= ws[1::2]), axis=1)
     pts, src = pts[finite], src[finite]
     if len(pts) < 10:
