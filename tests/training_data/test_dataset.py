@@ -138,3 +138,15 @@ def test_preview_png(tiny: Path, tmp_path: Path) -> None:
     view = next(v for v in read_manifest(tiny)["views"] if v["kept"] > 0)
     out = write_preview(tiny, tmp_path / "preview.png", view["object_id"], view["view_id"])
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000
+
+
+def test_broken_source_mesh_is_skipped_not_fatal(tmp_path: Path) -> None:
+    """pybullet_data random_urdfs/168 has NaN vertices: the generator records it as skipped and goes on."""
+    from graspd.training.dataset import _generate_chunk
+    from graspd.training.objects import random_urdf_mesh
+
+    with pytest.raises(ValueError, match="broken mesh"):
+        random_urdf_mesh(168)
+    index, objects, views, entry = _generate_chunk((0, [(0, "urdf", 168)], 10, TINY, str(tmp_path)))
+    assert objects[0]["skipped"] and views == [] and entry["rows"] == 0
+    assert np.load(tmp_path / entry["file"])["images"].shape == (0, 15, 60, 60)

@@ -28,8 +28,9 @@ discarded); within a view the positive rows come first.
 manifest.json keys: format ("graspd-grasp-images/1"), seed, representation ("15"), derivable
 (["15", "12", "3", "herzog"]), image_size (60), channels (graspd.images.channel_layout("15")),
 hand (HandGeometry.to_dict()), parameters (render, noise, preprocess, sampling, label settings),
-objects ([{id, name, source, category, scale, extent}]), views ([{object_id, view_id, cameras,
-num_points, num_candidates, num_labelled, num_positive, num_negative (among the labelled), kept}]),
+objects ([{id, name, source, category, scale, extent}, or {id, name, source, category, skipped: reason}
+for a broken source mesh, which then has no views]), views ([{object_id, view_id, cameras, num_points,
+num_candidates, num_labelled, num_positive, num_negative (among the labelled), kept}]),
 chunks ([{file, rows, positive, sha256}]), counts ({total, positive, negative, by_category, target}),
 per_view (the quota), dataset_sha256 (sha256 of the chunk hashes concatenated in order), command.
 timing.json beside it holds the generation time and exemplars per minute (not part of the hashes).
@@ -328,7 +329,12 @@ def _generate_chunk(task: tuple[int, list[tuple[int, str, int]], int, Generation
     chunk_index, group, quota, params, out_dir = task
     objects, views, parts = [], [], []
     for object_id, kind, index in group:
-        obj = load_object(kind, index, params.seed, params.hand)
+        try:
+            obj = load_object(kind, index, params.seed, params.hand)
+        except ValueError as exc:  # a broken source mesh (random_urdfs/168 has NaN vertices): no views
+            objects.append({"id": object_id, "name": f"{kind}_{index:03d}", "source": kind, "category": "other",
+                            "skipped": str(exc)})
+            continue
         scene = MeshScene([obj.mesh])
         objects.append({"id": object_id, **obj.to_dict()})
         for view_id in range(params.views_per_object):

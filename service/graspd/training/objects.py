@@ -104,9 +104,9 @@ def random_urdf_mesh(index: int, hand: HandGeometry | None = None, held_out_ok: 
         raise ValueError(f"{folder}: no <mesh filename=...> in the URDF")
     scale_xyz = np.array([float(v) for v in (match.group(2) or "1 1 1").split()], np.float64)
     mesh = o3d.io.read_triangle_mesh(folder / match.group(1))
-    if len(mesh.triangles) == 0:
-        raise ValueError(f"{folder / match.group(1)}: no triangles")
     verts = np.asarray(mesh.vertices) * scale_xyz
+    if len(mesh.triangles) == 0 or not np.isfinite(verts).all():
+        raise ValueError(f"{folder / match.group(1)}: no triangles or non-finite vertices (a broken mesh)")
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), mesh.triangles)
     mesh = _clean(mesh)
     factor = fit_to_hand(mesh, hand or HandGeometry())
