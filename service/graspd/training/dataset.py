@@ -341,7 +341,7 @@ def _generate_chunk(task: tuple[int, list[tuple[int, str, int]], int, Generation
             rows, record = _view_exemplars(obj, scene, object_id, view_id, quota, params)
             views.append(record)
             parts.append(rows)
-    arrays = {k: np.concatenate([p[k] for p in parts]) for k in CHUNK_KEYS}
+    arrays = {k: np.concatenate([p[k] for p in [_empty_rows(), *parts]]) for k in CHUNK_KEYS}
     name = f"chunk_{chunk_index:05d}.npz"
     digest = write_npz(Path(out_dir) / name, arrays)
     labels = arrays["labels"]
