@@ -23,6 +23,7 @@ from .hand import HandGeometry
 from .scene import ClosingRegionPoints, Scene, ball_pairs
 
 MIN_FRAME_POINTS = 3
+CHUNK = 256
 
 
 @dataclass(frozen=True)
@@ -121,6 +122,21 @@ def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None
     sample_idx, frames = sample_idx[ok], frames[ok]
     if len(sample_idx) == 0:
         return empty
+    # Chunks of samples keep the neighbour arrays small: time stays linear in the number of samples.
+    parts = [_search_chunk(scene, hand, p, sample_idx[a : a + CHUNK], frames[a : a + CHUNK])
+             for a in range(0, len(sample_idx), CHUNK)]
+    offsets = np.cumsum([0] + [len(g) for g, _ in parts])
+    region = ClosingRegionPoints(
+        np.concatenate([r.grasp + off for (_, r), off in zip(parts, offsets, strict=False)]),
+        np.concatenate([r.local for _, r in parts]),
+        np.concatenate([r.index for _, r in parts]),
+    )
+    return GraspSet.concatenate([g for g, _ in parts]), region
+
+
+def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_idx: NDArray[np.int64],
+                  frames: NDArray[np.float64]) -> tuple[GraspSet, ClosingRegionPoints]:
+    """Algorithm 2 steps 5-10 for a batch of samples with their frames."""
     s_grid = finger_offsets(hand, p.num_finger_placements)
     phis = orientations(p.num_orientations)
     od, fw, hd, hh = hand.hand_outer_diameter, hand.finger_width, hand.hand_depth, hand.hand_height
