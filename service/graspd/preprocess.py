@@ -47,8 +47,8 @@ def voxelize(points: NDArray[np.float32], camera_source: NDArray[np.int32], voxe
     _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
     m = counts.shape[0]
-    out_pts = np.stack([np.bincount(inverse, points[:, k], m) for k in range(3)], axis=1)
-    out_pts = (out_pts / counts[:, None]).astype(np.float32)
+    sums = np.stack([np.bincount(inverse, points[:, k], m) for k in range(3)], axis=1)
+    out_pts: NDArray[np.float32] = (sums / counts[:, None]).astype(np.float32)
     ncam = int(camera_source.max()) + 1 if camera_source.size else 1
     votes = np.bincount(inverse * ncam + camera_source, minlength=m * ncam).reshape(m, ncam)
     out_src = np.argmax(votes, axis=1).astype(np.int32)
@@ -81,9 +81,9 @@ def orient_toward_cameras(points: NDArray[np.float32], normals: NDArray[np.float
 def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) -> ViewpointCloud:
     """Drop non-finite points, crop, voxelize, remove outliers, and give every point an oriented normal."""
     p = params or PreprocessParams()
-    finite: NDArray[np.bool_] = np.isfinite(cloud.points).all(axis=1)
+    finite = np.asarray(np.isfinite(cloud.points).all(axis=1), bool)
     if cloud.normals is not None:
-        finite &= np.isfinite(cloud.normals).all(axis=1)
+        finite = finite & np.asarray(np.isfinite(cloud.normals).all(axis=1), bool)
     c = cloud.select(finite) if not finite.all() else cloud
     if p.workspace is not None:
         c = c.select(crop_mask(c.points, p.workspace))
