@@ -145,10 +145,10 @@ class DepthMap:
         """As occluded, for points given in this camera's basis (depth z, right, down; m), any shape."""
         inv = np.float32(1.0 / self.pixel) / np.maximum(z, np.float32(1e-6))
         h, w = self.depth.shape
-        r = np.floor(right * inv).astype(np.int64) - self.origin[0]
-        c = np.floor(down * inv).astype(np.int64) - self.origin[1]
+        r = np.floor(right * inv).astype(np.int32) - np.int32(self.origin[0])
+        c = np.floor(down * inv).astype(np.int32) - np.int32(self.origin[1])
         ok = (z > 1e-6) & (r >= 0) & (r < h) & (c >= 0) & (c < w)
-        seen = self.depth.reshape(-1)[np.where(ok, r * w + c, 0)]
+        seen = self.depth.reshape(-1)[np.where(ok, r * np.int32(w) + c, 0)]
         return ok & (z > seen + np.float32(tolerance))
 
 
@@ -358,43 +358,46 @@ def extract_templates(scene: TemplateScene, centres: F64, base: F64, angles: F64
     a_count, r_count = len(centres), len(angles)
     uv = g.tile_centres()
     cos, sin = np.cos(angles), np.sin(angles)
-    # Surface: the highest object point in each tile column (np.minimum.at over flat tile keys).
+    # Surface: the highest object point in each tile column (np.minimum.at over flat tile keys; keys of
+    # points outside the template go to one spare slot at the end).
     radius = float(np.sqrt(2.0 * (g.size / 2.0) ** 2 + big_d**2))
     near = scene.tree.query_ball_point(centres, radius)
     counts = np.array([len(x) for x in near], np.int64)
-    surf_flat = np.full(a_count * r_count * n * n, np.inf)
+    spare = a_count * r_count * n * n
+    surf_flat = np.full(spare + 1, np.inf, np.float32)
     if counts.sum():
         idx = np.concatenate([np.asarray(x, np.int64) for x in near])
         aid = np.repeat(np.arange(a_count), counts)
         local = np.einsum("pj,pjk->pk", scene.object_points[idx] - centres[aid], base[aid])
         depth = -local[:, 2]
         inside = depth < big_d
-        local, depth, aid = local[inside], depth[inside], aid[inside]
-        u = local[:, None, 0] * cos[None, :] + local[:, None, 1] * sin[None, :]
-        v = -local[:, None, 0] * sin[None, :] + local[:, None, 1] * cos[None, :]
-        i = np.floor((u + g.size / 2.0) / t).astype(np.int64)
-        j = np.floor((v + g.size / 2.0) / t).astype(np.int64)
+        xt = (local[inside, 0] / t).astype(np.float32)[:, None]  # tile units
+        yt = (local[inside, 1] / t).astype(np.float32)[:, None]
+        depth, aid = depth[inside].astype(np.float32), aid[inside].astype(np.int32)
+        c32, s32, half = cos.astype(np.float32)[None, :], sin.astype(np.float32)[None, :], np.float32(n / 2)
+        i = np.floor(xt * c32 + yt * s32 + half).astype(np.int32)
+        j = np.floor(yt * c32 - xt * s32 + half).astype(np.int32)
         ok = (i >= 0) & (i < n) & (j >= 0) & (j < n)
-        key = ((aid[:, None] * r_count + np.arange(r_count)[None, :]) * n + i) * n + j
-        np.minimum.at(surf_flat, key[ok], np.broadcast_to(depth[:, None], key.shape)[ok])
-    surf = surf_flat.reshape(a_count, r_count, n * n)
+        key = ((aid[:, None] * r_count + np.arange(r_count, dtype=np.int32)[None, :]) * n + i) * n + j
+        np.minimum.at(surf_flat, np.where(ok, key, spare).ravel(), np.repeat(depth, r_count))
+    surf = surf_flat[:spare].reshape(a_count, r_count, n * n)
     # Tile centres in the base frame's x/y for each rotation: (R, T).
     bx = uv[None, :, 0] * cos[:, None] - uv[None, :, 1] * sin[:, None]
     by = uv[None, :, 0] * sin[:, None] + uv[None, :, 1] * cos[:, None]
     # Background: where each tile column meets the table.
-    table_d = np.full((a_count, r_count, n * n), np.inf)
+    table_d = np.full((a_count, r_count, n * n), np.inf, np.float32)
     if scene.table is not None:
         nt = scene.table.normal
         s0 = (scene.table.height(centres)[:, None, None] + (base[:, :, 0] @ nt)[:, None, None] * bx[None]
-              + (base[:, :, 1] @ nt)[:, None, None] * by[None])
-        down = (base[:, :, 2] @ nt)[:, None, None]
+              + (base[:, :, 1] @ nt)[:, None, None] * by[None]).astype(np.float32)
+        down = (base[:, :, 2] @ nt)[:, None, None].astype(np.float32)
         with np.errstate(divide="ignore", invalid="ignore"):
-            table_d = np.where(s0 <= 0.0, 0.0, np.where(down > 1e-9, s0 / down, np.inf))
+            table_d = np.where(s0 <= 0.0, np.float32(0.0), np.where(down > 1e-9, s0 / down, np.float32(np.inf)))
     occ_d = occlusion_depths(scene, centres, base, bx, by)
     return combine_tiles(surf, occ_d, table_d, big_d)
 
 
-def occlusion_depths(scene: TemplateScene, centres: F64, base: F64, bx: F64, by: F64) -> F64:
+def occlusion_depths(scene: TemplateScene, centres: F64, base: F64, bx: F64, by: F64) -> F32:
     """Depth (m) at which each tile column (axis, rotation, tile) first enters unobserved space above
     the table, inf if it does not within the box.  Sampled once per axis on a tile-spaced grid of
     columns and depths, then looked up at each rotated tile centre."""
@@ -402,7 +405,9 @@ def occlusion_depths(scene: TemplateScene, centres: F64, base: F64, bx: F64, by:
     t = g.tile
     half = int(np.ceil(g.size / np.sqrt(2.0) / t)) + 1
     grid = (np.arange(-half, half + 1)) * t
-    gx, gy = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
+    gx_all, gy_all = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
+    disc = np.flatnonzero(gx_all**2 + gy_all**2 <= (g.size / np.sqrt(2.0) + t) ** 2)  # rotated tiles stay inside
+    gx, gy = gx_all[disc], gy_all[disc]
     depths = (np.arange(int(np.ceil(g.depth / t))) + 0.5) * t
     side = len(grid)
 
@@ -413,7 +418,7 @@ def occlusion_depths(scene: TemplateScene, centres: F64, base: F64, bx: F64, by:
                 + np.outer(base[:, :, 1] @ vec, gy).reshape(len(centres), -1, 1)
                 - (base[:, :, 2] @ vec)[:, None, None] * depths[None, None, :]).astype(np.float32)
 
-    hidden = np.ones((len(centres), side * side, len(depths)), bool)
+    hidden = np.ones((len(centres), len(disc), len(depths)), bool)
     if not scene.depth_maps:
         hidden[:] = False
     for dm in scene.depth_maps:
@@ -421,17 +426,18 @@ def occlusion_depths(scene: TemplateScene, centres: F64, base: F64, bx: F64, by:
         hidden &= dm.occluded_local(coords[0], coords[1], coords[2], t)
     if scene.table is not None:
         hidden &= along(scene.table.normal) + np.float32(scene.table.offset) > 0.0
-    first = np.where(hidden.any(axis=2), depths[np.argmax(hidden, axis=2)] - 0.5 * t, np.inf)  # (A, G)
+    first = np.full((len(centres), side * side), np.inf, np.float32)
+    first[:, disc] = np.where(hidden.any(axis=2), depths[np.argmax(hidden, axis=2)] - 0.5 * t, np.inf)
     gi = np.clip(np.rint(bx / t).astype(np.int64) + half, 0, side - 1)
     gj = np.clip(np.rint(by / t).astype(np.int64) + half, 0, side - 1)
     return first[:, gi * side + gj]  # (A, R, T)
 
 
-def combine_tiles(surf: F64, occ: F64, table: F64, box_depth: float) -> tuple[F32, U8]:
+def combine_tiles(surf: F32, occ: F32, table: F32, box_depth: float) -> tuple[F32, U8]:
     """Region type and height per tile from the depths (m) of surface, occlusion and table in its column:
     surface if seen within the box, else whichever of occlusion/table comes first, else void."""
     types = np.full(surf.shape, VOID, np.uint8)
-    heights = np.full(surf.shape, box_depth)
+    heights = np.full(surf.shape, box_depth, np.float32)
     is_bg = table < box_depth
     heights = np.where(is_bg, table, heights)
     types[is_bg] = BACKGROUND

@@ -47,17 +47,22 @@ def distances(c_heights: F32, c_types: U8, l_heights: F32, l_types: U8, chunk: i
         o = np.maximum(surf_c[:, None], surf_l[None, :]) / both
     extra = np.float32(W_HIGH - W_LOW)
     low = np.float32(W_LOW)
-    ch = c_heights.astype(np.float32)
+    ch = np.ascontiguousarray(c_heights, np.float32)
+    csf = cs.astype(np.float32)
+    lsf = ls.astype(np.float32)
+    ones = np.ones(t, np.float32)
     for j in range(n_l):
         live = np.flatnonzero(both[:, j] > 0)
         if len(live) == 0:
             continue
-        lh, lsj = l_heights[j].astype(np.float32), ls[j]
+        lh = l_heights[j].astype(np.float32)
         for s in range(0, len(live), chunk * 16):
             rows = live[s : s + chunk * 16]
-            d = np.abs(ch[rows] - lh)
-            w = (cs[rows] | lsj) * extra + low
-            out[rows, j] = np.einsum("kt,kt->k", d, w, dtype=np.float32) / t
+            d = ch[rows] - lh
+            np.abs(d, out=d)
+            # sum_i W|d_i| = low sum_i |d_i| + extra (sum_{l^ surface} |d_i| + sum_{l^ not surface} [c^ surface] |d_i|)
+            total = low * (d @ ones) + extra * (d @ lsf[j] + (d * csf[rows]) @ (1.0 - lsf[j]))
+            out[rows, j] = total / t
     return np.where(both > 0, o * out, np.inf)
 
 
