@@ -85,7 +85,7 @@ class TablePlane:
 
     def height(self, points: NDArray[np.floating]) -> F64:
         """Signed height (m) above the table of points (...,3)."""
-        return np.asarray(points, np.float64) @ self.normal + self.offset
+        return np.einsum("...j,j->...", np.asarray(points, np.float64), self.normal) + self.offset
 
 
 def segment_table(points: F32, viewpoints: F32, distance: float = 0.005, min_fraction: float = 0.1,
@@ -165,7 +165,7 @@ def depth_map(points: F64, camera: F64, look_at: F64, spacing: float) -> DepthMa
     right /= np.linalg.norm(right)
     down = np.cross(forward, right)
     basis = np.stack([forward, right, down])
-    local = (points - camera) @ basis.T
+    local = np.einsum("pj,kj->pk", points - camera, basis)  # not BLAS: its threads spin on a busy host
     local = local[local[:, 0] > 1e-6]
     if len(local) == 0:
         return None

@@ -40,7 +40,7 @@ def distances(c_heights: F32, c_types: U8, l_heights: F32, l_types: U8, chunk: i
         return out
     cs = c_types == SURFACE
     ls = l_types == SURFACE
-    both = cs.astype(np.float32) @ ls.T.astype(np.float32)  # (K, L) surface overlap counts
+    both = np.einsum("kt,lt->kl", cs.astype(np.float32), ls.astype(np.float32))  # (K, L) surface overlaps
     surf_c = cs.sum(axis=1).astype(np.float64)
     surf_l = ls.sum(axis=1).astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -61,7 +61,9 @@ def distances(c_heights: F32, c_types: U8, l_heights: F32, l_types: U8, chunk: i
             d = ch[rows] - lh
             np.abs(d, out=d)
             # sum_i W|d_i| = low sum_i |d_i| + extra (sum_{l^ surface} |d_i| + sum_{l^ not surface} [c^ surface] |d_i|)
-            total = low * (d @ ones) + extra * (d @ lsf[j] + (d * csf[rows]) @ (1.0 - lsf[j]))
+            # einsum's own loops, not BLAS: OpenBLAS threads spin badly on a busy machine
+            total = (low * np.einsum("kt,t->k", d, ones) + extra * (np.einsum("kt,t->k", d, lsf[j])
+                     + np.einsum("kt,kt,t->k", d, csf[rows], 1.0 - lsf[j])))
             out[rows, j] = total / t
     return np.where(both > 0, o * out, np.inf)
 
