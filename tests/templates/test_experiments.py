@@ -31,3 +31,19 @@ def test_one_scripted_demonstration_then_one_template_grasp(tmp_path) -> None:
     assert outcome in {"success", "no_grasp", "collision", "empty_close", "slipped"} and seconds > 0
     if outcome != "no_grasp":
         assert lib.summary()["num_outcomes"] == 1
+
+
+def test_template_detector_behind_the_sim_interface(render_box, box_pose, tmp_path) -> None:
+    from graspd.templates.experiments import TemplateSimDetector
+    from graspd.templates.synthetic import box_top_grasp
+
+    pose = box_pose()
+    cloud = render_box(pose)
+    lib = TemplateLibrary(f"sqlite:///{tmp_path}/lib.db")
+    lib.add_demonstration(cloud, box_top_grasp(pose, (0.05, 0.10, 0.08)))
+    sim_det = TemplateSimDetector(lib, max_grasps=5)
+    grasps = sim_det.detect(cloud, (-0.3, 0.3, -0.3, 0.3, -0.05, 0.5), HandGeometry(), seed=0)
+    assert 1 <= len(grasps) <= 5 and len(sim_det.last_ids) == len(grasps)
+    assert lib.add_feedback(sim_det.last_ids[0], success=True).entry_id == 1
+    with pytest.raises(Exception, match="hand"):
+        sim_det.detect(cloud, (-0.3, 0.3, -0.3, 0.3, -0.05, 0.5), HandGeometry(hand_depth=0.05), seed=0)

@@ -188,6 +188,25 @@ def other_attempt(detector: Any, object_id: int, seed: int, hand: HandGeometry) 
         trial.close()
 
 
+@dataclass
+class TemplateSimDetector:
+    """Template detection behind graspd.sim's SimDetector interface (bench/clutter.py can run it beside GPD);
+    last_ids are the ids of the grasps it returned last, for library.add_feedback after execution."""
+
+    library: TemplateLibrary
+    name: str = "templates"
+    max_grasps: int = 100
+    last_ids: list[str] = field(default_factory=list)
+
+    def detect(self, cloud: ViewpointCloud, workspace: tuple[float, ...], hand: HandGeometry, seed: int) -> GraspSet:
+        if hand != self.library.hand:
+            raise TemplateError(f"hand: the library was made for {self.library.hand.to_dict()}")
+        det = TemplateDetector(self.library, TemplateParams(seed=seed, keep_cloud=False))
+        result = det.detect(cloud, max_grasps=self.max_grasps, workspace=workspace)  # type: ignore[arg-type]
+        self.last_ids = result.grasp_ids
+        return result.grasps
+
+
 def comparison_detector(name: str) -> Any:
     """A graspd.sim SimDetector by name: "baseline" (top-down) or "gpd" (default shipped classifier)."""
     from ..sim.detectors import InProcessGPD, TopDownBaseline
