@@ -107,8 +107,10 @@ def plot(rows: list[tuple[str, int, dict[str, float]]], lib: TemplateLibrary, de
         vals = np.array([r[2][stage] for r in rows])
         ax.barh([r[0] for r in rows], vals, left=left, label=stage)
         left += vals
+    ax.scatter([r[2]["cpu"] for r in rows], [r[0] for r in rows], marker="D", color="k", zorder=3,
+               label="process CPU time")
     ax.axvline(0.5, color="k", ls="--", lw=1)
-    ax.set_xlabel("seconds (median)")
+    ax.set_xlabel(f"seconds (median wall; load average {os.getloadavg()[0]:.0f} on {os.cpu_count()} cores)")
     ax.set_title("template detection, 50-entry library")
     ax.legend(fontsize=7)
     result = det.detect(cloud, max_grasps=1, params=TemplateParams(record=False))
