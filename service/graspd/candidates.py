@@ -73,8 +73,9 @@ def finger_offsets(hand: HandGeometry, count: int) -> NDArray[np.float64]:
 
 
 def orientations(count: int) -> NDArray[np.float64]:
-    """Angles (rad) about the curvature axis, evenly spread over [-pi/2, pi/2)."""
-    return np.linspace(-np.pi / 2, np.pi / 2, count, endpoint=False) + (np.pi / (2 * count))
+    """Angles (rad) about the curvature axis, GPD's grid: count steps over [-pi/2, pi/2), 0 included
+    (the hand approaching along the smoothed surface normal)."""
+    return np.linspace(-np.pi / 2, np.pi / 2, count, endpoint=False)
 
 
 def sample_point_indices(n_points: int, params: SamplingParams) -> NDArray[np.int64]:

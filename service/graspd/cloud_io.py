@@ -64,17 +64,65 @@ def parse_pcd(data: bytes) -> tuple[NDArray[np.float32], NDArray[np.float32] | N
     return xyz.astype(np.float32), viewpoint
 
 
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def check_ply(data: bytes) -> int:
+    """The vertex count a PLY header declares, after checking the body holds that many vertices
+    (open3d silently pads a truncated file with zeros)."""
+    if not data.startswith(b"ply"):
+        raise CloudError("cloud.points: a PLY file must start with 'ply'")
+    end = data.find(b"end_header")
+    if end < 0:
+        raise CloudError("cloud.points: the PLY header has no end_header")
+    body = data[data.find(b"\n", end) + 1 :]
+    fmt, count, props, element = "", -1, [], ""
+    for line in data[:end].decode("ascii", errors="replace").splitlines():
+        parts = line.split()
+        if parts[:1] == ["format"] and len(parts) > 1:
+            fmt = parts[1]
+        elif parts[:1] == ["element"] and len(parts) == 3:
+            element = parts[1]
+            if element == "vertex":
+                try:
+                    count = int(parts[2])
+                except ValueError:
+                    break
+        elif parts[:1] == ["property"] and element == "vertex":
+            props.append(parts[1:])
+    if count < 0:
+        raise CloudError("cloud.points: the PLY header declares no vertex element")
+    if fmt == "ascii":
+        rows = [r for r in body.split(b"\n")[:count] if r.strip()]
+        if len(rows) < count or any(len(r.split()) < len(props) for r in rows):
+            raise CloudError(f"cloud.points: the PLY header declares {count} vertices of {len(props)} values; "
+                             f"the file holds fewer")
+    elif all(len(pr) == 2 and pr[0] in _PLY_SIZES for pr in props):
+        size = sum(_PLY_SIZES[pr[0]] for pr in props)
+        if len(body) < count * size:
+            raise CloudError(f"cloud.points: the PLY header declares {count} vertices ({count * size} bytes); "
+                             f"the file holds {len(body)} bytes")
+    return count
+
+
 def parse_ply(data: bytes) -> NDArray[np.float32]:
-    """Vertex positions (N,3) of a PLY file (ASCII or binary), read with open3d."""
+    """Vertex positions (N,3) of a PLY file (ASCII or binary), read with open3d; a file holding fewer
+    vertices than its header declares is refused."""
     import tempfile
 
     import open3d as o3d
+
+    declared = check_ply(data)
 
     with tempfile.NamedTemporaryFile(suffix=".ply") as tmp:
         tmp.write(data)
         tmp.flush()
         pcd = o3d.io.read_point_cloud(Path(tmp.name), format="ply")
-    return np.asarray(pcd.points, np.float32)
+    points = np.asarray(pcd.points, np.float32)
+    if len(points) != declared:
+        raise CloudError(f"cloud.points: the PLY header declares {declared} vertices, the file holds {len(points)}")
+    return points
 
 
 def read_cloud(path: str | Path, viewpoints: NDArray[np.floating] | None = None) -> ViewpointCloud:

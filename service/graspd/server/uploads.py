@@ -57,7 +57,9 @@ def upload_request(data: bytes, kind: str, query: Mapping[str, str], viewpoints:
         else:
             points = parse_ply(data)
     except CloudError as exc:
-        raise Problem(422, str(exc), "body") from None
+        message = str(exc)
+        field = message.split(":", 1)[0] if message.startswith("cloud.") else "body"
+        raise Problem(422, message, field) from None
     except (ValueError, KeyError, IndexError, UnicodeDecodeError) as exc:
         raise Problem(422, f"unreadable {kind.upper()} file ({type(exc).__name__}: {exc})", "body") from None
     if viewpoints:
