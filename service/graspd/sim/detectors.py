@@ -28,8 +28,19 @@ class SimDetector(Protocol):
     name: str
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
-        """Grasps in the cloud's frame, best first (scores NaN when unscored)."""
+        """Grasps in the cloud's frame, best first (scores NaN when unscored).  workspace [xmin, xmax, ymin,
+        ymax, zmin, zmax] is where the objects to grasp lie (the tray's inside, zmin its floor); the cloud
+        may extend beyond it (tray walls), so a detector must not crop it away."""
         ...
+
+
+def voxel_downsample(points: F64, voxel: float) -> F64:
+    """One point (the mean) per occupied voxel of edge voxel (m)."""
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    sums = np.stack([np.bincount(inv, points[:, k]) for k in range(3)], axis=1)
+    return np.asarray(sums / counts[:, None])
 
 
 def hand_frame_points(points: F64, position: F64, rotation: F64) -> F64:
@@ -59,28 +70,34 @@ class TopDownBaseline:
     bite: float = 0.025
     cell: float = 0.01
     seed_spacing: float = 0.03
-    max_seeds: int = 30
-    num_yaws: int = 12
+    max_seeds: int = 40
+    num_yaws: int = 8
+    max_grasps: int = 10
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
-        pts = cloud.points.astype(np.float64)
+        from scipy.spatial import cKDTree
+
+        pts = voxel_downsample(cloud.points.astype(np.float64), 0.004)
         floor = workspace[4]
         pts = pts[pts[:, 2] > floor + 0.005]
         if len(pts) == 0:
             return GraspSet()
-        order = np.argsort(-pts[:, 2])
-        seeds: list[F64] = []
-        for i in order:
-            p = pts[i]
-            if all(np.linalg.norm(p[:2] - s[:2]) >= self.seed_spacing for s in seeds):
-                seeds.append(p)
-                if len(seeds) >= self.max_seeds:
-                    break
+        # seeds: the highest point of each seed_spacing cell of the xy grid, highest first
+        cells = np.floor(pts[:, :2] / self.seed_spacing).astype(np.int64)
+        order = np.lexsort((-pts[:, 2], cells[:, 1], cells[:, 0]))
+        first = np.ones(len(order), bool)
+        first[1:] = np.any(np.diff(cells[order], axis=0) != 0, axis=1)
+        tops = pts[order[first]]
+        inside = ((tops[:, 0] > workspace[0] + 0.005) & (tops[:, 0] < workspace[1] - 0.005)
+                  & (tops[:, 1] > workspace[2] + 0.005) & (tops[:, 1] < workspace[3] - 0.005))
+        tops = tops[inside]
+        seeds = tops[np.argsort(-tops[:, 2])][: self.max_seeds]
+        tree = cKDTree(pts[:, :2])
         out: list[tuple[F64, F64, float, float]] = []
         approach = np.array([0.0, 0.0, -1.0])
         usable = hand.max_aperture - 0.01
-        for top in seeds:
-            near = pts[np.linalg.norm(pts[:, :2] - top[:2], axis=1) < 0.08]
+        for top, idx in zip(seeds, tree.query_ball_point(seeds[:, :2], 0.08), strict=True):
+            near = pts[idx]
             slab = near[near[:, 2] > top[2] - self.bite]
             xy = slab[:, :2] - slab[:, :2].mean(axis=0)
             cov = xy.T @ xy / max(len(xy), 1)
@@ -118,6 +135,8 @@ class TopDownBaseline:
                     best = (pos, rot, width, float(top[2]))
             if best is not None:
                 out.append(best)
+                if len(out) >= self.max_grasps:
+                    break
         if not out:
             return GraspSet()
         return GraspSet(
@@ -153,7 +172,7 @@ class InProcessGPD:
         from ..detector import DetectionParams, GraspDetector
 
         options = {**GPD_DEFAULTS, **self.options}
-        params = DetectionParams(workspace=workspace, seed=seed,
+        params = DetectionParams(seed=seed,
                                  use_classifier=self.classifier is not None, **options)
         return GraspDetector(classifier=self.classifier, hand=hand).detect(cloud, params, hand=hand).grasps
 
@@ -177,7 +196,7 @@ class ServiceGPD:
         opts: dict[str, Any] = {"max_grasps": 300, "approach_direction": (0.0, 0.0, -1.0),
                                 "approach_max_angle_deg": 80.0, **self.options}
         with GraspClient(self.url, timeout=120.0) as client:
-            g = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source, workspace=list(workspace),
+            g = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source,
                               hand=hand.to_dict(), model=self.model, seed=seed % (2**32), **opts)
         return GraspSet(positions=g.positions, rotations=g.rotations, widths=g.widths, scores=g.scores,
                         samples=g.samples)

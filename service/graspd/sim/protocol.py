@@ -124,7 +124,7 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
     x0, x1, y0, y1 = world.inside_region()
     margin = 0.02
     region = (x0 - margin, x1 + margin, y0 - margin, y1 + margin, -0.005, 0.4)
-    workspace: Workspace = region
+    workspace: Workspace = (x0, x1, y0, y1, 0.0, 0.4)
     noise = DepthNoise() if setting.noise else NO_NOISE
     cams = cameras_for(setting)
     try:

@@ -1,0 +1,61 @@
+"""Table 1 stopping rules, feasibility and the statistics over rounds."""
+
+import numpy as np
+import pytest
+
+from graspd.grasp import GraspSet
+from graspd.hand import HandGeometry
+from graspd.sim.gripper import Attempt, Outcome
+from graspd.sim.protocol import RoundResult, Setting, StopRule, feasible, summarize
+
+
+def test_three_detections_without_grasp_in_a_row_stop() -> None:
+    rule = StopRule()
+    assert rule.update(Attempt(Outcome.NO_GRASP, None)) == ""
+    assert rule.update(Attempt(Outcome.NO_GRASP, None)) == ""
+    assert rule.update(Attempt(Outcome.SUCCESS, 5)) == ""  # a found grasp resets the count
+    assert rule.update(Attempt(Outcome.NO_GRASP, None)) == ""
+    assert rule.update(Attempt(Outcome.NO_GRASP, None)) == ""
+    assert "no grasp" in rule.update(Attempt(Outcome.NO_GRASP, None))
+
+
+def test_same_failure_on_same_object_three_times_stops() -> None:
+    rule = StopRule()
+    for target in (4, 4, 7, 4, 4):  # another object breaks the streak
+        assert rule.update(Attempt(Outcome.SLIPPED, target)) == ""
+    assert rule.update(Attempt(Outcome.EMPTY, 4)) == ""  # another failure breaks it too
+    assert rule.update(Attempt(Outcome.EMPTY, 4)) == ""
+    assert "same failure" in rule.update(Attempt(Outcome.EMPTY, 4))
+
+
+def test_feasibility_keeps_top_grasps_inside_the_tray() -> None:
+    hand = HandGeometry()
+    down = np.column_stack([[0, 0, -1.0], [1.0, 0, 0], [0, 1.0, 0]])
+    up = np.column_stack([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0]])
+    pos = np.array([[0, 0, 0.1], [0, 0, 0.1], [0.3, 0, 0.1], [0, 0, 0.1], [0, 0, 0.03]])
+    grasps = GraspSet(positions=pos, rotations=np.array([down, up, down, down, down]),
+                      widths=np.array([0.03, 0.03, 0.03, 0.2, 0.03]), scores=np.full(5, np.nan),
+                      samples=pos + [0, 0, -0.05])
+    ok = feasible(grasps, hand, 80.0, 0.0, (-0.18, 0.18, -0.14, 0.14))
+    # from below, outside the tray, too wide, fingertips under the floor
+    assert ok.tolist() == [True, False, False, False, False]
+
+
+def test_summary_pools_rounds_with_intervals() -> None:
+    rounds = [RoundResult(seed=i, num_objects=10, successes=s, attempts=a, cleared=s,
+                          outcomes=["success"] * s + ["slipped"] * (a - s)) for i, (s, a) in
+              enumerate([(9, 10), (8, 10), (10, 11)])]
+    s = summarize(rounds)
+    assert s.success_rate == pytest.approx(27 / 31)
+    assert s.cleared_rate == pytest.approx(27 / 30)
+    assert s.success_ci[0] <= s.success_rate <= s.success_ci[1]
+    assert s.failures == {"slipped": 4}
+    with pytest.raises(ValueError):
+        summarize([])
+
+
+def test_bad_settings_name_the_field() -> None:
+    with pytest.raises(ValueError, match="sensing"):
+        Setting(sensing="lidar")
+    with pytest.raises(ValueError, match="choice"):
+        Setting(choice="worst")
