@@ -69,8 +69,10 @@ class Trial:
         self.world.close()
 
 
-def make_trial(object_id: int, seed: int, hand: HandGeometry, noise: bool = True) -> Trial:
-    """A world with the object dropped in a random orientation (seed), settled, and its noisy side view."""
+def make_trial(object_id: int, seed: int, hand: HandGeometry, noise: bool = True, view_seed: int | None = None
+               ) -> Trial:
+    """A world with the object dropped in a random orientation (seed), settled, and its noisy side view
+    (sensor noise from view_seed if given: the same pose seen anew)."""
     import pybullet as pb
 
     from ..sim.sensing import NO_NOISE, DepthNoise, observe, side_camera
@@ -90,7 +92,8 @@ def make_trial(object_id: int, seed: int, hand: HandGeometry, noise: bool = True
 
         world.add_object(object_id, pos, random_quat(rng), graspable_scale(object_id, hand))
     world.settle()
-    cloud = observe(world.client, side_camera(), DepthNoise() if noise else NO_NOISE, rng, REGION)
+    view_rng = rng if view_seed is None else np.random.default_rng(view_seed)
+    cloud = observe(world.client, side_camera(), DepthNoise() if noise else NO_NOISE, view_rng, REGION)
     return Trial(world, cloud, object_id)
 
 
@@ -157,10 +160,11 @@ class TrialLog:
         return np.array([o == "success" for o in self.outcomes], bool)
 
 
-def attempt(detector: TemplateDetector, object_id: int, seed: int, feedback: bool) -> tuple[str, float]:
+def attempt(detector: TemplateDetector, object_id: int, seed: int, feedback: bool, view_seed: int | None = None
+            ) -> tuple[str, float]:
     """One trial: detect on a fresh pose, execute the best feasible grasp, report the outcome if feedback."""
     hand = detector.hand
-    trial = make_trial(object_id, seed, hand)
+    trial = make_trial(object_id, seed, hand, view_seed=view_seed)
     try:
         t0 = time.perf_counter()
         det = detector.detect(trial.cloud, max_grasps=50, workspace=REGION)
@@ -266,6 +270,26 @@ def copy_entries(src: TemplateLibrary, dst: TemplateLibrary) -> None:
                          entry["width"], entry["label"])
 
 
+def retry_until_success(library: TemplateLibrary, test_ids: list[int], poses: int, retries: int, feedback: bool,
+                        seed: int = 0, log: Any = print) -> list[list[str]]:
+    """The paper's WAM protocol: each held-out object in `poses` poses; after a failed grasp the object is
+    put back in the same pose (seen anew) for up to `retries` more attempts.  The outcomes per pose."""
+    det = TemplateDetector(library, TemplateParams(keep_cloud=False))
+    out: list[list[str]] = []
+    for oid in test_ids:
+        for p in range(poses):
+            pose_seed = 1_000_000 + seed * 1000 + oid * 10 + p
+            tries: list[str] = []
+            for r in range(1 + retries):
+                outcome, _ = attempt(det, oid, pose_seed, feedback=feedback, view_seed=pose_seed * 7 + r)
+                tries.append(outcome)
+                if outcome == "success":
+                    break
+            out.append(tries)
+            log(f"  object {oid} pose {p}: {' -> '.join(tries)}")
+    return out
+
+
 def last_ten(successes: NDArrayInt) -> NDArrayInt:
     """Success rate over the last ten trials (fewer at the start) after each trial, as the paper's Fig. 6."""
     s = np.asarray(successes, float)
@@ -330,7 +354,10 @@ def pool_improvement(out: Path) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("experiment", choices=("a", "b", "pool"), help="pool: summarise every (b) run in OUT")
+    ap.add_argument("experiment", choices=("a", "b", "retry", "pool"),
+                    help="retry: (a) with failed poses retried, with and without feedback; "
+                         "pool: summarise every (b) run in OUT")
+    ap.add_argument("--retries", type=int, default=2, help="retry: further attempts on a failed pose")
     ap.add_argument("--demos", type=int, default=15)
     ap.add_argument("--objects", type=int, default=7, help="training objects for the demonstrations")
     ap.add_argument("--tests", type=int, default=15, help="held-out test objects (a)")
@@ -380,6 +407,23 @@ def main(argv: list[str] | None = None) -> None:
             result[f"{name}_success_rate"] = float(okc.mean())
             result[f"{name}_outcomes"] = log_c.outcomes
             print(f"(a) {name} on the same poses: {int(okc.sum())}/{len(okc)} = {100 * okc.mean():.0f}%")
+    elif args.experiment == "retry":
+        test_ids = list(range(900, 900 + args.tests))
+        for arm in ("feedback", "control"):
+            arm_lib = TemplateLibrary(f"sqlite:///{os.path.join(tmp, 'retry-' + arm + '.db')}", hand=hand)
+            copy_entries(library, arm_lib)
+            print(f"{arm}:")
+            per_pose = retry_until_success(arm_lib, test_ids, args.poses, args.retries, arm == "feedback",
+                                           seed=pose_seed)
+            first = float(np.mean([t[0] == "success" for t in per_pose]))
+            within = float(np.mean([t[-1] == "success" for t in per_pose]))
+            attempts = [len(t) for t in per_pose if t[-1] == "success"]
+            result[arm] = {"outcomes": per_pose, "first_attempt": first, "within": within,
+                           "attempts": int(sum(len(t) for t in per_pose)),
+                           "mean_attempts_to_success": float(np.mean(attempts)) if attempts else float("nan")}
+            print(f"(retry, {arm}) first attempt {100 * first:.0f}%, within {1 + args.retries} attempts "
+                  f"{100 * within:.0f}% of {len(per_pose)} poses")
+        result.update(retries=args.retries, test_objects=test_ids, poses=args.poses)
     else:
         # both arms start from a copy of the demonstrations: one reports every outcome, the control none
         arms = {}
@@ -403,7 +447,7 @@ def main(argv: list[str] | None = None) -> None:
               f"control {100 * result['control_first_ten']:.0f}% -> {100 * result['control_last_ten']:.0f}%; "
               f"wrote {png}")
     result["seconds"] = time.perf_counter() - t0
-    tag = f"_{args.object}" if args.experiment == "b" else ""
+    tag = f"_{args.object}" if args.experiment == "b" else f"_r{args.retries}" if args.experiment == "retry" else ""
     path = args.out / f"templates_experiment_{args.experiment}{tag}_poses{pose_seed}.json"
     path.write_text(json.dumps(result, indent=1))
     print(f"wrote {path}")
