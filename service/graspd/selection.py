@@ -3,9 +3,9 @@
 Filters: grasp positions inside a workspace box, object width inside [min_aperture, max_aperture],
 approach direction within a cone.  Clustering follows GPD: two hands agree when their hand axes are
 within axis_angle_deg and one's position lies within axis_distance of the other's axis line (and
-within max_distance); each cluster keeps its best member, scored by the sum of its members' scores
-(or their count when unscored).  Ranking multiplies the classifier score by the utility J(h) of the
-IJRR paper when a gravity direction is given.
+within max_distance); each cluster keeps its best member (with its own classifier score) and is
+ranked by the sum of its members' scores (or their count when unscored).  That rank is multiplied
+by the utility J(h) of the IJRR paper when a gravity direction is given.
 """
 
 from __future__ import annotations
@@ -61,12 +61,12 @@ def feasible_mask(grasps: GraspSet, params: SelectionParams) -> NDArray[np.bool_
     return keep
 
 
-def cluster(grasps: GraspSet, params: SelectionParams) -> tuple[GraspSet, NDArray[np.int64]]:
-    """Greedy GPD-style clustering, best first: (representatives, cluster sizes).  Representative scores
-    become the sum of member scores when the set is scored."""
+def cluster(grasps: GraspSet, params: SelectionParams) -> tuple[GraspSet, NDArray[np.int64], NDArray[np.float64]]:
+    """Greedy GPD-style clustering, best first: (representatives, cluster sizes, cluster scores = sum of
+    member scores, or sizes when unscored)."""
     m = len(grasps)
     if m == 0:
-        return grasps, np.zeros(0, np.int64)
+        return grasps, np.zeros(0, np.int64), np.zeros(0)
     scored = not np.isnan(grasps.scores).all()
     order = np.argsort(-np.nan_to_num(grasps.scores, nan=0.0), kind="stable")
     g = grasps[order]
@@ -93,9 +93,8 @@ def cluster(grasps: GraspSet, params: SelectionParams) -> tuple[GraspSet, NDArra
     sizes_a = np.array(sizes, np.int64)
     ok = sizes_a >= params.min_cluster_size
     out = g[np.array(reps, np.int64)[ok]]
-    if scored:
-        out = out.with_scores(np.array(sums)[ok])
-    return out, sizes_a[ok]
+    cluster_scores = np.array(sums)[ok] if scored else sizes_a[ok].astype(np.float64)
+    return out, sizes_a[ok], cluster_scores
 
 
 def utility(grasps: GraspSet, params: SelectionParams, table_height: float | None = None) -> NDArray[np.float64]:
@@ -127,12 +126,10 @@ def select(grasps: GraspSet, params: SelectionParams, use_selection: bool = True
     if not use_selection:
         order = (rng or np.random.default_rng(0)).permutation(len(g))
         return g[order][: params.max_grasps]
-    support = np.ones(len(g))
+    rank = np.nan_to_num(g.scores, nan=1.0)
     if params.use_clustering:
         # Cluster the best candidates only: pairwise tests are O(n^2) in memory.
         top = np.argsort(-np.nan_to_num(g.scores, nan=0.0), kind="stable")[: params.cluster_max_candidates]
-        g, sizes = cluster(g[np.sort(top)], params)
-        support = sizes.astype(np.float64)
-    scored = not np.isnan(g.scores).all()
-    key = (g.scores if scored else support) * utility(g, params)
+        g, _, rank = cluster(g[np.sort(top)], params)
+    key = rank * utility(g, params)
     return g[np.argsort(-np.nan_to_num(key, nan=-np.inf), kind="stable")][: params.max_grasps]

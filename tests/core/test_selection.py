@@ -34,9 +34,17 @@ def test_filters_keep_workspace_aperture_and_approach_cone() -> None:
 
 def test_clustering_merges_aligned_neighbours_and_sums_scores() -> None:
     g = _grasps([[0, 0, 0], [0, 0, 0.003], [0.2, 0, 0]], [[0, 0, -1]] * 3, scores=[0.9, 0.8, 0.7])
-    reps, sizes = cluster(g, SelectionParams())
+    reps, sizes, cluster_scores = cluster(g, SelectionParams())
     assert sizes.tolist() == [2, 1]
-    assert np.allclose(reps.scores, [1.7, 0.7])
+    assert np.allclose(cluster_scores, [1.7, 0.7])
+    assert np.allclose(reps.scores, [0.9, 0.7])  # each representative keeps its own probability
+
+
+def test_a_well_supported_cluster_outranks_a_lone_slightly_better_grasp() -> None:
+    g = _grasps([[0.3, 0, 0], [0, 0, 0], [0, 0, 0.003], [0, 0, 0.006]], [[0, 0, -1]] * 4,
+                scores=[0.95, 0.9, 0.85, 0.8])
+    out = select(g, SelectionParams())
+    assert np.allclose(out.scores[:2], [0.9, 0.95])
 
 
 def test_utility_prefers_top_grasps_and_high_ones() -> None:
@@ -50,6 +58,7 @@ def test_ranking_uses_scores_and_min_score_and_max_grasps() -> None:
     g = _grasps([[0, 0, 0], [0.2, 0, 0], [0.4, 0, 0]], [[0, 0, -1]] * 3, scores=[0.2, 0.9, 0.6])
     out = select(g, SelectionParams(min_score=0.5, max_grasps=5))
     assert np.allclose(out.scores, [0.9, 0.6])
+    assert np.all((out.scores >= 0) & (out.scores <= 1))
     assert len(select(g, SelectionParams(max_grasps=1))) == 1
 
 
