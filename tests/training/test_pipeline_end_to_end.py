@@ -13,7 +13,14 @@ from graspd.training import cli
 from graspd.training.dataset import read_manifest
 from graspd.training.evaluate import classification_metrics
 from graspd.training.export import check_parity
-from graspd.training.train import TrainConfig, load_checkpoint, load_rows, train, train_tiny_model
+from graspd.training.train import (
+    TrainConfig,
+    load_checkpoint,
+    load_rows,
+    prefix_dataset,
+    train,
+    train_tiny_model,
+)
 
 
 @pytest.fixture(scope="module")
@@ -77,3 +84,19 @@ def test_cli_trains_evaluates_and_exports(tiny: Path, tmp_path: Path, capsys: py
                              "--categories", "bowl"])
     assert bad.func(bad) == 2
     assert "categories must be among" in capsys.readouterr().err
+
+
+def test_prefix_dataset_keeps_the_generators_view_split(tiny: Path, tmp_path: Path) -> None:
+    data = tiny.parent.parent / "dataset"
+    full = read_manifest(data)
+    manifest = prefix_dataset(data, tmp_path / "p", 1)
+    assert manifest["counts"]["total"] == full["chunks"][0]["rows"]
+    ids = {o["id"] for o in manifest["objects"]}
+    whole = json.loads((data / "splits" / "view.json").read_text())
+    part = json.loads((tmp_path / "p" / "splits" / "view.json").read_text())
+    for key in ("train", "val", "test"):
+        assert sorted(map(tuple, part[key])) == sorted(tuple(p) for p in whole[key] if p[0] in ids)
+    images, labels, _ = load_rows(tmp_path / "p", "view", "train", "12")
+    assert images.shape[1] == 12 and len(labels) > 0
+    with pytest.raises(ValueError, match="must hold"):
+        prefix_dataset(data, tmp_path / "q", 5)

@@ -518,3 +518,61 @@ def train_tiny_model(out_dir: str | Path, seed: int = 0, name: str = "tiny15") -
                          max_val=None)
     command = f"graspd.training.train.train_tiny_model({str(out)!r}, seed={seed})"
     return train_and_export(config, out / "models", out / "work", command=command, log=lambda *a: None)
+
+
+def prefix_dataset(source: str | Path, target: str | Path, num_chunks: int) -> dict[str, Any]:
+    """A dataset made of the first num_chunks chunk files of source (a finished or an interrupted
+    generation: chunks are deterministic, so any run of the same command has the same first chunks),
+    with its own manifest and splits; the chunk files are linked, not copied.  Returns the manifest.
+
+    The view split of an object is the generator's (seeded per object); the object split is drawn by the
+    generator's rule over the objects present."""
+    import hashlib
+    import os
+
+    from .dataset import CATEGORIES, FORMAT, _splits, sha256_file
+
+    src, dst = Path(source), Path(target)
+    files = sorted(src.glob("chunk_*.npz"))[:num_chunks]
+    expected = [f"chunk_{i:05d}.npz" for i in range(num_chunks)]
+    if [f.name for f in files] != expected:
+        raise ValueError(f"{src} must hold chunk_00000.npz .. chunk_{num_chunks - 1:05d}.npz; found "
+                         f"{[f.name for f in files][:3]}...")
+    (dst / "splits").mkdir(parents=True, exist_ok=True)
+    names = {code: name for name, code in CATEGORIES.items()}
+    chunks: list[dict[str, Any]] = []
+    objects: dict[int, str] = {}
+    by_category = dict.fromkeys(CATEGORIES, 0)
+    for f in files:
+        with np.load(f) as z:
+            ids, cats, labels = z["object_ids"], z["categories"], z["labels"]
+        objects.update({int(o): names[int(c)] for o, c in zip(ids, cats, strict=True)})
+        for code, count in enumerate(np.bincount(cats, minlength=len(CATEGORIES))):
+            by_category[names[code]] += int(count)
+        link = dst / f.name
+        if not link.exists():
+            os.symlink(f.resolve(), link)
+        chunks.append({"file": f.name, "rows": int(len(labels)), "positive": int(labels.sum()),
+                       "sha256": sha256_file(f)})
+    source_manifest = src / "manifest.json"
+    params = json.loads(source_manifest.read_text()).get("parameters", {}) if source_manifest.exists() else {}
+    views_per_object = int(params.get("views_per_object", 8))
+    fractions = tuple(params.get("split_fractions", (0.15, 0.10)))
+    seed = int(params.get("seed", 0))
+    records = [{"id": o, "category": c} for o, c in sorted(objects.items())]
+    view, obj = _splits(records, views_per_object, (float(fractions[0]), float(fractions[1])), seed)
+    (dst / "splits" / "view.json").write_text(json.dumps(view))
+    (dst / "splits" / "object.json").write_text(json.dumps(obj))
+    total = sum(int(c["rows"]) for c in chunks)
+    positive = sum(int(c["positive"]) for c in chunks)
+    manifest = {
+        "format": FORMAT, "seed": seed, "representation": "15", "image_size": 60,
+        "hand": params.get("hand", {"finger_width": 0.01, "hand_outer_diameter": 0.12, "hand_depth": 0.06,
+                                    "hand_height": 0.02, "init_bite": 0.01}),
+        "prefix_of": str(src), "num_chunks": num_chunks, "objects": records, "chunks": chunks,
+        "counts": {"total": total, "positive": positive, "negative": total - positive,
+                   "by_category": by_category},
+        "dataset_sha256": hashlib.sha256("".join(str(c["sha256"]) for c in chunks).encode()).hexdigest(),
+    }
+    (dst / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return manifest
