@@ -337,6 +337,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"RSS {rss.rss_before:.1f} MB -> {rss.rss_after:.1f} MB: growth "
                   f"{rss.rss_after - rss.rss_before:+.1f} MB; {rss.errors} errors, {rss.busy} 503s, "
                   f"p50 {pct(rss.latencies, 50):.1f} ms")
+            for e in rss.error_samples:
+                print(f"    error: {e}")
             phases.append(rss)
         errors = sum(p.errors for p in phases)
         total = sum(len(p.latencies) + p.busy + p.errors for p in phases)

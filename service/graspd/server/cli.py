@@ -36,9 +36,11 @@ def serve(args: argparse.Namespace) -> int:
     """Run until SIGINT/SIGTERM; running detections finish before the process exits."""
     import uvicorn
 
+    from .allocator import tune_malloc
     from .app import create_app
     from .logs import configure_logging
 
+    tune_malloc()  # before any worker thread exists: large request buffers go back to the OS
     settings = settings_from_args(args)
     configure_logging(settings.log_level, settings.log_json)
     config = uvicorn.Config(create_app(settings), host=settings.host, port=settings.port, log_config=None,

@@ -246,7 +246,9 @@ class DetectRequest(BaseModel):
     max_grasps: int = Field(100, ge=0, le=wire.MAX_GRASPS, description="most grasps returned")
     min_score: float | None = Field(None, allow_inf_nan=False, description="drop grasps scoring below this")
     approach: Approach | None = None
-    selection: bool = Field(True, description="filter, cluster and rank by utility (false: raw ranking)")
+    selection: bool = Field(True, description="true: filter, cluster and rank best first by score x utility "
+                            "J(h) (IJRR eq. 1); false: the paper's no-selection ablation, feasible grasps in "
+                            "random order")
     clustering: bool = Field(True, description="GPD clustering of aligned hands")
     seed: int | None = Field(0, ge=0, le=2**32 - 1, description="sampling seed (null: random)")
     crops: CropsRequest | None = Field(None, description="object-proposal crops, on request only")
@@ -301,7 +303,7 @@ class GraspOut(BaseModel):
 
 class DetectResponse(BaseModel):
     request_id: str
-    grasps: list[GraspOut] = Field(description="best first")
+    grasps: list[GraspOut] = Field(description="best first (unless selection is false)")
     model: str | None = Field(description="classifier used; null when unscored")
     scored: bool = Field(description="false when no classifier ran (scores null)")
     timings: dict[str, float] = Field(description="seconds per stage: decode, queue, preprocess, scene, sample, "
