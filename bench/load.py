@@ -283,7 +283,8 @@ def main(argv: list[str] | None = None) -> int:
         req = parse_request(payload)
         detector = registry.detector(registry.default)
         vc = ViewpointCloud(points=req.cloud.points, viewpoints=np.asarray(req.cloud.viewpoints, np.float32),
-                            camera_source=req.cloud.camera_source)
+                            camera_source=(np.zeros(0, np.int32) if req.cloud.camera_source is None
+                                           else req.cloud.camera_source))
         detect_params = detection_params(req)
         detector.detect(vc, detect_params)  # warm caches
         print(f"in-process detector ready (model {registry.default})")
