@@ -110,7 +110,8 @@ def _one_round(args: tuple[str, str | None, str | None, Setting, int]) -> RoundR
 def git_commit() -> str:
     try:
         out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True, check=True)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "service", "bench/clutter.py"], cwd=REPO,
+        own = ["service/graspd/sim", "bench/clutter.py"]
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", *own], cwd=REPO,
                                capture_output=True, text=True).stdout.strip()
         return out.stdout.strip() + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
@@ -195,6 +196,18 @@ def bar_chart(summaries: dict[str, Summary], path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def write_results(out: Path, tag: str, summaries: dict[str, Summary], rounds: dict[str, list[dict[str, Any]]],
+                  meta: dict[str, Any]) -> str:
+    """Write <tag>.md, <tag>.json and <tag>.png into out; the markdown."""
+    out.mkdir(parents=True, exist_ok=True)
+    md = markdown(summaries, meta)
+    (out / f"{tag}.md").write_text(md)
+    (out / f"{tag}.json").write_text(json.dumps(
+        {"meta": meta, "summaries": {k: v.to_dict() for k, v in summaries.items()}, "rounds": rounds}, indent=1))
+    bar_chart(summaries, out / f"{tag}.png", f"{tag} @ {meta['commit'][:12]}")
+    return md
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -248,6 +261,17 @@ def main(argv: list[str] | None = None) -> int:
     models = {spec: model_for(det, args.model) for spec, (det, _) in zip(args.settings, parsed, strict=True)}
     summaries: dict[str, Summary] = {}
     rounds: dict[str, list[dict[str, Any]]] = {}
+    meta = {
+        "command": "PYTHONPATH=service:client .venv/bin/python bench/clutter.py "
+        + shlex.join(sys.argv[1:] if argv is None else argv),
+        "commit": git_commit(),
+        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "cpus": os.cpu_count(),
+        "jobs": args.jobs,
+        "service": service,
+        "models": dict(models),
+    }
+    md = ""
     try:
         for spec, (det, scene) in zip(args.settings, parsed, strict=True):
             setting = SCENES[scene]
@@ -266,26 +290,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{spec:28s} success {pct(s.success_rate)}{ci(s.success_ci)}  cleared {pct(s.cleared_rate)}"
                   f"{ci(s.cleared_ci)}  attempts {s.attempts}  failures {s.failures}  "
                   f"{s.seconds_per_round:.0f} s/round  ({time.perf_counter() - t0:.0f} s)", flush=True)
+            md = write_results(args.out, args.tag, summaries, rounds, meta)  # after each setting: partial runs count
     finally:
         if proc is not None:
             proc.terminate()
             proc.wait(timeout=10)
-    meta = {
-        "command": "PYTHONPATH=service:client .venv/bin/python bench/clutter.py " + shlex.join(sys.argv[1:]
-                                                                                          if argv is None else argv),
-        "commit": git_commit(),
-        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "cpus": os.cpu_count(),
-        "jobs": args.jobs,
-        "service": service,
-        "models": {k: v for k, v in models.items()},
-    }
-    args.out.mkdir(parents=True, exist_ok=True)
-    md = markdown(summaries, meta)
-    (args.out / f"{args.tag}.md").write_text(md)
-    (args.out / f"{args.tag}.json").write_text(json.dumps(
-        {"meta": meta, "summaries": {k: v.to_dict() for k, v in summaries.items()}, "rounds": rounds}, indent=1))
-    bar_chart(summaries, args.out / f"{args.tag}.png", f"{args.tag} @ {meta['commit'][:12]}")
     print(md)
     return 0
 
