@@ -90,10 +90,11 @@ def make_detector(detector: str, model: str | None, service: str | None) -> SimD
     if detector == "gpd-noselect":
         options["use_selection"] = False
     if service is not None:
-        if detector == "gpd-noselect":
-            options = {"selection": False}
-        return ServiceGPD(url=service, name=detector, model=model,
-                          options={**options, "max_grasps": 300} if detector != "gpd-noclass" else options)
+        if detector == "gpd-noclass":
+            raise SystemExit("gpd-noclass: the service has no way to ask for unscored detections (a request "
+                             "without a model gets the default model); run it in-process (no --service)")
+        options = {"selection": False} if detector == "gpd-noselect" else {}
+        return ServiceGPD(url=service, name=detector, model=model, options=options)
     classifier = None
     if model is not None:
         from graspd.classifier import load_model
@@ -254,6 +255,9 @@ def main(argv: list[str] | None = None) -> int:
         parsed = [parse_setting(s) for s in args.settings]
     except ValueError as exc:
         ap.error(str(exc))
+    if (args.service or args.start_service) and any(det == "gpd-noclass" for det, _ in parsed):
+        ap.error("gpd-noclass cannot run through the service (a request without a model gets the default "
+                 "model); run it in-process, without --service/--start-service")
     proc = None
     service = args.service
     if args.start_service:
