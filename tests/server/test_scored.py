@@ -1,4 +1,4 @@
-"""With a real classifier (the tiny model the training pipeline makes for tests, ~1 min on 2 cores) the
+"""With a real classifier the project trained (the shipped default model, or the tiny test model) the
 service scores and ranks grasps, names the model, and lists it with its card."""
 
 from __future__ import annotations
@@ -17,36 +17,45 @@ from graspd.server.settings import Settings
 
 
 @pytest.fixture(scope="session")
-def tiny_models_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A folder holding one real model the project trained: the tiny test model (~1 min to make)."""
+def models_and_default(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """A folder of real models the project trained and the default name: the shipped models/ when they are
+    there, else the tiny test model (~1-2 min to make)."""
+    from graspd import classifier
+
+    shipped = classifier.default_models_dir()
+    if classifier.default_model_name() in classifier.available_models(shipped):
+        return shipped, classifier.default_model_name()
     from graspd.training.train import train_tiny_model
 
-    return train_tiny_model(tmp_path_factory.mktemp("tiny-model"), seed=0).parent
+    return train_tiny_model(tmp_path_factory.mktemp("tiny-model"), seed=0).parent, "tiny15"
 
 
 @pytest.fixture
-def scored_client(make_settings: Callable[..., Settings], tiny_models_dir: Path) -> Iterator[TestClient]:
-    with TestClient(create_app(make_settings(models_dir=tiny_models_dir))) as c:
+def scored_client(make_settings: Callable[..., Settings], models_and_default: tuple[Path, str]
+                  ) -> Iterator[TestClient]:
+    with TestClient(create_app(make_settings(models_dir=models_and_default[0]))) as c:
         yield c
 
 
-def test_scored_detection(scored_client: TestClient, krylon: ViewpointCloud,
+def test_scored_detection(scored_client: TestClient, krylon: ViewpointCloud, models_and_default: tuple[Path, str],
                           small_body: Callable[..., dict[str, Any]]) -> None:
+    name = models_and_default[1]
     ready = scored_client.get("/readyz").json()
-    assert ready["scoring"] is True and ready["default_model"] == "tiny15"
+    assert ready["scoring"] is True and ready["default_model"] == name
     models = scored_client.get("/models").json()
-    assert models["default"] == "tiny15" and models["models"][0]["card"]["representation"] == "15"
+    card = {m["name"]: m for m in models["models"]}[name]["card"]
+    assert models["default"] == name and card["name"] == name and "representation" in card
     out = scored_client.post("/detect", json=small_body(krylon, selection=False, max_grasps=1000)).json()
-    assert out["scored"] is True and out["model"] == "tiny15" and out["timings"]["score"] > 0
+    assert out["scored"] is True and out["model"] == name and out["timings"]["score"] > 0
     scores = np.array([g["score"] for g in out["grasps"]], float)
     assert len(scores) > 5 and ((scores >= 0) & (scores <= 1)).all()
     assert scores.std() > 0, "a trained model separates candidates"
     ranked = scored_client.post("/detect", json=small_body(krylon)).json()
     top = np.array([g["score"] for g in ranked["grasps"][:5]], float)
     assert top.mean() > scores.mean(), "selection ranks high-scoring grasps first"
-    named = scored_client.post("/detect", json=small_body(krylon, model="tiny15")).json()
-    assert named["model"] == "tiny15"
+    named = scored_client.post("/detect", json=small_body(krylon, model=name)).json()
+    assert named["model"] == name
     r = scored_client.post("/detect", json=small_body(krylon, model="generic99"))
-    assert r.status_code == 422 and "tiny15" in r.json()["error"]
+    assert r.status_code == 422 and name in r.json()["error"] and r.json()["field"] == "model"
     kept = scored_client.post("/detect", json=small_body(krylon, selection=False, min_score=0.5)).json()
     assert all(g["score"] >= 0.5 for g in kept["grasps"])
