@@ -209,6 +209,37 @@ def write_results(out: Path, tag: str, summaries: dict[str, Summary], rounds: di
     return md
 
 
+def scene_pictures(path: Path, seed: int) -> None:
+    """One picture per scene kind (seed's scene, after settling) and the cloud its cameras send, from above."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from graspd.sim.protocol import cameras_for
+    from graspd.sim.sensing import Camera, DepthNoise, observe, render_rgb
+    from graspd.sim.world import build_scene
+
+    fig, axes = plt.subplots(2, len(SCENES), figsize=(4.2 * len(SCENES), 7))
+    for col, (name, setting) in enumerate(SCENES.items()):
+        with build_scene(setting.scene, setting.num_objects, seed, setting.hand) as world:
+            view = Camera((-0.42, -0.3, 0.42), (0.0, 0.0, 0.02), width=480, height=360, fov_deg=45.0)
+            axes[0, col].imshow(render_rgb(world.client, view))
+            cams = cameras_for(setting)
+            cloud = observe(world.client, cams, DepthNoise(), np.random.default_rng(seed),
+                            (-0.2, 0.2, -0.17, 0.17, 0.002, 0.4))
+        pts = cloud.points
+        axes[1, col].scatter(pts[:, 0], pts[:, 1], c=pts[:, 2], s=0.2, cmap="viridis")
+        axes[1, col].set_aspect("equal")
+        axes[1, col].set_title(f"{len(pts)} points from {len(cams)} camera(s), z colour", fontsize=8)
+        axes[0, col].set_title(name, fontsize=9)
+        axes[0, col].axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -248,6 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start-service", action="store_true", help="start the service for the run")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--tag", default="clutter", help="output file stem")
+    ap.add_argument("--pictures", action="store_true", help="also write <tag>-scenes.png (scenes and clouds)")
     args = ap.parse_args(argv)
     if args.rounds < 1:
         ap.error("--rounds must be >= 1")
@@ -276,6 +308,9 @@ def main(argv: list[str] | None = None) -> int:
         "models": dict(models),
     }
     md = ""
+    if args.pictures:
+        args.out.mkdir(parents=True, exist_ok=True)
+        scene_pictures(args.out / f"{args.tag}-scenes.png", args.seed)
     try:
         for spec, (det, scene) in zip(args.settings, parsed, strict=True):
             setting = SCENES[scene]
