@@ -22,6 +22,7 @@ from graspd.detector import Detection, DetectionParams
 from graspd_client.codec import WireError
 
 from . import proposals
+from .allocator import trim_function
 from .metrics import Metrics
 from .pngio import encode_png_b64
 from .problems import Problem, from_validation, from_wire
@@ -99,6 +100,7 @@ class DetectionEngine:
         self._pending = 0
         self._running = 0
         self._avg_seconds = 1.0
+        self._trim = trim_function()
         self.closed = False
 
     # ---- admission -------------------------------------------------------------------------
@@ -168,6 +170,7 @@ class DetectionEngine:
             body = {"request_id": request_id, **body, "timings": timings}
             return json.dumps(body, separators=(",", ":")).encode()
         finally:
+            self._trim()  # hand the request's freed buffers back to the OS (glibc), see allocator.py
             with self._lock:
                 self._running -= 1
                 self.metrics.running.set(self._running)
