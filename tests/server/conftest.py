@@ -39,6 +39,7 @@ def make_settings(tmp_path: Path) -> Callable[..., Settings]:
 
     def make(**overrides: Any) -> Settings:
         base: dict[str, Any] = {"zenoh_enabled": False, "models_dir": tmp_path / "no-models", "detect_workers": 2,
+                                "deadline_s": 300.0,
                                 "queue_size": 8, "log_json": True}
         base.update(overrides)
         return Settings(**base)

@@ -120,6 +120,11 @@ class DetectionEngine:
             self._pending -= 1
             self.metrics.queue_depth.set(max(0, self._pending - self._running))
 
+    def trim_after(self, fut: Future[Any]) -> None:
+        """Give freed heap memory back to the OS once fut is done; register it after the callbacks that
+        deliver the result, so the caller does not wait for it (allocator.py)."""
+        fut.add_done_callback(lambda _: self._trim())
+
     @property
     def pending(self) -> int:
         return self._pending
@@ -170,7 +175,6 @@ class DetectionEngine:
             body = {"request_id": request_id, **body, "timings": timings}
             return json.dumps(body, separators=(",", ":")).encode()
         finally:
-            self._trim()  # hand the request's freed buffers back to the OS (glibc), see allocator.py
             with self._lock:
                 self._running -= 1
                 self.metrics.running.set(self._running)
@@ -191,6 +195,7 @@ class DetectionEngine:
     def run_sync(self, req: DetectRequest, timings: dict[str, float] | None = None) -> bytes:
         """Blocking detect (Zenoh callbacks, CLI): response JSON bytes, or Problem."""
         fut, deadline = self.submit(req, timings if timings is not None else {})
+        self.trim_after(fut)
         try:
             return fut.result(timeout=max(0.0, deadline - time.perf_counter()))
         except FutureTimeout:
@@ -200,8 +205,10 @@ class DetectionEngine:
     async def run(self, req: DetectRequest, timings: dict[str, float]) -> bytes:
         """Awaitable detect for the HTTP app: the work runs off the event loop."""
         fut, deadline = self.submit(req, timings)
+        waiter = asyncio.wrap_future(fut)
+        self.trim_after(fut)
         try:
-            return await asyncio.wait_for(asyncio.wrap_future(fut), timeout=max(0.0, deadline - time.perf_counter()))
+            return await asyncio.wait_for(waiter, timeout=max(0.0, deadline - time.perf_counter()))
         except TimeoutError:
             fut.cancel()
             raise Problem(504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline") from None

@@ -146,6 +146,7 @@ class ZenohNode:
             self._finish(query, t0, exc)
             return
         fut.add_done_callback(lambda f: self._reply(query, f, header, t0))
+        self.engine.trim_after(fut)
         if self.settings.deadline_s:
             timer = threading.Timer(self.settings.deadline_s, self._expire, (query, fut, t0))
             timer.daemon = True
