@@ -4,8 +4,8 @@ One command runs N rounds per setting and writes a markdown table like the paper
 chart and a JSON file (with the git commit) into bench/results/.  A setting is DETECTOR@SCENE-SENSING:
 
   detectors: baseline (top-down, no learning), gpd-noclass (GPD, no classification), gpd (GPD with the
-             --model classifier), gpd-noselect (same, random order instead of selection), gpd-rep15 /
-             gpd-rep12 / gpd-rep3 (the first model in models/ of that representation)
+             --model classifier, default: graspd's default model), gpd-noselect (same, random order instead
+             of selection), gpd-rep15 / gpd-rep12 / gpd-rep3 (the first model in models/ of that representation)
   scenes:    pour-passive, pour-active (10 objects poured into a tray), pile-side, packed-side (5 objects)
 
 Examples:
@@ -75,10 +75,12 @@ def model_for(detector: str, model: str | None) -> str | None:
                 return name
         raise SystemExit(f"{detector}: no model of representation {rep} in {models_dir()}")
     if model is None:
+        from graspd.classifier import default_model_name
+
         names = available_models()
         if not names:
             raise SystemExit(f"{detector}: no classifier in {models_dir()}; pass --model or train one")
-        return names[0]
+        return default_model_name() if default_model_name() in names else names[0]
     return model
 
 
