@@ -26,6 +26,7 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from graspd.classifier import OnnxGraspClassifier, available_models, load_model  # noqa: E402
+from graspd.training.dataset import CATEGORIES, derive_images  # noqa: E402
 from graspd.training.evaluate import classification_metrics, pr_curve  # noqa: E402
 from graspd.training.train import load_rows  # noqa: E402
 
@@ -35,20 +36,22 @@ SPEED_MODELS = ("lenet15", "generic15")
 
 
 class Evaluator:
-    """Scores models on split parts, caching the images of each (split, representation, categories)."""
+    """Scores models on the test part of a split; each split's 15-channel rows are read once, and every
+    representation and category subset is derived from them in memory."""
 
     def __init__(self, dataset: Path, limit: int | None) -> None:
         self.dataset = dataset
         self.limit = limit
-        self._rows: dict[tuple[str, str, str], tuple[NDArray[np.uint8], NDArray[np.uint8]]] = {}
+        self._rows: dict[str, tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.uint8]]] = {}
 
     def rows(self, kind: str, representation: str, categories: list[str] | None
              ) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
-        key = (kind, representation, ",".join(categories or []))
-        if key not in self._rows:
-            images, labels, _ = load_rows(self.dataset, kind, "test", representation, categories, self.limit)
-            self._rows[key] = (images, labels)
-        return self._rows[key]
+        if kind not in self._rows:
+            self._rows[kind] = load_rows(self.dataset, kind, "test", "15", None, self.limit)
+        images, labels, cats = self._rows[kind]
+        keep = np.ones(len(labels), bool) if categories is None else np.isin(
+            cats, [CATEGORIES[c] for c in categories])
+        return derive_images(images[keep], representation), labels[keep]
 
     def run(self, clf: OnnxGraspClassifier, kind: str, categories: list[str] | None = None
             ) -> tuple[dict[str, Any], NDArray[np.float32], NDArray[np.uint8]]:
