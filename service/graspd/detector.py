@@ -18,7 +18,7 @@ from .candidates import SamplingParams, search_hands
 from .cloud import ViewpointCloud
 from .grasp import GraspSet
 from .hand import HandGeometry
-from .images import encode_images
+from .images import encode_batches
 from .preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
 from .scene import Scene
 from .selection import SelectionParams, Vec3, feasible_mask, select
@@ -153,14 +153,20 @@ class GraspDetector:
         candidates, region = candidates[feasible], region.subset(feasible)
         scorer = self.classifier if p.use_classifier else None
         if scorer is not None and len(candidates):
-            images = encode_images(scene, candidates, h, scorer.representation, region=region)
-            lap("encode")
-            scores = np.concatenate([
-                np.asarray(scorer.score(images[i : i + p.score_batch]), np.float64)
-                for i in range(0, len(images), p.score_batch)
-            ])
+            # encode and score batch by batch: memory stays bounded however many candidates there are
+            scores = np.empty(len(candidates))
+            t_encode = t_score = 0.0
+            t_batch = time.perf_counter()
+            for a, images in encode_batches(scene, candidates, h, scorer.representation, region=region,
+                                            batch=p.score_batch):
+                t_encoded = time.perf_counter()
+                scores[a : a + len(images)] = np.asarray(scorer.score(images), np.float64)
+                t_encode += t_encoded - t_batch
+                t_batch = time.perf_counter()
+                t_score += t_batch - t_encoded
             candidates = candidates.with_scores(scores)
-            lap("score")
+            timings["encode"], timings["score"] = t_encode, t_score
+            t = time.perf_counter()
         else:
             timings["encode"] = 0.0
             timings["score"] = 0.0

@@ -15,6 +15,8 @@ Representations (IJRR paper, "Comparison Between Different Representations"):
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -65,15 +67,22 @@ def _pixel_means(gid: NDArray[np.int64], unit: NDArray[np.float32], values: NDAr
     return uniq, (means / counts[:, None]).astype(np.float32)
 
 
-def _scatter(out: NDArray[np.uint8], channel: int, pix: NDArray[np.int64], values: NDArray[np.float32]) -> None:
-    """Write values (P,) at flat pixel ids of one channel of out (M,C,size,size)."""
+def _scatter(out: NDArray[np.uint8], channels: range, pix: NDArray[np.int64], values: NDArray[np.float32]) -> None:
+    """Write values (P, len(channels)) at flat pixel ids (grasp*h*w + row*w + col) of channels of out
+    (M,C,h,w), a C-contiguous array."""
     m, n_ch, h, w = out.shape
     g, rest = np.divmod(pix, h * w)
-    out.reshape(-1)[(g * n_ch + channel) * (h * w) + rest] = _to_u8(values)
+    base = g * (n_ch * h * w) + rest
+    flat = out.reshape(-1)
+    u8 = _to_u8(values)
+    for k, channel in enumerate(channels):
+        flat[base + channel * (h * w)] = u8[:, k]
 
 
 def _to_u8(x: NDArray[np.float32]) -> NDArray[np.uint8]:
-    return np.clip(np.rint(x * 255.0), 0, 255).astype(np.uint8)
+    """Values in [0, 1] as round(255 x), clipped."""
+    y = np.rint(x * np.float32(255.0))
+    return np.clip(y, 0, 255, out=y).astype(np.uint8)
 
 
 def unobserved_grids(scene: Scene, grasps: GraspSet, hand: HandGeometry, chunk: int = 256
@@ -100,16 +109,18 @@ def unobserved_grids(scene: Scene, grasps: GraspSet, hand: HandGeometry, chunk: 
 def _grid_depth_maps(grid: NDArray[np.bool_], depth_axis: int, size: int) -> NDArray[np.uint8]:
     """Mean unit depth (as uint8) of the true cells along depth_axis, upsampled to (M, size, size)."""
     k = grid.shape[1 + depth_axis]
-    shape = [1, 1, 1]
-    shape[depth_axis] = k
-    depth = ((np.arange(k) + 0.5) / k).astype(np.float32).reshape(shape)
-    counts = grid.sum(axis=1 + depth_axis)
-    sums = (grid * depth[None]).sum(axis=1 + depth_axis)
-    mean = _to_u8(np.where(counts > 0, sums / np.maximum(counts, 1), 0.0).astype(np.float32))
+    weights = np.stack([np.ones(k), (np.arange(k) + 0.5) / k], axis=1).astype(np.float32)  # (k, 2)
+    # counts and depth sums in one small matmul (BLAS) instead of two reductions over the grid
+    stats = np.moveaxis(grid, 1 + depth_axis, -1).astype(np.float32) @ weights  # (M, a, b, 2)
+    counts, sums = stats[..., 0], stats[..., 1]
+    mean = _to_u8(np.where(counts > 0, sums / np.maximum(counts, 1.0), 0.0).astype(np.float32))
     rows = (np.arange(size) + 0.5) / size
     r_idx = (rows * mean.shape[1]).astype(np.int64)
     c_idx = (rows * mean.shape[2]).astype(np.int64)
     return mean[:, r_idx][:, :, c_idx]
+
+
+ENCODE_CHUNK = 256  # grasps encoded together: keeps temporaries in cache and time linear in grasps
 
 
 def encode_images(scene: Scene, grasps: GraspSet, hand: HandGeometry, representation: str = "15",
@@ -126,7 +137,45 @@ def encode_images(scene: Scene, grasps: GraspSet, hand: HandGeometry, representa
     out = np.zeros((m, n_ch, size, size), np.uint8)
     if m == 0:
         return out
+    for a, b, part in _chunks(scene, grasps, hand, region, ENCODE_CHUNK):
+        _encode_chunk(out[a:b], scene, grasps[a:b], hand, representation, part)
+    return out
+
+
+def encode_batches(scene: Scene, grasps: GraspSet, hand: HandGeometry, representation: str = "15",
+                   size: int = 60, region: ClosingRegionPoints | None = None, batch: int = 512
+                   ) -> Iterator[tuple[int, NDArray[np.uint8]]]:
+    """(start, images of grasps[start : start + batch]) for consecutive batches: what encode_images
+    makes, in bounded memory (the detector scores each batch before encoding the next)."""
+    n_ch = REPRESENTATIONS.get(representation)
+    if n_ch is None:
+        raise KeyError(f"unknown representation {representation!r}; known: {sorted(REPRESENTATIONS)}")
+    for a, b, part in _chunks(scene, grasps, hand, region, batch):
+        out = np.zeros((b - a, n_ch, size, size), np.uint8)
+        _encode_chunk(out, scene, grasps[a:b], hand, representation, part)
+        yield a, out
+
+
+def _chunks(scene: Scene, grasps: GraspSet, hand: HandGeometry, region: ClosingRegionPoints | None, chunk: int
+            ) -> Iterator[tuple[int, int, ClosingRegionPoints]]:
+    """(a, b, closing-region points of grasps[a:b] renumbered from 0) over consecutive chunks of grasps."""
+    m = len(grasps)
+    if m == 0:
+        return
     occ = region or closing_region_points(scene.tree, scene.points, grasps.positions, grasps.rotations, hand)
+    if len(occ.grasp) > 1 and not bool(np.all(occ.grasp[1:] >= occ.grasp[:-1])):
+        order = np.argsort(occ.grasp, kind="stable")
+        occ = ClosingRegionPoints(occ.grasp[order], occ.local[order], occ.index[order])
+    for a in range(0, m, chunk):
+        b = min(m, a + chunk)
+        lo, hi = np.searchsorted(occ.grasp, [a, b])
+        yield a, b, ClosingRegionPoints(occ.grasp[lo:hi] - a, occ.local[lo:hi], occ.index[lo:hi])
+
+
+def _encode_chunk(out: NDArray[np.uint8], scene: Scene, grasps: GraspSet, hand: HandGeometry,
+                  representation: str, occ: ClosingRegionPoints) -> None:
+    """Fill out (M, C, size, size), a C-contiguous block of the result, with the images of grasps."""
+    size = out.shape[-1]
     occ_unit = _unit_coords(occ.local, hand)
     unobs = unobserved_grids(scene, grasps, hand) if representation in ("15", "herzog") else None
     if representation != "herzog":
@@ -140,16 +189,14 @@ def encode_images(scene: Scene, grasps: GraspSet, hand: HandGeometry, representa
             depth = occ_unit[:, proj[0] : proj[0] + 1]
             pix, means = _pixel_means(occ.grasp, occ_unit, np.concatenate([nrm_scaled, depth], axis=1), proj, size)
             take = 3 if representation == "3" else 4
-            for k in range(take):
-                _scatter(out, ch + k, pix, means[:, k])
+            _scatter(out, range(ch, ch + take), pix, means[:, :take])
             ch += take
             if unobs is not None:
                 out[:, ch] = _grid_depth_maps(unobs, p, size)
                 ch += 1
-        return out
+        return
     assert unobs is not None
     pix, means = _pixel_means(occ.grasp, occ_unit, occ_unit[:, 0:1], _PROJECTIONS[0], size)
-    _scatter(out, 0, pix, means[:, 0])
+    _scatter(out, range(1), pix, means[:, :1])
     out[:, 1] = _grid_depth_maps(unobs, 0, size)
     out[:, 2] = np.where((out[:, 0] > 0) | (out[:, 1] > 0), 0, 255).astype(np.uint8)
-    return out

@@ -23,19 +23,23 @@ MAX_GRID_CELLS = 48_000_000
 
 @dataclass(frozen=True)
 class VoxelGrid:
-    """Boolean voxels of edge `voxel` (m); cell (i, j, k) spans origin + [i, i+1) * voxel along each axis."""
+    """Boolean voxels of edge `voxel` (m); cell (i, j, k) spans origin + [i, i+1) * voxel along each axis.
+    Border cells are False (lookups outside the grid clip onto them)."""
 
     origin: NDArray[np.float64]
     voxel: float
     cells: NDArray[np.bool_]
 
     def contains(self, xyz: NDArray[np.floating]) -> NDArray[np.bool_]:
-        """Whether each position (...,3) lies in a true cell (False outside the grid)."""
-        g = np.floor((xyz.reshape(-1, 3) - self.origin) / self.voxel).astype(np.int64)
-        shape = np.array(self.cells.shape)
-        ok = np.all((g >= 0) & (g < shape), axis=1)
-        flat = np.where(ok, (g[:, 0] * shape[1] + g[:, 1]) * shape[2] + g[:, 2], 0)
-        return (self.cells.reshape(-1)[flat] & ok).reshape(xyz.shape[:-1])
+        """Whether each position (...,3) lies in a true cell.  Positions outside the grid are clipped to
+        its border, whose cells are always False (see unobserved_grid), so they read False."""
+        shape = self.cells.shape
+        g = (xyz.reshape(-1, 3) - self.origin.astype(xyz.dtype)) * xyz.dtype.type(1.0 / self.voxel)
+        np.floor(g, out=g)
+        np.clip(g, 0, np.array(shape) - 1, out=g)
+        gi = g.astype(np.int32)  # at most MAX_GRID_CELLS cells: flat ids fit in int32
+        flat = (gi[:, 0] * shape[1] + gi[:, 1]) * shape[2] + gi[:, 2]
+        return self.cells.reshape(-1)[flat].reshape(xyz.shape[:-1])
 
     def centres(self) -> NDArray[np.float32]:
         """Centres (U,3) of the true cells (m)."""
@@ -116,7 +120,13 @@ def unobserved_grid(points: NDArray[np.float32], viewpoints: NDArray[np.float32]
             np.clip(g, 0, np.array(shape) - 1, out=g)
             mine[(g[:, 0] * shape[1] + g[:, 1]) * shape[2] + g[:, 2]] = True
         shadowed &= mine
-    return VoxelGrid(lo, v, (shadowed & ~occupied).reshape(shape))
+    cells = (shadowed & ~occupied).reshape(shape)
+    # The box reaches `length` past every point, so border cells are (at most) the shadows' rounding
+    # spill: clear them, which lets lookups clip out-of-grid positions onto the border.
+    cells[[0, -1], :, :] = False
+    cells[:, [0, -1], :] = False
+    cells[:, :, [0, -1]] = False
+    return VoxelGrid(lo, v, cells)
 
 
 def ball_pairs(tree: cKDTree, centres: NDArray[np.floating], radius: float

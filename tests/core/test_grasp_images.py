@@ -8,9 +8,9 @@ import pytest
 from graspd.candidates import SamplingParams, search_hands
 from graspd.cloud import ViewpointCloud
 from graspd.hand import HandGeometry
-from graspd.images import REPRESENTATIONS, channel_layout, encode_images
+from graspd.images import REPRESENTATIONS, channel_layout, encode_batches, encode_images
 from graspd.preprocess import PreprocessParams, preprocess
-from graspd.scene import Scene
+from graspd.scene import ClosingRegionPoints, Scene
 
 HAND = HandGeometry()
 
@@ -41,6 +41,18 @@ def test_region_from_the_sampler_matches_a_fresh_lookup(scene_and_grasps) -> Non
     a = encode_images(scene, grasps, HAND, "15", region=region)
     b = encode_images(scene, grasps, HAND, "15")
     assert (a != b).mean() < 1e-3
+
+
+def test_images_in_batches_and_in_any_point_order_are_the_same_images(scene_and_grasps) -> None:
+    _, scene, grasps, region = scene_and_grasps
+    assert len(grasps) > 40
+    whole = encode_images(scene, grasps, HAND, "15", region=region)
+    batches = list(encode_batches(scene, grasps, HAND, "15", region=region, batch=7))
+    assert [a for a, _ in batches] == list(range(0, len(grasps), 7))
+    assert np.array_equal(np.concatenate([b for _, b in batches]), whole)
+    shuffled = np.random.default_rng(1).permutation(len(region.grasp))
+    reordered = ClosingRegionPoints(region.grasp[shuffled], region.local[shuffled], region.index[shuffled])
+    assert np.array_equal(encode_images(scene, grasps, HAND, "15", region=reordered), whole)
 
 
 def test_twelve_channels_are_fifteen_without_the_unobserved_ones(scene_and_grasps) -> None:
