@@ -4,7 +4,7 @@ from .codec import WIRE_DTYPES, WireError, decode_array, encode_array
 from .errors import GraspdError, RequestRejected, ServerBusy, ServerError, TransportError
 from .grasps import Grasps
 from .http import AsyncGraspClient, GraspClient
-from .wire import build_detect_request
+from .wire import build_demonstration_request, build_detect_request, build_feedback_request
 
 __version__ = "0.1.0"
 
@@ -19,6 +19,6 @@ def __getattr__(name: str) -> object:
 
 __all__ = [
     "WIRE_DTYPES", "AsyncGraspClient", "GraspClient", "GraspdError", "Grasps", "RequestRejected",
-    "ServerBusy", "ServerError", "TransportError", "WireError", "ZenohGraspClient", "build_detect_request",
-    "decode_array", "encode_array",
+    "ServerBusy", "ServerError", "TransportError", "WireError", "ZenohGraspClient", "build_demonstration_request",
+    "build_detect_request", "build_feedback_request", "decode_array", "encode_array",
 ]

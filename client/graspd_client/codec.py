@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -66,7 +67,7 @@ def _from_encoded(obj: dict[str, Any], field: str, max_bytes: int) -> NDArray[An
     if not isinstance(data, str):
         raise WireError(f"{field}.data", "must be a base64 string")
     dt = np.dtype(dtype).newbyteorder("<")
-    count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+    count = math.prod(shape)  # Python ints: a huge shape is refused below, never overflows
     expected = count * dt.itemsize
     if expected > max_bytes:
         raise WireError(field, f"{expected} bytes for shape {shape} exceeds the limit of {max_bytes}")

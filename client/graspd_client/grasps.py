@@ -31,7 +31,8 @@ class Grasps:
     """M grasps in the caller's cloud frame (metres), sorted best first as the server sent them.
 
     poses (M,4,4) have rotation columns [approach, binormal, axis] and translation = hand-base centre.
-    scores are NaN when the server ran without a classifier (scored is False).
+    scores are NaN when the server ran without a classifier (scored is False); with method "templates"
+    they are the match quality 1 / (1 + m) in (0, 1].
     crops[i] is PNG bytes of the object-proposal crop, or None (not asked, or point outside the image).
     """
 
@@ -47,6 +48,7 @@ class Grasps:
     quat_xyzw: F64
     model: str | None = None
     scored: bool = False
+    method: str = "gpd"
     timings: dict[str, float] = field(default_factory=dict)
     request_id: str | None = None
     crops: list[bytes | None] = field(default_factory=list)
@@ -96,6 +98,7 @@ class Grasps:
             quat_xyzw=_column(gs, "quat_xyzw", (4,)),
             model=body.get("model"),
             scored=bool(body.get("scored", False)),
+            method=str(body.get("method", "gpd")),
             timings={str(k): float(v) for k, v in (body.get("timings") or {}).items()},
             request_id=body.get("request_id"),
             crops=crops,

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike
 from .codec import WireError
 from .errors import RequestRejected, ServerBusy, ServerError, TransportError
 from .grasps import Grasps
-from .wire import build_detect_request
+from .wire import build_demonstration_request, build_detect_request, build_feedback_request
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 
@@ -93,8 +93,25 @@ class GraspClient:
 
     def detect(self, points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
                camera_source: ArrayLike | None = None, **options: Any) -> Grasps:
-        """Grasps for a cloud; options are those of build_detect_request (model, hand, num_samples, ...)."""
+        """Grasps for a cloud; options are those of build_detect_request (model, hand, num_samples, ...,
+        method="templates" for the grasp-template detector)."""
         return self.detect_request(build_detect_request(points, viewpoints, camera_source, **options))
+
+    def add_demonstration(self, points: ArrayLike, hand_pose: ArrayLike,
+                          viewpoints: ArrayLike = ((0.0, 0.0, 0.0),), camera_source: ArrayLike | None = None,
+                          **options: Any) -> Any:
+        """Teach the template library a grasp (hand_pose 4x4 in the cloud frame); options label, hand,
+        workspace.  Answers {"entry_id", "library": counts}."""
+        body = build_demonstration_request(points, hand_pose, viewpoints, camera_source, **options)
+        return self._request("POST", "/demonstrations", json=body)
+
+    def feedback(self, grasp_id: str, success: bool) -> Any:
+        """Report the outcome of executing a returned grasp (Grasps.ids); answers what was stored."""
+        return self._request("POST", "/feedback", json=build_feedback_request(grasp_id, success))
+
+    def library(self) -> Any:
+        """The template library: counts, hand, and entries (id, label, created_at, failures, ...)."""
+        return self._request("GET", "/library")
 
     def detect_request(self, body: dict[str, Any]) -> Grasps:
         """Grasps for an already-built request body."""
@@ -158,6 +175,18 @@ class AsyncGraspClient:
 
     async def detect_request(self, body: dict[str, Any]) -> Grasps:
         return parse_grasps(await self._request("POST", "/detect", json=body))
+
+    async def add_demonstration(self, points: ArrayLike, hand_pose: ArrayLike,
+                                viewpoints: ArrayLike = ((0.0, 0.0, 0.0),), camera_source: ArrayLike | None = None,
+                                **options: Any) -> Any:
+        body = build_demonstration_request(points, hand_pose, viewpoints, camera_source, **options)
+        return await self._request("POST", "/demonstrations", json=body)
+
+    async def feedback(self, grasp_id: str, success: bool) -> Any:
+        return await self._request("POST", "/feedback", json=build_feedback_request(grasp_id, success))
+
+    async def library(self) -> Any:
+        return await self._request("GET", "/library")
 
     async def models(self) -> Any:
         return await self._request("GET", "/models")

@@ -38,12 +38,19 @@ GRASP_FIELDS: tuple[str, ...] = (
 #: Query parameters accepted with a raw PCD/PLY upload to POST /detect.
 UPLOAD_QUERY_PARAMS: tuple[str, ...] = (
     "viewpoint", "model", "hand", "num_samples", "max_grasps", "min_score", "workspace", "selection", "seed",
+    "method",
 )
+
+#: Detectors a detect request may ask for ("method"): GPD, or grasp templates from demonstrations.
+DETECT_METHODS: tuple[str, ...] = ("gpd", "templates")
 
 #: Zenoh key suffixes under the configured prefix (default "graspd").
 ZENOH_DETECT_KEY = "detect"
 ZENOH_CLOUD_KEY = "cloud"
 ZENOH_GRASPS_KEY = "grasps"
+ZENOH_DEMONSTRATIONS_KEY = "demonstrations"  # the bodies and answers of POST /demonstrations,
+ZENOH_FEEDBACK_KEY = "feedback"  # POST /feedback
+ZENOH_LIBRARY_KEY = "library"  # and GET /library (empty payload)
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -74,21 +81,20 @@ def build_detect_request(
     intrinsics: Mapping[str, float] | Sequence[float] | None = None,
     camera_pose: ArrayLike | None = None,
     crop_size: int | None = None,
+    method: str | None = None,
 ) -> dict[str, Any]:
     """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
 
     points (N,3) m; viewpoints (K,3) camera positions; camera_source (N,) index into viewpoints;
     image HxWx3 uint8 (or PNG bytes) with intrinsics (fx, fy, cx, cy) and camera_pose (4x4,
-    camera-to-cloud) asks for one object-proposal crop per grasp.
+    camera-to-cloud) asks for one object-proposal crop per grasp.  method "templates" asks the grasp-template
+    detector (it takes cloud, workspace, max_grasps and hand only).
     """
-    pts = np.asarray(points, np.float32)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise WireError("cloud.points", f"shape (N,3) expected, got {tuple(pts.shape)}")
-    vps = np.asarray(viewpoints, np.float64).reshape(-1, 3)
-    cloud: dict[str, Any] = {"points": encode_array(pts), "viewpoints": vps.tolist()}
-    if camera_source is not None:
-        cloud["camera_source"] = encode_array(np.asarray(camera_source).astype(np.int32))
-    body: dict[str, Any] = {"cloud": cloud}
+    body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source)}
+    if method is not None:
+        if method not in DETECT_METHODS:
+            raise WireError("method", f"one of {DETECT_METHODS} expected, got {method!r}")
+        body["method"] = method
     if workspace is not None:
         body["workspace"] = _vec(workspace, 6, "workspace")
     if hand is not None:
@@ -119,6 +125,51 @@ def build_detect_request(
             crops["size"] = int(crop_size)
         body["crops"] = crops
     return body
+
+
+def build_cloud(points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
+                camera_source: ArrayLike | None = None) -> dict[str, Any]:
+    """The "cloud" object of a request: points (N,3) m, camera positions (K,3) m, per-point camera index."""
+    pts = np.asarray(points, np.float32)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise WireError("cloud.points", f"shape (N,3) expected, got {tuple(pts.shape)}")
+    vps = np.asarray(viewpoints, np.float64).reshape(-1, 3)
+    cloud: dict[str, Any] = {"points": encode_array(pts), "viewpoints": vps.tolist()}
+    if camera_source is not None:
+        cloud["camera_source"] = encode_array(np.asarray(camera_source).astype(np.int32))
+    return cloud
+
+
+def build_demonstration_request(
+    points: ArrayLike,
+    hand_pose: ArrayLike,
+    viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
+    camera_source: ArrayLike | None = None,
+    *,
+    label: str | None = None,
+    hand: str | Mapping[str, Any] | None = None,
+    workspace: Sequence[float] | None = None,
+) -> dict[str, Any]:
+    """The JSON body of POST /demonstrations: a cloud of the table and one object and the demonstrated hand
+    pose (4x4, cloud frame, rotation columns [approach, binormal, axis], translation the hand-base centre)."""
+    pose = np.asarray(hand_pose, np.float64)
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise WireError("hand_pose", f"a finite 4x4 matrix expected, got shape {pose.shape}")
+    body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source), "hand_pose": pose.tolist()}
+    if label is not None:
+        body["label"] = label
+    if hand is not None:
+        body["hand"] = hand if isinstance(hand, str) else dict(hand)
+    if workspace is not None:
+        body["workspace"] = _vec(workspace, 6, "workspace")
+    return body
+
+
+def build_feedback_request(grasp_id: str, success: bool) -> dict[str, Any]:
+    """The JSON body of POST /feedback: the id of a returned grasp and whether executing it succeeded."""
+    if not isinstance(grasp_id, str) or not grasp_id:
+        raise WireError("grasp_id", f"the id of a returned grasp (a string) expected, got {grasp_id!r}")
+    return {"grasp_id": grasp_id, "success": bool(success)}
 
 
 def decode_png_bytes(value: str | None) -> bytes | None:

@@ -1,4 +1,5 @@
-"""ZenohGraspClient: the detect request as a Zenoh query on `<prefix>/detect` (needs the zenoh extra).
+"""ZenohGraspClient: the detect request as a Zenoh query on `<prefix>/detect` (needs the zenoh extra), and the
+grasp-template requests on `<prefix>/demonstrations`, `<prefix>/feedback`, `<prefix>/library`.
 
 Connects in peer mode to the given endpoints (default: the server's loopback listener).
 """
@@ -14,7 +15,15 @@ from numpy.typing import ArrayLike
 from .errors import RequestRejected, ServerBusy, ServerError, TransportError
 from .grasps import Grasps
 from .http import parse_grasps
-from .wire import ZENOH_DETECT_KEY, build_detect_request
+from .wire import (
+    ZENOH_DEMONSTRATIONS_KEY,
+    ZENOH_DETECT_KEY,
+    ZENOH_FEEDBACK_KEY,
+    ZENOH_LIBRARY_KEY,
+    build_demonstration_request,
+    build_detect_request,
+    build_feedback_request,
+)
 
 DEFAULT_ENDPOINTS = ("tcp/127.0.0.1:7447",)
 
@@ -85,14 +94,15 @@ class ZenohGraspClient:
         self._next += 1
         return key
 
-    def query(self, payload: bytes) -> Any:
-        """The decoded JSON reply to one raw query payload (retrying busy answers)."""
+    def query(self, payload: bytes, key: str | None = None) -> Any:
+        """The decoded JSON reply to one raw query payload on key (default: detect; retrying busy answers)."""
         import time
 
         import zenoh
 
+        fixed = key
         for attempt in range(self.retries + 1):
-            key = self._target_key()
+            key = fixed or self._target_key()
             replies = list(self._session.get(key, payload=payload, timeout=self.timeout,
                                              target=zenoh.QueryTarget.BEST_MATCHING))
             if not replies:
@@ -103,7 +113,7 @@ class ZenohGraspClient:
                 try:
                     return json.loads(reply.ok.payload.to_bytes())
                 except ValueError:
-                    raise ServerError(f"zenoh {self.key}: reply is not JSON") from None
+                    raise ServerError(f"zenoh {key}: reply is not JSON") from None
             try:
                 err = json.loads(reply.err.payload.to_bytes())
             except ValueError:
@@ -113,13 +123,30 @@ class ZenohGraspClient:
                 time.sleep(min(float(err.get("retry_after", 0.5)), 5.0))
                 continue
             if status == 503:
-                raise ServerBusy(f"zenoh {self.key}: server busy after {self.retries + 1} attempts")
+                raise ServerBusy(f"zenoh {key}: server busy after {self.retries + 1} attempts")
             if 400 <= status < 500:
                 raise RequestRejected(status, str(err.get("error")), field=err.get("field"), body=err)
-            raise ServerError(f"zenoh {self.key}: {err.get('error')}")
+            raise ServerError(f"zenoh {key}: {err.get('error')}")
         raise AssertionError("unreachable")
 
     def detect(self, points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
                camera_source: ArrayLike | None = None, **options: Any) -> Grasps:
         body = build_detect_request(points, viewpoints, camera_source, **options)
         return parse_grasps(self.query(json.dumps(body).encode()))
+
+    def add_demonstration(self, points: ArrayLike, hand_pose: ArrayLike,
+                          viewpoints: ArrayLike = ((0.0, 0.0, 0.0),), camera_source: ArrayLike | None = None,
+                          **options: Any) -> Any:
+        """Teach the template library a grasp (as GraspClient.add_demonstration)."""
+        body = build_demonstration_request(points, hand_pose, viewpoints, camera_source, **options)
+        return self.query(json.dumps(body).encode(), f"{self.prefix}/{ZENOH_DEMONSTRATIONS_KEY}")
+
+    def feedback(self, grasp_id: str, success: bool) -> Any:
+        """Report a grasp's outcome (as GraspClient.feedback); a GPD grasp's must reach the server that
+        detected it (balance=False, or one server)."""
+        body = build_feedback_request(grasp_id, success)
+        return self.query(json.dumps(body).encode(), f"{self.prefix}/{ZENOH_FEEDBACK_KEY}")
+
+    def library(self) -> Any:
+        """The template library summary (as GraspClient.library)."""
+        return self.query(b"", f"{self.prefix}/{ZENOH_LIBRARY_KEY}")

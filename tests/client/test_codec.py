@@ -63,6 +63,8 @@ def test_errors_name_the_field(obj: object, kwargs: dict, message: str) -> None:
 def test_size_limit_before_decoding() -> None:
     with pytest.raises(WireError, match="exceeds the limit"):
         decode_array({"dtype": "float64", "shape": [10**9, 3], "data": ""}, "p", max_bytes=1 << 20)
+    with pytest.raises(WireError, match="exceeds the limit"):  # beyond int64: refused, no OverflowError
+        decode_array({"dtype": "float64", "shape": [10**30, 4], "data": ""}, "hand_pose")
 
 
 @settings(max_examples=60, deadline=None)

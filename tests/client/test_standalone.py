@@ -13,7 +13,11 @@ import sys
 import numpy as np
 import graspd_client
 from graspd_client import GraspClient, Grasps, build_detect_request, decode_array
+from graspd_client import build_demonstration_request, build_feedback_request
 body = build_detect_request(np.zeros((5, 3), np.float32), [[0, 0, 1]], num_samples=10, hand="panda")
+assert build_detect_request(np.zeros((5, 3)), method="templates")["method"] == "templates"
+assert build_demonstration_request(np.zeros((5, 3)), np.eye(4), label="a")["hand_pose"][3] == [0, 0, 0, 1]
+assert build_feedback_request("a.0", False) == {"grasp_id": "a.0", "success": False}
 pts = decode_array(body["cloud"]["points"], "cloud.points", shape=(None, 3))
 assert pts.shape == (5, 3)
 response = {"grasps": [{"id": "a", "position": [0, 0, 0], "approach": [1, 0, 0], "binormal": [0, 1, 0],
@@ -22,7 +26,9 @@ response = {"grasps": [{"id": "a", "position": [0, 0, 0], "approach": [1, 0, 0],
             "model": None, "scored": False, "timings": {"total": 0.1}}
 g = Grasps.from_response(response)
 assert g.poses.shape == (1, 4, 4) and np.isnan(g.scores[0]) and g.ids == ["a"]
-GraspClient("http://127.0.0.1:9").close()
+c = GraspClient("http://127.0.0.1:9")
+assert callable(c.add_demonstration) and callable(c.feedback) and callable(c.library)
+c.close()
 heavy = [m for m in ("graspd", "open3d", "torch", "onnxruntime", "scipy", "fastapi", "pydantic")
          if m in sys.modules]
 assert not heavy, heavy

@@ -35,16 +35,40 @@ def krylon(krylon_path: Path) -> ViewpointCloud:
 
 @pytest.fixture
 def make_settings(tmp_path: Path) -> Callable[..., Settings]:
-    """Settings for a test app: no Zenoh unless asked, an empty models folder (unscored) unless given."""
+    """Settings for a test app: no Zenoh unless asked, an empty models folder (unscored) unless given, the
+    template library in the test's temporary folder."""
 
     def make(**overrides: Any) -> Settings:
         base: dict[str, Any] = {"zenoh_enabled": False, "models_dir": tmp_path / "no-models", "detect_workers": 2,
+                                "data_dir": tmp_path / "data",
                                 "deadline_s": 300.0,
                                 "queue_size": 8, "log_json": True}
         base.update(overrides)
         return Settings(**base)
 
     return make
+
+
+@pytest.fixture(scope="session")
+def models_and_default(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """A folder of real models the project trained and the default name: the shipped models/ when they are
+    there, else the tiny test model (~1-2 min to make)."""
+    from graspd import classifier
+
+    shipped = classifier.default_models_dir()
+    if classifier.default_model_name() in classifier.available_models(shipped):
+        return shipped, classifier.default_model_name()
+    from graspd.training.train import train_tiny_model
+
+    return train_tiny_model(tmp_path_factory.mktemp("tiny-model"), seed=0).parent, "tiny15"
+
+
+@pytest.fixture
+def scored_client(make_settings: Callable[..., Settings], models_and_default: tuple[Path, str]
+                  ) -> Iterator[TestClient]:
+    """A test app with real trained models (scores grasps)."""
+    with TestClient(create_app(make_settings(models_dir=models_and_default[0]))) as c:
+        yield c
 
 
 @pytest.fixture

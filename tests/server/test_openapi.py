@@ -68,3 +68,5 @@ def test_schemathesis_finds_no_server_error(make_settings: Callable[..., Setting
     assert not failures, failures
     counts = collections.Counter(seen)
     assert counts["POST /detect 422"] > 0 and counts["POST /detect 415"] > 0, counts  # JSON and binary bodies
+    assert counts["POST /demonstrations 422"] > 0 and counts["POST /feedback 422"] > 0, counts
+    assert counts["GET /library 200"] > 0, counts

@@ -1,41 +1,12 @@
-"""Template test scenes: a 5 x 10 x 8 cm box on a table seen by one camera from above and aside."""
+"""Template test fixtures: library URLs in the test's temporary folder (the box scenes, render_box and
+box_pose, are in tests/conftest.py for the service tests too)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
 import pytest
-
-from graspd.cloud import ViewpointCloud
-from graspd.templates.synthetic import box_mesh, pose_from, render_cloud, rot_z, table_mesh
-
-CAMERA = np.array([[0.5, 0.1, 0.5]])
-BOX = (0.05, 0.10, 0.08)
-
-
-def _render(pose: np.ndarray, extents: tuple[float, float, float] = BOX, cameras: np.ndarray = CAMERA,
-            noise: float = 0.0, seed: int = 0) -> ViewpointCloud:
-    return render_cloud([table_mesh(), box_mesh(extents, pose)], cameras, (0.0, 0.0, 0.04), width=320,
-                        height=240, noise=noise, seed=seed)
-
-
-@pytest.fixture(scope="session")
-def render_box() -> Callable[..., ViewpointCloud]:
-    """render_box(pose 4x4, extents=BOX, cameras=CAMERA, noise=0, seed=0) -> the cloud of a box on a table."""
-    return _render
-
-
-@pytest.fixture(scope="session")
-def box_pose() -> Callable[..., np.ndarray]:
-    """box_pose(yaw=0.3, xy=(0.02, 0.01), extents=BOX): a box standing on the table."""
-
-    def make(yaw: float = 0.3, xy: tuple[float, float] = (0.02, 0.01),
-             extents: tuple[float, float, float] = BOX) -> np.ndarray:
-        return pose_from(rot_z(yaw), (xy[0], xy[1], extents[2] / 2))
-
-    return make
 
 
 @pytest.fixture()

@@ -10,6 +10,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from graspd import __version__
@@ -22,6 +23,8 @@ from .registry import ModelRegistry
 from .routers import detect, health, metrics, models
 from .schemas import DetectRequest
 from .settings import Settings
+from .templates_api import REQUEST_MODELS
+from .templates_api import router as templates_router
 
 log = logging.getLogger("graspd.server")
 
@@ -38,6 +41,10 @@ Fingertips are at `position + hand_depth * approach`.
 
 **Arrays** are `{"dtype", "shape", "data": base64 of little-endian C-order bytes}` or nested lists.
 The same request and response travel over Zenoh on `<prefix>/detect` (default prefix `graspd`).
+
+**Grasp templates** (Herzog et al. 2012): teach grasps with `POST /demonstrations`, detect with
+`"method": "templates"` on `/detect`, report outcomes of any returned grasp by its `id` with
+`POST /feedback` (failures teach the library), list the library with `GET /library`.
 """
 
 
@@ -77,7 +84,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
             engine.close(wait=True)
 
     app = FastAPI(title="graspd", version=__version__, description=DESCRIPTION, lifespan=lifespan)
-    for r in (detect.router, health.router, models.router, metrics.router):
+    for r in (detect.router, health.router, models.router, metrics.router, templates_router):
         app.include_router(r)
 
     @app.exception_handler(Problem)
@@ -108,10 +115,12 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
 
             schema = get_openapi(title=app.title, version=app.version, description=app.description,
                                  routes=app.routes)
-            extra = DetectRequest.model_json_schema(ref_template="#/components/schemas/{model}")
             comps = schema.setdefault("components", {}).setdefault("schemas", {})
-            comps.update(extra.pop("$defs", {}))
-            comps["DetectRequest"] = extra
+            models: list[type[BaseModel]] = [DetectRequest, *REQUEST_MODELS]  # bodies read by hand
+            for model in models:
+                extra = model.model_json_schema(ref_template="#/components/schemas/{model}")
+                comps.update(extra.pop("$defs", {}))
+                comps[model.__name__] = extra
             app.openapi_schema = schema
         return app.openapi_schema
 

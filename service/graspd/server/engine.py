@@ -12,13 +12,14 @@ import time
 import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
+from graspd.templates import TemplateDetection
 from graspd_client.codec import WireError
 
 from . import proposals
@@ -29,12 +30,19 @@ from .problems import Problem, from_validation, from_wire
 from .registry import ModelRegistry
 from .schemas import CropsRequest, DetectRequest
 from .settings import Settings
+from .templates_service import TemplateService
 
 log = logging.getLogger("graspd.server")
+M = TypeVar("M", bound=BaseModel)
 
 
 def parse_request(payload: bytes | str | dict[str, Any]) -> DetectRequest:
     """A validated DetectRequest from JSON text or a decoded object; Problem (400/422) names the field."""
+    return parse_model(DetectRequest, payload)
+
+
+def parse_model(model: type[M], payload: bytes | str | dict[str, Any]) -> M:
+    """A validated request model from JSON text or a decoded object; Problem (400/422) names the field."""
     if isinstance(payload, bytes | str):
         try:
             payload = json.loads(payload)
@@ -43,7 +51,7 @@ def parse_request(payload: bytes | str | dict[str, Any]) -> DetectRequest:
     if not isinstance(payload, dict):
         raise Problem(422, f"a JSON object is expected, got {type(payload).__name__}", "body")
     try:
-        return DetectRequest.model_validate(payload)
+        return model.model_validate(payload)
     except ValidationError as exc:
         raise from_validation(exc) from None
     except WireError as exc:
@@ -51,6 +59,7 @@ def parse_request(payload: bytes | str | dict[str, Any]) -> DetectRequest:
 
 
 def detection_params(req: DetectRequest) -> DetectionParams:
+    """The detector's knobs from a validated request (metres, degrees, cloud frame)."""
     ws = req.workspace
     return DetectionParams(
         num_samples=req.num_samples,
@@ -59,8 +68,13 @@ def detection_params(req: DetectRequest) -> DetectionParams:
         min_score=req.min_score,
         approach_direction=None if req.approach is None else tuple(req.approach.direction),  # type: ignore[arg-type]
         approach_max_angle_deg=None if req.approach is None else req.approach.max_angle_deg,
+        min_aperture=req.min_aperture,
+        max_aperture=req.max_aperture,
         use_selection=req.selection,
         use_clustering=req.clustering,
+        use_classifier=req.use_classifier,
+        gravity=None if req.gravity is None else (req.gravity[0], req.gravity[1], req.gravity[2]),
+        exclude_support_plane=req.exclude_support_plane,
         seed=req.seed,
     )
 
@@ -101,6 +115,7 @@ class DetectionEngine:
         self._running = 0
         self._avg_seconds = 1.0
         self._trim = trim_function()
+        self.templates = TemplateService(settings)  # method "templates", and what feedback needs
         self.closed = False
 
     # ---- admission -------------------------------------------------------------------------
@@ -153,18 +168,24 @@ class DetectionEngine:
                 text = str(exc)
                 field = text.split(" ", 1)[0] if text.startswith(("cloud.", "hand.")) else "body"
                 raise Problem(422, text, field) from None
-            det = self.registry.detector(model).detect(cloud, params, hand)
-            body = det.to_dict()
+            det: Detection | TemplateDetection
+            if req.method == "templates":
+                det, body = self.templates.detect(req, cloud, hand)
+                request_id = body.pop("request_id")
+            else:
+                det = self.registry.detector(model).detect(cloud, params, hand)
+                body = det.to_dict()
+                request_id = uuid.uuid4().hex[:16]
+                self.templates.remember(request_id, cloud, det)
+                for i, g in enumerate(body["grasps"]):
+                    g["id"] = f"{request_id}-{i}"
             timings.update(det.timings)
-            if req.crops is not None:
+            if req.crops is not None and isinstance(det, Detection):  # method "templates" refuses crops
                 t = time.perf_counter()
                 crops = crops_json(det, req.crops)
                 for g, c in zip(body["grasps"], crops, strict=True):
                     g["crop"] = c
                 timings["crops"] = time.perf_counter() - t
-            request_id = uuid.uuid4().hex[:16]
-            for i, g in enumerate(body["grasps"]):
-                g["id"] = f"{request_id}-{i}"
             self.metrics.candidates.observe(det.num_candidates)
             self.metrics.grasps.observe(len(det.grasps))
             self.metrics.points.observe(det.num_points)
@@ -172,7 +193,7 @@ class DetectionEngine:
             self._avg_seconds = 0.8 * self._avg_seconds + 0.2 * elapsed
             timings["total"] = time.perf_counter() - enqueued + timings.get("decode", 0.0)
             self.metrics.observe_timings(timings)
-            body = {"request_id": request_id, **body, "timings": timings}
+            body = {"request_id": request_id, "method": req.method, **body, "timings": timings}
             return json.dumps(body, separators=(",", ":")).encode()
         finally:
             with self._lock:
@@ -218,3 +239,4 @@ class DetectionEngine:
         with self._lock:
             self.closed = True
         self.executor.shutdown(wait=wait, cancel_futures=True)
+        self.templates.close()

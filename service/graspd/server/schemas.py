@@ -11,7 +11,7 @@ from __future__ import annotations
 import base64
 import binascii
 import math
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
@@ -19,6 +19,7 @@ from pydantic import (
     ConfigDict,
     Field,
     PlainValidator,
+    StrictBool,
     ValidationInfo,
     WithJsonSchema,
     field_validator,
@@ -252,6 +253,10 @@ class DetectRequest(BaseModel):
     clustering: bool = Field(True, description="GPD clustering of aligned hands")
     seed: int | None = Field(0, ge=0, le=2**32 - 1, description="sampling seed (null: random)")
     crops: CropsRequest | None = Field(None, description="object-proposal crops, on request only")
+    method: Literal["gpd", "templates"] = Field(
+        "gpd", description="detector: 'gpd' (sampled candidates scored by the CNN) or 'templates' (grasp "
+        "templates matched against the demonstration library, Herzog et al. 2012; uses cloud, workspace, "
+        "max_grasps and the library's hand only)")
 
     @field_validator("workspace")
     @classmethod
@@ -293,24 +298,31 @@ class GraspOut(BaseModel):
     binormal: Vec3Out = Field(description="unit closing direction of the fingers (hand y)")
     axis: Vec3Out = Field(description="approach x binormal (hand z)")
     width: float = Field(description="object extent between the fingers along binormal (m)")
-    score: float | None = Field(description="classifier probability in [0, 1]; null when unscored")
+    score: float | None = Field(description="gpd: classifier probability in [0, 1], null when unscored; "
+                                "templates: match quality 1 / (1 + m) in (0, 1], m the eq. 2 mismatch")
     sample: Vec3Out = Field(description="cloud point the candidate was sampled at (m)")
     pose: list[list[float]] = Field(description="4x4 row-major; rotation columns [approach, binormal, axis], "
                                     "translation position")
     quat_xyzw: list[float] = Field(description="rotation as a unit quaternion x, y, z, w")
     crop: CropOut | None = Field(None, description="object-proposal crop, when crops were requested")
+    template_entry: int | None = Field(None, description="templates: the library entry whose grasp this is")
+    mismatch: float | None = Field(None, description="templates: eq. 2 mismatch m of the best match (lower is "
+                                   "better)")
 
 
 class DetectResponse(BaseModel):
     request_id: str
+    method: Literal["gpd", "templates"] = Field("gpd", description="the detector that answered")
     grasps: list[GraspOut] = Field(description="best first (unless selection is false)")
-    model: str | None = Field(description="classifier used; null when unscored")
-    scored: bool = Field(description="false when no classifier ran (scores null)")
+    model: str | None = Field(description="classifier used; null when unscored or method templates")
+    scored: bool = Field(description="whether grasps carry scores: gpd, a classifier ran (else scores null); "
+                         "templates, always (match quality)")
     timings: dict[str, float] = Field(description="seconds per stage: decode, queue, preprocess, scene, sample, "
                                       "encode, score, select, crops, total")
     num_candidates: int
     num_points: int = Field(description="points after preprocessing")
     hand: dict[str, float] = Field(description="hand geometry used (m)")
+    num_entries: int | None = Field(None, description="templates: library entries matched against")
 
 
 class FieldProblem(BaseModel):
@@ -336,3 +348,78 @@ class ModelInfo(BaseModel):
 class ModelsResponse(BaseModel):
     default: str | None
     models: list[ModelInfo]
+
+
+def _check_hand_pose(v: np.ndarray) -> np.ndarray:
+    from graspd.templates.demonstration import check_hand_pose
+    from graspd.templates.geometry import TemplateError
+
+    try:
+        return check_hand_pose(v)
+    except TemplateError as exc:
+        raise ValueError(str(exc).removeprefix("hand_pose").lstrip(": ")) from None
+
+
+class DemonstrationRequest(BaseModel):
+    """POST /demonstrations: a cloud of the table and one object, and the grasp demonstrated on it."""
+
+    model_config = ConfigDict(extra="forbid")
+    cloud: Cloud
+    hand_pose: Matrix4 = Field(description="demonstrated hand pose (4x4, cloud frame, the grasp convention: "  # type: ignore[valid-type]
+                               "rotation columns [approach, binormal, axis], translation the hand-base centre)")
+    hand: Hand | None = Field(None, description="the demonstrating hand; must be the library's (GET /library)")
+    label: str | None = Field(None, max_length=200, description="what was grasped, for people")
+    workspace: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
+        None, min_length=6, max_length=6, description="[xmin, xmax, ymin, ymax, zmin, zmax] (m, cloud frame): crop")
+
+    _hand_pose = field_validator("hand_pose")(_check_hand_pose)
+    _workspace = field_validator("workspace")(DetectRequest._workspace.__func__)  # type: ignore[attr-defined]
+    _hand = field_validator("hand", mode="before")(DetectRequest._hand.__func__)  # type: ignore[attr-defined]
+
+
+class FeedbackRequest(BaseModel):
+    """POST /feedback: the outcome of executing a grasp this service returned."""
+
+    model_config = ConfigDict(extra="forbid")
+    grasp_id: str = Field(min_length=1, max_length=100, description="the grasp's id from a detect response")
+    success: StrictBool = Field(description="whether the robot held the object")
+
+
+class LibraryEntryOut(BaseModel):
+    id: int
+    label: str | None
+    created_at: float = Field(description="UNIX time (s)")
+    failures: int = Field(description="size of the entry's failure set F_l")
+    outcomes: int = Field(description="outcomes reported for grasps from this entry")
+    successes: int
+
+
+class LibraryCounts(BaseModel):
+    num_entries: int
+    num_failures: int = Field(description="templates in all failure sets")
+    num_outcomes: int = Field(description="outcomes stored (template and GPD grasps)")
+    num_successes: int
+    num_images: int = Field(description="outcomes stored with their GPD grasp image (for fine-tuning)")
+    num_detections: int = Field(description="template detections whose grasps feedback can name")
+
+
+class LibraryResponse(LibraryCounts):
+    schema_version: int
+    hand: dict[str, float] = Field(description="the hand the library is made for (m)")
+    template: dict[str, Any] = Field(description="template geometry: n tiles a side, size (m), ...")
+    entries: list[LibraryEntryOut]
+
+
+class DemonstrationResponse(BaseModel):
+    entry_id: int = Field(description="the new library entry")
+    library: LibraryCounts
+
+
+class FeedbackResponse(BaseModel):
+    grasp_id: str
+    method: Literal["gpd", "templates"] = Field(description="the detector that returned the grasp")
+    success: bool
+    outcome_id: int = Field(description="the stored outcome")
+    entry_id: int | None = Field(description="templates: the library entry the grasp came from")
+    failure_added: bool = Field(description="templates: the candidate's template joined F_l of that entry")
+    image_stored: bool = Field(description="the outcome was stored with the grasp's 15-channel GPD image")

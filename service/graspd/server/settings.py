@@ -51,6 +51,16 @@ class Settings(BaseSettings):
     stream_viewpoint: tuple[float, float, float] = Field(default=(0.0, 0.0, 0.0),
                                                          description="camera position for streamed clouds (m)")
     stream_num_samples: int = Field(default=500, ge=1)
+    data_dir: Path | None = Field(default=None, description="service data folder (the template library's default "
+                                  "SQLite file); None: $XDG_DATA_HOME/graspd, else ~/.local/share/graspd")
+    template_library: str | None = Field(default=None, description="SQLAlchemy URL of the grasp-template library "
+                                         "and feedback store; None: sqlite:///<data_dir>/templates.db")
+    template_hand: str | None = Field(default=None, description="hand preset a new template library is made for; "
+                                      "None: an existing library's hand, else 'gpd'")
+    feedback_detections: int = Field(default=256, ge=0, description="recent GPD detections remembered in memory "
+                                      "for POST /feedback (older ids answer 404)")
+    feedback_memory_mb: float = Field(default=256.0, ge=0, description="memory cap of those remembered "
+                                      "detections (MiB; their clouds, poses and widths)")
 
     @property
     def workers(self) -> int:
@@ -58,3 +68,14 @@ class Settings(BaseSettings):
 
     def resolved_models_dir(self) -> Path:
         return self.models_dir if self.models_dir is not None else default_models_dir()
+
+    def resolved_data_dir(self) -> Path:
+        """data_dir, else $XDG_DATA_HOME/graspd, else ~/.local/share/graspd."""
+        if self.data_dir is not None:
+            return self.data_dir
+        xdg = os.environ.get("XDG_DATA_HOME")
+        return (Path(xdg) if xdg else Path.home() / ".local" / "share") / "graspd"
+
+    def resolved_template_library(self) -> str:
+        """template_library, else an SQLite file templates.db in the data folder."""
+        return self.template_library or f"sqlite:///{self.resolved_data_dir() / 'templates.db'}"

@@ -73,7 +73,7 @@ def upload_request(data: bytes, kind: str, query: Mapping[str, str], viewpoints:
         from graspd.cloud_io import nearest_camera
 
         body["cloud"]["camera_source"] = nearest_camera(points, np.asarray(vps))
-    for key in ("model", "hand"):
+    for key in ("model", "hand", "method"):
         if key in query:
             body[key] = query[key]
     for key in ("num_samples", "max_grasps", "seed"):
@@ -90,7 +90,7 @@ def upload_request(data: bytes, kind: str, query: Mapping[str, str], viewpoints:
     if "workspace" in query:
         body["workspace"] = _floats(query["workspace"], 6, "workspace")
     unknown = sorted(set(query) - {"viewpoint", "model", "hand", "num_samples", "max_grasps", "seed", "min_score",
-                                   "selection", "clustering", "workspace"})
+                                   "selection", "clustering", "workspace", "method"})
     if unknown:
         raise Problem(422, f"unknown query parameter(s) {unknown}", unknown[0])
     return body

@@ -6,6 +6,10 @@ Several servers: Zenoh sends a query to one matching queryable, it does not bala
 therefore also declares <prefix>/instances/<id> (info) and <prefix>/instances/<id>/detect; clients
 list the instances with a query on <prefix>/instances/* and rotate over their detect keys
 (graspd_client.ZenohGraspClient(balance=True)).  Each process has its own worker pool.
+
+The grasp-template endpoints answer on <prefix>/demonstrations, <prefix>/feedback and <prefix>/library
+with the JSON bodies of their HTTP twins.  Feedback on a GPD grasp must reach the server that detected
+it (it remembers its own recent detections); template grasp ids work on any server of the library.
 """
 
 from __future__ import annotations
@@ -16,15 +20,24 @@ import os
 import socket
 import threading
 import time
-from concurrent.futures import Future
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
-from graspd_client.wire import ZENOH_CLOUD_KEY, ZENOH_DETECT_KEY, ZENOH_GRASPS_KEY
+from graspd_client.wire import (
+    ZENOH_CLOUD_KEY,
+    ZENOH_DEMONSTRATIONS_KEY,
+    ZENOH_DETECT_KEY,
+    ZENOH_FEEDBACK_KEY,
+    ZENOH_GRASPS_KEY,
+    ZENOH_LIBRARY_KEY,
+)
 
-from .engine import DetectionEngine, parse_request
+from .engine import DetectionEngine, parse_model, parse_request
 from .metrics import Metrics
 from .pointcloud2 import PointCloud2Error, decode_pointcloud2, looks_like_cdr
 from .problems import Problem
+from .schemas import DemonstrationRequest, FeedbackRequest
 from .settings import Settings
 
 log = logging.getLogger("graspd.server")
@@ -62,6 +75,7 @@ class ZenohNode:
         self._wake = threading.Condition()
         self._stop = False
         self._stream_thread: threading.Thread | None = None
+        self._templates_pool = ThreadPoolExecutor(1, thread_name_prefix="graspd-zenoh-templates")
 
     @property
     def ready(self) -> bool:
@@ -84,6 +98,15 @@ class ZenohNode:
         self._declared.append(s.declare_queryable(f"{self.instance_key}/{ZENOH_DETECT_KEY}", self._on_query,
                                                   complete=True))
         self._declared.append(s.declare_queryable(self.instance_key, self._on_info, complete=True))
+        templates = self.engine.templates
+        handlers: dict[str, Callable[[bytes], Any]] = {
+            ZENOH_DEMONSTRATIONS_KEY: lambda p: templates.demonstrate(parse_model(DemonstrationRequest, p)),
+            ZENOH_FEEDBACK_KEY: lambda p: templates.feedback(parse_model(FeedbackRequest, p)),
+            ZENOH_LIBRARY_KEY: lambda _: templates.summary(),
+        }
+        for name, work in handlers.items():
+            self._declared.append(s.declare_queryable(
+                f"{self.prefix}/{name}", lambda q, n=name, w=work: self._on_templates(q, n, w), complete=True))
         if self.settings.zenoh_stream:
             self._publisher = s.declare_publisher(f"{self.prefix}/{ZENOH_GRASPS_KEY}")
             self._declared.append(s.declare_subscriber(f"{self.prefix}/{ZENOH_CLOUD_KEY}", self._on_cloud))
@@ -107,6 +130,7 @@ class ZenohNode:
         self._declared.clear()
         if self._publisher is not None:
             self._publisher.undeclare()
+        self._templates_pool.shutdown(wait=True, cancel_futures=True)
         if self.session is not None:
             self.session.close()
             self.session = None
@@ -173,7 +197,27 @@ class ZenohNode:
             log.error("zenoh detect failed", extra={"error": repr(exc)})
             self._finish(query, t0, Problem(500, f"internal error: {type(exc).__name__}: {exc}"))
 
-    def _finish(self, query: Any, t0: float, problem: Problem | None, body: bytes | None = None) -> None:
+    def _on_templates(self, query: Any, name: str, work: Callable[[bytes], Any]) -> None:
+        """A demonstrations/feedback/library query: the work runs on a small pool, not the Zenoh thread."""
+        t0 = time.perf_counter()
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+
+        def run() -> None:
+            try:
+                self._finish(query, t0, None, json.dumps(work(payload)).encode(), name)
+            except Problem as exc:
+                self._finish(query, t0, exc, name=name)
+            except Exception as exc:
+                log.exception("zenoh %s failed", name)
+                self._finish(query, t0, Problem(500, f"internal error: {type(exc).__name__}: {exc}"), name=name)
+
+        try:
+            self._templates_pool.submit(run)
+        except RuntimeError:  # shutting down
+            self._finish(query, t0, Problem(503, "server is shutting down", retry_after=1.0), name=name)
+
+    def _finish(self, query: Any, t0: float, problem: Problem | None, body: bytes | None = None,
+                name: str = "detect") -> None:
         outcome = "ok"
         try:
             if problem is None:
@@ -187,9 +231,10 @@ class ZenohNode:
             log.debug("zenoh reply dropped", extra={"error": repr(exc)})
             return
         elapsed = time.perf_counter() - t0
-        self.metrics.requests.labels("zenoh", outcome).inc()
-        self.metrics.request_seconds.labels("zenoh").observe(elapsed)
-        log.info("detect", extra={"transport": "zenoh", "outcome": outcome, "ms": round(elapsed * 1000, 1)})
+        if name == "detect":  # the request metrics count detections
+            self.metrics.requests.labels("zenoh", outcome).inc()
+            self.metrics.request_seconds.labels("zenoh").observe(elapsed)
+        log.info(name, extra={"transport": "zenoh", "outcome": outcome, "ms": round(elapsed * 1000, 1)})
 
     # ---- streaming -------------------------------------------------------------------------
     def _on_cloud(self, sample: Any) -> None:

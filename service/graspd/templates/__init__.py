@@ -17,7 +17,8 @@ ValueError subclasses whose message names the offending field: answer them with 
                                           workspace=None)          # -> int
     POST /feedback        -> fb = library.add_feedback(grasp_id: str, success: bool, cloud=None, image=None)
                                           # -> Feedback; fb.to_dict() is JSON-ready.  Unknown ids raise
-                                          # TemplateError("grasp_id ...") -> 404/422.
+                                          # UnknownGrasp("grasp_id ...") -> 404; malformed TemplateError -> 422.
+                          library.add_outcome(grasp_id, success, pose, width, image)  # a GPD grasp's outcome
     GET /library          -> library.summary()      # JSON-ready dict: counts, hand, template, entries[]
     POST /detect method="templates"
                           -> det = detector.detect(cloud, max_grasps=100, workspace=None)
@@ -49,7 +50,7 @@ experiments (graspd.sim), synthetic (ray-cast table scenes for tests and benchma
 
 from .detector import TemplateDetection, TemplateDetector, TemplateParams
 from .geometry import REGION_NAMES, TemplateError, TemplateGeometry
-from .store import DEFAULT_URL, Feedback, TemplateLibrary
+from .store import DEFAULT_URL, Feedback, TemplateLibrary, UnknownGrasp
 
 __all__ = [
     "DEFAULT_URL",
@@ -61,4 +62,5 @@ __all__ = [
     "TemplateGeometry",
     "TemplateLibrary",
     "TemplateParams",
+    "UnknownGrasp",
 ]

@@ -185,6 +185,10 @@ def from_npz(blob: bytes) -> dict[str, NDArray[Any]]:
         return {k: z[k] for k in z.files}
 
 
+class UnknownGrasp(TemplateError):
+    """A well-formed grasp id that names no stored detection or grasp (the service answers 404)."""
+
+
 @dataclass(frozen=True)
 class LibrarySnapshot:
     """The library as arrays for matching: entries (L) and failures (F, owner = entry row)."""
@@ -364,10 +368,10 @@ class TemplateLibrary:
             row = conn.execute(sa.select(detections.c.payload, detections.c.cloud)
                                .where(detections.c.id == det_id)).first()
         if row is None:
-            raise TemplateError(f"grasp_id {grasp_id!r}: no such detection (ids come from template detection)")
+            raise UnknownGrasp(f"grasp_id {grasp_id!r}: no such detection (ids come from template detection)")
         p = from_npz(row[0])
         if k >= len(p["entry_ids"]):
-            raise TemplateError(f"grasp_id {grasp_id!r}: that detection returned {len(p['entry_ids'])} grasps")
+            raise UnknownGrasp(f"grasp_id {grasp_id!r}: that detection returned {len(p['entry_ids'])} grasps")
         grasp = {"heights": p["heights"][k], "types": p["types"][k], "entry_id": int(p["entry_ids"][k]),
                  "pose": p["poses"][k], "width": float(p["widths"][k]), "mismatch": float(p["mismatch"][k])}
         return grasp, None if row[1] is None else from_npz(row[1])
@@ -399,6 +403,16 @@ class TemplateLibrary:
                     added = True
         return Feedback(outcome_id=int(pk[0]), grasp_id=grasp_id, entry_id=entry_id, success=bool(success),
                         failure_added=added, image_stored=image is not None)
+
+    def add_outcome(self, grasp_id: str, success: bool, pose: F64, width: float,
+                    image: NDArray[np.uint8] | None, representation: str | None = "15") -> Feedback:
+        """Store the outcome of a grasp no library entry produced (a GPD grasp): its pose (4x4, cloud frame),
+        width (m) and grasp image; it has no template, so no failure set changes."""
+        if not isinstance(success, (bool, np.bool_)):
+            raise TemplateError(f"success must be true or false, got {success!r}")
+        grasp = {"heights": np.zeros(0, np.float32), "types": np.zeros(0, np.uint8), "entry_id": None,
+                 "pose": np.asarray(pose, np.float64).reshape(4, 4), "width": float(width)}
+        return self.store_outcome(grasp_id, bool(success), grasp, image, representation)
 
     def remove_entry(self, entry_id: int) -> bool:
         """Delete a library entry and its failure set; whether it existed."""
@@ -482,7 +496,8 @@ class TemplateLibrary:
 
     def iter_outcomes(self, with_images_only: bool = False) -> Iterator[dict[str, Any]]:
         """Every stored outcome (oldest first): grasp_id, success, entry_id, pose (4,4), width, template
-        heights/types (n,n), image (uint8 C x 60 x 60 or None), representation; for GPD fine-tuning."""
+        heights/types (n,n; None for a GPD grasp), image (uint8 C x 60 x 60 or None), representation; for GPD
+        fine-tuning."""
         n = self.geometry.n
         q = sa.select(outcomes).order_by(outcomes.c.id)
         if with_images_only:
@@ -494,8 +509,8 @@ class TemplateLibrary:
                     img = np.frombuffer(r.image, np.uint8).reshape(json.loads(r.image_shape))
                 yield {"grasp_id": r.grasp_id, "success": bool(r.success), "entry_id": r.entry_id,
                        "pose": np.frombuffer(r.pose, np.float64).reshape(4, 4), "width": float(r.width),
-                       "heights": np.frombuffer(r.heights, np.float32).reshape(n, n),
-                       "types": np.frombuffer(r.types, np.uint8).reshape(n, n),
+                       "heights": np.frombuffer(r.heights, np.float32).reshape(n, n) if r.heights else None,
+                       "types": np.frombuffer(r.types, np.uint8).reshape(n, n) if r.types else None,
                        "image": img, "representation": r.representation}
 
     def _check_template(self, heights: NDArray[Any], types: NDArray[Any], field: str) -> None:

@@ -33,6 +33,8 @@ UPLOAD_PARAMS: list[dict[str, Any]] = [
     {"name": "selection", "in": "query", "required": False, "schema": {"type": "boolean"}},
     {"name": "clustering", "in": "query", "required": False, "schema": {"type": "boolean"}},
     {"name": "seed", "in": "query", "required": False, "schema": {"type": "integer"}},
+    {"name": "method", "in": "query", "required": False, "schema": {"type": "string", "enum": ["gpd", "templates"]},
+     "description": "detector (default gpd)"},
 ]
 
 OPENAPI_EXTRA: dict[str, Any] = {

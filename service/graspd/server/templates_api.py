@@ -1,0 +1,90 @@
+"""POST /demonstrations, POST /feedback and GET /library: teach the grasp-template detector, report grasp
+outcomes, and list the library (Herzog et al. 2012; graspd.server.templates_service does the work)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from fastapi import APIRouter, Request
+from fastapi.concurrency import run_in_threadpool
+from pydantic import BaseModel
+
+from .deps import Authorized, State
+from .engine import parse_model
+from .problems import Problem
+from .routers.detect import read_capped
+from .schemas import (
+    DemonstrationRequest,
+    DemonstrationResponse,
+    ErrorBody,
+    FeedbackRequest,
+    FeedbackResponse,
+    LibraryResponse,
+)
+
+router = APIRouter(tags=["templates"])
+log = logging.getLogger("graspd.server")
+
+#: Request bodies these routes read by hand (for the size cap and field-named errors); app.openapi adds them.
+REQUEST_MODELS: tuple[type[BaseModel], ...] = (DemonstrationRequest, FeedbackRequest)
+
+M = TypeVar("M", bound=BaseModel)
+ERRORS: dict[int | str, dict[str, Any]] = {
+    400: {"model": ErrorBody}, 401: {"model": ErrorBody}, 413: {"model": ErrorBody}, 422: {"model": ErrorBody},
+    503: {"model": ErrorBody, "description": "the template library cannot be opened (field template_library)"},
+}
+
+
+def json_body(model: type[BaseModel]) -> dict[str, Any]:
+    """openapi_extra for a route whose JSON body (model) is read by hand."""
+    return {"requestBody": {"required": True, "content": {
+        "application/json": {"schema": {"$ref": f"#/components/schemas/{model.__name__}"}}}}}
+
+
+async def _call(request: Request, state: State, name: str, model: type[M], work: Callable[[M], Any]) -> Any:
+    """Read and validate the body (capped), run work off the event loop, log and count the outcome."""
+    t0 = time.perf_counter()
+    status = 500
+    try:
+        req = parse_model(model, await read_capped(request, state.settings.max_body_bytes))
+        out = await run_in_threadpool(work, req)
+        status = 200
+        return out
+    except Problem as exc:
+        status = exc.status
+        raise
+    finally:
+        log.info(name, extra={"transport": "http", "status": status, "ms": round((time.perf_counter() - t0) * 1e3, 1)})
+
+
+@router.post("/demonstrations", dependencies=[Authorized], response_model=DemonstrationResponse,
+             summary="Teach a grasp: add a demonstrated hand pose on a cloud to the template library",
+             description="The cloud holds the table and one object; hand_pose is the demonstrated grasp (4x4, cloud "
+                         "frame, rotation columns [approach, binormal, axis], translation the hand-base centre).  "
+                         "Answers the new entry's id and the library counts.",
+             responses=ERRORS, openapi_extra=json_body(DemonstrationRequest))
+async def demonstrations(request: Request, state: State) -> Any:
+    return await _call(request, state, "demonstration", DemonstrationRequest, state.engine.templates.demonstrate)
+
+
+@router.post("/feedback", dependencies=[Authorized], response_model=FeedbackResponse,
+             summary="Report the outcome of executing a grasp this service returned (by its id)",
+             description="Stores the outcome with the grasp's 15-channel GPD image (for fine-tuning).  A failed "
+                         "grasp from method templates also adds its candidate template to the failure set F_l of "
+                         "the library entry that produced it, which lowers similar candidates' rank.  Template "
+                         "grasp ids persist in the library; GPD grasp ids are remembered in this server's memory "
+                         "for its most recent detections.  An unknown or forgotten id answers 404.",
+             responses={**ERRORS, 404: {"model": ErrorBody, "description": "unknown or forgotten grasp_id"}},
+             openapi_extra=json_body(FeedbackRequest))
+async def feedback(request: Request, state: State) -> Any:
+    return await _call(request, state, "feedback", FeedbackRequest, state.engine.templates.feedback)
+
+
+@router.get("/library", dependencies=[Authorized], response_model=LibraryResponse,
+            summary="The grasp-template library: entries with their failure counts, and totals",
+            responses={401: {"model": ErrorBody}, 503: ERRORS[503]})
+async def library(state: State) -> Any:
+    return await run_in_threadpool(state.engine.templates.summary)

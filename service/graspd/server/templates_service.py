@@ -1,0 +1,242 @@
+"""The grasp-template side of the service (Herzog et al. 2012): the library, template detection for
+`method: "templates"`, demonstrations, and outcome feedback for the grasps either detector returned.
+
+Where feedback finds a grasp by its id:
+- template grasps ("<detection id>.<k>") are recorded in the library store with their candidate
+  template and a voxelized copy of the cloud (graspd.templates.store, table detections): they survive
+  restarts and are shared by every server using the same library URL;
+- GPD grasps ("<request id>-<k>") are remembered in this process's memory only: the last
+  `feedback_detections` detections (their cloud, poses and widths), at most `feedback_memory_mb`,
+  least recently detected forgotten first.  An older, unknown or other process's id answers 404.
+
+The library opens on first use (GRASPD_TEMPLATE_LIBRARY, else an SQLite file in the data folder); a
+library that cannot be opened answers 503 naming template_library, and GPD detection is unaffected.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+import uuid
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graspd.cloud import CloudError, ViewpointCloud
+from graspd.detector import Detection
+from graspd.hand import HandGeometry, hand_preset
+from graspd.templates import TemplateDetection, TemplateDetector, TemplateError, TemplateLibrary, UnknownGrasp
+
+from .problems import Problem
+from .schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
+from .settings import Settings
+
+log = logging.getLogger("graspd.server")
+
+#: DetectRequest fields method "templates" uses; any other field set in a request is refused (422).
+TEMPLATE_FIELDS = frozenset({"method", "cloud", "workspace", "max_grasps", "hand"})
+
+_GPD_ID = re.compile(r"^([0-9a-f]{16})-(\d+)$")
+_FIELD = re.compile(r"^[a-z_][a-z_.]*")
+
+
+def template_problem(exc: ValueError, status: int = 422) -> Problem:
+    """A Problem from a TemplateError/CloudError, whose message starts with the field it names."""
+    text = str(exc)
+    if isinstance(exc, UnknownGrasp):
+        status = 404
+    m = _FIELD.match(text)
+    if m is None:
+        return Problem(status, text, "body")
+    return Problem(status, text[m.end():].lstrip(": ") or text, m.group(0))
+
+
+@dataclass(frozen=True)
+class RememberedDetection:
+    """What feedback needs of one GPD detection: the cloud it ran on, the returned poses (M,4,4, cloud
+    frame) and widths (M,) in metres, and the hand."""
+
+    cloud: ViewpointCloud
+    poses: NDArray[np.float64]
+    widths: NDArray[np.float64]
+    hand: HandGeometry
+
+    @property
+    def nbytes(self) -> int:
+        c = self.cloud
+        return int(c.points.nbytes + c.viewpoints.nbytes + c.camera_source.nbytes + self.poses.nbytes
+                   + self.widths.nbytes)
+
+
+class RecentDetections:
+    """A thread-safe LRU of GPD detections by request id, bounded by count and by bytes."""
+
+    def __init__(self, max_items: int, max_bytes: int) -> None:
+        self.max_items = max_items
+        self.max_bytes = max_bytes
+        self.nbytes = 0
+        self._items: OrderedDict[str, RememberedDetection] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def put(self, request_id: str, item: RememberedDetection) -> None:
+        """Remember item (if it fits at all), forgetting the oldest until both bounds hold."""
+        if self.max_items == 0 or item.nbytes > self.max_bytes:
+            return
+        with self._lock:
+            self._items[request_id] = item
+            self.nbytes += item.nbytes
+            while len(self._items) > self.max_items or self.nbytes > self.max_bytes:
+                _, old = self._items.popitem(last=False)
+                self.nbytes -= old.nbytes
+
+    def get(self, request_id: str) -> RememberedDetection | None:
+        with self._lock:
+            return self._items.get(request_id)
+
+
+class TemplateService:
+    """The library (opened on first use), its detector, and the memory of recent GPD detections."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.settings = settings
+        self.url = settings.resolved_template_library()
+        self.recent = RecentDetections(settings.feedback_detections, int(settings.feedback_memory_mb * 2**20))
+        self._library: TemplateLibrary | None = None
+        self._detector: TemplateDetector | None = None
+        self._open_lock = threading.Lock()
+
+    # ---- the library ---------------------------------------------------------------------------
+    @property
+    def library(self) -> TemplateLibrary:
+        """The library at the configured URL; Problem 503 naming template_library if it cannot be opened."""
+        with self._open_lock:
+            if self._library is None:
+                try:
+                    if self.url.startswith("sqlite:///") and self.url != "sqlite:///:memory:":
+                        Path(self.url.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+                    hand = None if self.settings.template_hand is None else hand_preset(self.settings.template_hand)
+                    self._library = TemplateLibrary(self.url, hand=hand)
+                except Exception as exc:  # a bad URL, an unreachable database, a hand mismatch, a read-only disk
+                    log.error("template library unavailable", extra={"url": self.url, "error": repr(exc)})
+                    raise Problem(503, f"the template library at {self.url} cannot be opened "
+                                  f"({type(exc).__name__}: {exc})", "template_library", retry_after=30) from None
+                self._detector = TemplateDetector(self._library)
+            return self._library
+
+    @property
+    def detector(self) -> TemplateDetector:
+        _ = self.library
+        assert self._detector is not None
+        return self._detector
+
+    def close(self) -> None:
+        if self._library is not None:
+            self._library.close()
+
+    def _check_hand(self, hand: HandGeometry | None) -> None:
+        lib_hand = self.library.hand
+        if hand is not None and hand != lib_hand:
+            raise Problem(422, f"the template library is made for {lib_hand.to_dict()}, not {hand.to_dict()}",
+                          "hand")
+
+    def counts(self) -> dict[str, Any]:
+        """The library summary without its entries."""
+        summary = self.summary()
+        return {k: v for k, v in summary.items() if k.startswith("num_")}
+
+    def summary(self) -> dict[str, Any]:
+        """GET /library: counts, hand, template geometry and one line per entry."""
+        return self.library.summary()
+
+    # ---- detection -----------------------------------------------------------------------------
+    def detect(self, req: DetectRequest, cloud: ViewpointCloud, hand: HandGeometry | None
+               ) -> tuple[TemplateDetection, dict[str, Any]]:
+        """Method "templates": the detection and its response body (with request_id; the engine adds
+        timings).  Grasp ids are "<detection id>.<k>", recorded in the library for feedback."""
+        unused = sorted(set(req.model_fields_set) - TEMPLATE_FIELDS)
+        if unused:
+            raise Problem(422, f"not used by method 'templates' (it uses {sorted(TEMPLATE_FIELDS)})", unused[0])
+        self._check_hand(hand)
+        ws = req.workspace
+        try:
+            det = self.detector.detect(cloud, max_grasps=req.max_grasps,
+                                       workspace=None if ws is None else (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]))
+        except (TemplateError, CloudError) as exc:
+            raise template_problem(exc) from None
+        body = det.to_dict()
+        body.update(request_id=det.detection_id or uuid.uuid4().hex, model=None, scored=True,
+                    hand=self.library.hand.to_dict())
+        body.pop("detection_id", None)
+        return det, body
+
+    def remember(self, request_id: str, cloud: ViewpointCloud, det: Detection) -> None:
+        """Keep what feedback on this GPD detection's grasps needs (ids "<request_id>-<k>")."""
+        if len(det.grasps):
+            self.recent.put(request_id, RememberedDetection(cloud, det.grasps.poses, det.grasps.widths, det.hand))
+
+    # ---- demonstrations and feedback -------------------------------------------------------------
+    def demonstrate(self, req: DemonstrationRequest) -> dict[str, Any]:
+        """POST /demonstrations: add the demonstrated grasp to the library; its entry id and the counts."""
+        try:
+            hand = None if req.hand is None else req.hand.geometry()
+        except ValueError as exc:
+            raise Problem(422, str(exc), "hand") from None
+        self._check_hand(hand)
+        cloud = cloud_of(req.cloud)
+        ws = req.workspace
+        try:
+            entry = self.library.add_demonstration(
+                cloud, req.hand_pose, label=req.label,
+                workspace=None if ws is None else (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]))
+        except (TemplateError, CloudError) as exc:
+            raise template_problem(exc) from None
+        return {"entry_id": entry, "library": self.counts()}
+
+    def feedback(self, req: FeedbackRequest) -> dict[str, Any]:
+        """POST /feedback: store the outcome (with the grasp's 15-channel image); a failed template grasp
+        also joins the failure set F_l of its library entry."""
+        gid = req.grasp_id
+        gpd = _GPD_ID.match(gid)
+        try:
+            if gpd is None:
+                fb = self.library.add_feedback(gid, req.success)
+                method = "templates"
+            else:
+                fb = self._gpd_feedback(gid, gpd.group(1), int(gpd.group(2)), req.success)
+                method = "gpd"
+        except (TemplateError, CloudError) as exc:
+            if not isinstance(exc, UnknownGrasp) and str(exc).startswith("grasp_id must look like"):
+                raise Problem(422, f"must be an id from a detect response ('<request id>-<k>' for gpd, "
+                              f"'<detection id>.<k>' for templates), got {gid!r}", "grasp_id") from None
+            raise template_problem(exc) from None
+        return {**fb.to_dict(), "method": method}
+
+    def _gpd_feedback(self, grasp_id: str, request_id: str, k: int, success: bool) -> Any:
+        from graspd.templates.demonstration import grasp_image
+
+        item = self.recent.get(request_id)
+        if item is None:
+            raise Problem(404, f"{grasp_id!r}: unknown or forgotten detection (this server remembers its last "
+                          f"{self.recent.max_items} GPD detections, in memory)", "grasp_id")
+        if k >= len(item.poses):
+            raise Problem(404, f"{grasp_id!r}: that detection returned {len(item.poses)} grasps", "grasp_id")
+        image = grasp_image(item.cloud, item.poses[k], float(item.widths[k]), item.hand, "15")
+        return self.library.add_outcome(grasp_id, success, item.poses[k], float(item.widths[k]), image, "15")
+
+
+def cloud_of(cloud: Any) -> ViewpointCloud:
+    """The ViewpointCloud of a validated request Cloud (schemas.Cloud)."""
+    try:
+        return ViewpointCloud(points=cloud.points, viewpoints=np.asarray(cloud.viewpoints, np.float32),
+                              camera_source=(np.zeros(0, np.int32) if cloud.camera_source is None
+                                             else cloud.camera_source))
+    except CloudError as exc:
+        raise template_problem(exc) from None
