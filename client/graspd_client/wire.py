@@ -38,7 +38,7 @@ GRASP_FIELDS: tuple[str, ...] = (
 #: Query parameters accepted with a raw PCD/PLY upload to POST /detect.
 UPLOAD_QUERY_PARAMS: tuple[str, ...] = (
     "viewpoint", "model", "hand", "num_samples", "max_grasps", "min_score", "workspace", "selection", "seed",
-    "method",
+    "method", "clustering", "use_classifier", "gravity", "exclude_support_plane", "min_aperture", "max_aperture",
 )
 
 #: Detectors a detect request may ask for ("method"): GPD, or grasp templates from demonstrations.
@@ -77,6 +77,12 @@ def build_detect_request(
     approach_max_angle_deg: float | None = None,
     selection: bool | None = None,
     seed: int | None = None,
+    clustering: bool | None = None,
+    use_classifier: bool | None = None,
+    gravity: Sequence[float] | None = None,
+    exclude_support_plane: bool | None = None,
+    min_aperture: float | None = None,
+    max_aperture: float | None = None,
     image: ArrayLike | bytes | None = None,
     intrinsics: Mapping[str, float] | Sequence[float] | None = None,
     camera_pose: ArrayLike | None = None,
@@ -88,7 +94,9 @@ def build_detect_request(
     points (N,3) m; viewpoints (K,3) camera positions; camera_source (N,) index into viewpoints;
     image HxWx3 uint8 (or PNG bytes) with intrinsics (fx, fy, cx, cy) and camera_pose (4x4,
     camera-to-cloud) asks for one object-proposal crop per grasp.  method "templates" asks the grasp-template
-    detector (it takes cloud, workspace, max_grasps and hand only).
+    detector (it takes cloud, workspace, max_grasps and hand only).  gravity (3,) is the direction gravity
+    pulls in the cloud frame (ranks by score x utility J(h)); use_classifier=False is the unscored ablation;
+    min_aperture/max_aperture (m) bound the grasp width; exclude_support_plane keeps samples off a table.
     """
     body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source)}
     if method is not None:
@@ -100,8 +108,12 @@ def build_detect_request(
     if hand is not None:
         body["hand"] = hand if isinstance(hand, str) else dict(hand)
     options = {"model": model, "num_samples": num_samples, "max_grasps": max_grasps, "min_score": min_score,
-               "selection": selection, "seed": seed}
+               "selection": selection, "seed": seed, "clustering": clustering, "use_classifier": use_classifier,
+               "exclude_support_plane": exclude_support_plane, "min_aperture": min_aperture,
+               "max_aperture": max_aperture}
     body.update({k: v for k, v in options.items() if v is not None})
+    if gravity is not None:
+        body["gravity"] = _vec(gravity, 3, "gravity")
     if approach_direction is not None:
         body["approach"] = {"direction": _vec(approach_direction, 3, "approach.direction")}
         if approach_max_angle_deg is not None:

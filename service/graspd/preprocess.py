@@ -118,7 +118,10 @@ def support_plane_mask(points: NDArray[np.float32], distance: float = 0.01, min_
         return mask
     o3d.utility.random.seed(seed)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
-    _, inliers = pcd.segment_plane(distance_threshold=distance, ransac_n=3, num_iterations=200)
+    model, inliers = pcd.segment_plane(distance_threshold=distance, ransac_n=3, num_iterations=200)
     if len(inliers) >= min_fraction * len(points):
-        mask[np.asarray(inliers, np.int64)] = True
+        # open3d returns the least-squares plane of the inliers but the inliers of the RANSAC hypothesis
+        # before that refit: take every point within distance of the returned plane
+        normal = np.asarray(model[:3], np.float64)
+        mask = np.abs(points @ normal + model[3]) <= distance * float(np.linalg.norm(normal))
     return mask

@@ -96,3 +96,26 @@ def test_zenoh_client(server: Server, krylon: ViewpointCloud) -> None:
         with pytest.raises(RequestRejected) as info:
             zc.detect(krylon.points, krylon.viewpoints, hand="no-such-hand")
         assert info.value.field == "hand.preset"
+
+
+def test_detection_options_reach_the_server(server: Server, krylon: ViewpointCloud) -> None:
+    """gravity, apertures, exclude_support_plane, use_classifier and clustering as keyword arguments of all three
+    clients give the same, honoured result; a bad value is rejected naming the field."""
+    url, endpoint, _ = server
+    options = {"num_samples": 60, "gravity": [0.0, -1.0, 0.0], "min_aperture": 0.02, "max_aperture": 0.06,
+               "exclude_support_plane": True, "use_classifier": False, "clustering": False}
+    with GraspClient(url, timeout=60) as hc, ZenohGraspClient(connect=[endpoint], timeout=60) as zc:
+        g = hc.detect(krylon.points, krylon.viewpoints, **options)
+        plain = hc.detect(krylon.points, krylon.viewpoints, num_samples=60)
+        assert len(g) > 0 and ((g.widths >= 0.02) & (g.widths <= 0.06)).all() and not g.scored
+        assert not np.array_equal(g.positions[: len(plain)], plain.positions[: len(g)])
+        assert np.allclose(zc.detect(krylon.points, krylon.viewpoints, **options).poses, g.poses)
+        with pytest.raises(RequestRejected) as info:
+            hc.detect(krylon.points, krylon.viewpoints, gravity=[0, 0, 0])
+        assert info.value.status == 422 and info.value.field == "gravity"
+
+    async def run() -> np.ndarray:
+        async with AsyncGraspClient(url, timeout=60, retries=50, max_retry_delay=0.2) as client:
+            return (await client.detect(krylon.points, krylon.viewpoints, **options)).poses
+
+    assert np.allclose(asyncio.run(run()), g.poses)

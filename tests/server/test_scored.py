@@ -3,38 +3,14 @@ service scores and ranks grasps, names the model, and lists it with its card."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 from fastapi.testclient import TestClient
 
 from graspd.cloud import ViewpointCloud
-from graspd.server.app import create_app
-from graspd.server.settings import Settings
-
-
-@pytest.fixture(scope="session")
-def models_and_default(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
-    """A folder of real models the project trained and the default name: the shipped models/ when they are
-    there, else the tiny test model (~1-2 min to make)."""
-    from graspd import classifier
-
-    shipped = classifier.default_models_dir()
-    if classifier.default_model_name() in classifier.available_models(shipped):
-        return shipped, classifier.default_model_name()
-    from graspd.training.train import train_tiny_model
-
-    return train_tiny_model(tmp_path_factory.mktemp("tiny-model"), seed=0).parent, "tiny15"
-
-
-@pytest.fixture
-def scored_client(make_settings: Callable[..., Settings], models_and_default: tuple[Path, str]
-                  ) -> Iterator[TestClient]:
-    with TestClient(create_app(make_settings(models_dir=models_and_default[0]))) as c:
-        yield c
 
 
 def test_scored_detection(scored_client: TestClient, krylon: ViewpointCloud, models_and_default: tuple[Path, str],

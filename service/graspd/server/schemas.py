@@ -30,6 +30,17 @@ from graspd.hand import HAND_PRESETS, HandGeometry
 from graspd_client import wire
 from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
 
+#: How /detect orders its grasps (selection.select); the OpenAPI descriptions and the README say the same.
+RANKING = (
+    "best first.  Filters: workspace, width in [min_aperture, max_aperture], approach cone, min_score.  With "
+    "selection and clustering (the defaults): the 1000 best-scoring candidates are clustered (GPD: hand axes "
+    "within 12 deg, positions within 5 mm of each other's axis line and 7 cm of each other), each cluster "
+    "returns its best-scoring member, and clusters are ranked by the sum of their members' scores (their "
+    "member count when unscored), times the utility J(h) in [0, 1] when gravity is given.  Without "
+    "clustering: by score (input order when unscored) times J(h).  So a grasp's own score need not decrease "
+    "down the list.  With selection false: random order (seeded)"
+)
+
 MAX_POINTS = 5_000_000
 MAX_COORDINATE = 1e4  # metres
 
@@ -247,10 +258,25 @@ class DetectRequest(BaseModel):
     max_grasps: int = Field(100, ge=0, le=wire.MAX_GRASPS, description="most grasps returned")
     min_score: float | None = Field(None, allow_inf_nan=False, description="drop grasps scoring below this")
     approach: Approach | None = None
-    selection: bool = Field(True, description="true: filter, cluster and rank best first by score x utility "
-                            "J(h) (IJRR eq. 1); false: the paper's no-selection ablation, feasible grasps in "
-                            "random order")
-    clustering: bool = Field(True, description="GPD clustering of aligned hands")
+    selection: bool = Field(True, description="true: filter, cluster and rank best first (see `grasps` of the "
+                            "response for the exact key); false: the paper's no-selection ablation, the grasps "
+                            "passing the filters in random order (seeded)")
+    clustering: bool = Field(True, description="GPD clustering of aligned hands: each cluster returns its "
+                             "best-scoring member, ranked by the sum of its members' scores")
+    use_classifier: bool = Field(True, description="false: the paper's no-classification ablation (no CNN runs; "
+                                 "scores null, scored false)")
+    gravity: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
+        None, min_length=3, max_length=3,
+        description="direction gravity pulls (cloud frame, need not be unit; [0, 0, -1] when z is up): ranks by "
+                    "score x utility J(h) (IJRR eq. 1), top-down approaches and high grasps first")
+    exclude_support_plane: bool = Field(False, description="sample no candidates on the dominant plane (a table, "
+                                        ">= 20% of the points, 1 cm); the plane still blocks hands")
+    min_aperture: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False,
+                                       description="drop grasps whose width (object extent between the fingers) "
+                                       "is below this (m)")
+    max_aperture: float | None = Field(None, gt=0.0, le=1.0, allow_inf_nan=False,
+                                       description="drop grasps whose width is above this (m); default the hand's "
+                                       "hand_outer_diameter - 2 finger_width")
     seed: int | None = Field(0, ge=0, le=2**32 - 1, description="sampling seed (null: random)")
     crops: CropsRequest | None = Field(None, description="object-proposal crops, on request only")
     method: Literal["gpd", "templates"] = Field(
@@ -269,6 +295,24 @@ class DetectRequest(BaseModel):
     @classmethod
     def _hand(cls, v: Any) -> Any:
         return {"preset": v} if isinstance(v, str) else v
+
+    @field_validator("gravity")
+    @classmethod
+    def _gravity(cls, v: list[float] | None) -> list[float] | None:
+        if v is None:
+            return None
+        n = math.sqrt(sum(c * c for c in v))
+        if n < 1e-9:
+            raise ValueError("must be a non-zero vector (the direction gravity pulls, cloud frame)")
+        return [c / n for c in v]
+
+    @field_validator("max_aperture")
+    @classmethod
+    def _max_aperture(cls, v: float | None, info: ValidationInfo) -> float | None:
+        lo = info.data.get("min_aperture")
+        if v is not None and lo is not None and v < lo:
+            raise ValueError(f"must be >= min_aperture ({lo:g} m), got {v:g}")
+        return v
 
     def hand_geometry(self) -> HandGeometry | None:
         if self.hand is None:
@@ -313,7 +357,7 @@ class GraspOut(BaseModel):
 class DetectResponse(BaseModel):
     request_id: str
     method: Literal["gpd", "templates"] = Field("gpd", description="the detector that answered")
-    grasps: list[GraspOut] = Field(description="best first (unless selection is false)")
+    grasps: list[GraspOut] = Field(description=RANKING)
     model: str | None = Field(description="classifier used; null when unscored or method templates")
     scored: bool = Field(description="whether grasps carry scores: gpd, a classifier ran (else scores null); "
                          "templates, always (match quality)")

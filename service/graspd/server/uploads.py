@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from graspd.cloud import CloudError
+from graspd_client.wire import UPLOAD_QUERY_PARAMS
 
 from .problems import Problem
 
@@ -79,9 +80,10 @@ def upload_request(data: bytes, kind: str, query: Mapping[str, str], viewpoints:
     for key in ("num_samples", "max_grasps", "seed"):
         if key in query:
             body[key] = query[key]
-    if "min_score" in query:
-        body["min_score"] = query["min_score"]
-    for key in ("selection", "clustering"):
+    for key in ("min_score", "min_aperture", "max_aperture"):
+        if key in query:
+            body[key] = query[key]
+    for key in ("selection", "clustering", "use_classifier", "exclude_support_plane"):
         if key in query:
             value = query[key].lower()
             if value not in ("true", "false", "1", "0"):
@@ -89,8 +91,9 @@ def upload_request(data: bytes, kind: str, query: Mapping[str, str], viewpoints:
             body[key] = value in ("true", "1")
     if "workspace" in query:
         body["workspace"] = _floats(query["workspace"], 6, "workspace")
-    unknown = sorted(set(query) - {"viewpoint", "model", "hand", "num_samples", "max_grasps", "seed", "min_score",
-                                   "selection", "clustering", "workspace", "method"})
+    if "gravity" in query:
+        body["gravity"] = _floats(query["gravity"], 3, "gravity")
+    unknown = sorted(set(query) - set(UPLOAD_QUERY_PARAMS))
     if unknown:
         raise Problem(422, f"unknown query parameter(s) {unknown}", unknown[0])
     return body

@@ -35,6 +35,16 @@ UPLOAD_PARAMS: list[dict[str, Any]] = [
     {"name": "seed", "in": "query", "required": False, "schema": {"type": "integer"}},
     {"name": "method", "in": "query", "required": False, "schema": {"type": "string", "enum": ["gpd", "templates"]},
      "description": "detector (default gpd)"},
+    {"name": "use_classifier", "in": "query", "required": False, "schema": {"type": "boolean"},
+     "description": "false: no classifier runs (scores null)"},
+    {"name": "gravity", "in": "query", "required": False, "schema": {"type": "string"},
+     "description": "'x,y,z': direction gravity pulls (cloud frame); ranks by score x utility J(h)"},
+    {"name": "exclude_support_plane", "in": "query", "required": False, "schema": {"type": "boolean"},
+     "description": "sample no candidates on the dominant plane (a table)"},
+    {"name": "min_aperture", "in": "query", "required": False, "schema": {"type": "number"},
+     "description": "least grasp width (m)"},
+    {"name": "max_aperture", "in": "query", "required": False, "schema": {"type": "number"},
+     "description": "largest grasp width (m)"},
 ]
 
 OPENAPI_EXTRA: dict[str, Any] = {
