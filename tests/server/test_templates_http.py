@@ -197,6 +197,14 @@ def test_a_library_that_cannot_open_answers_503_and_gpd_still_works(make_setting
         assert c.post("/detect", json=body).status_code == 200
 
 
+def test_template_endpoints_need_the_token_when_set(make_settings: Callable[..., Settings]) -> None:
+    with TestClient(create_app(make_settings(token="s3cret"))) as c:
+        _problem(c.get("/library"), 401, "Authorization")
+        _problem(c.post("/feedback", json={"grasp_id": "0123456789abcdef.0", "success": True}), 401, "Authorization")
+        _problem(c.post("/demonstrations", json={}), 401, "Authorization")
+        assert c.get("/library", headers={"Authorization": "Bearer s3cret"}).status_code == 200
+
+
 def test_second_demonstration_and_upload_with_method(app: TestClient, render_box, box_pose) -> None:
     pose = box_pose()
     cloud = render_box(pose)
