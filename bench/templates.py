@@ -8,7 +8,10 @@ of per-stage wall-clock medians and the process CPU time (the figure that holds 
 is using) and writes a PNG (stage times, and the best candidate template beside the library
 template it matched, as in the paper's Fig. 4).
 
-    PYTHONPATH=service:client .venv/bin/python bench/templates.py [--repeats 5] [--out bench/results]
+    PYTHONPATH=service:client .venv/bin/python bench/templates.py [--repeats 5] [--out bench/results] [--http]
+
+--http also serves the same library (graspd's app on a loopback port, one detect worker) and times each query
+as a robot sees it: GraspClient.detect(..., method="templates") round trips, with the server's own total.
 """
 
 from __future__ import annotations
@@ -90,6 +93,30 @@ def time_detection(det: TemplateDetector, cloud: ViewpointCloud, repeats: int) -
     return out
 
 
+def time_http(url: str, queries: list[tuple[str, ViewpointCloud]], repeats: int) -> list[dict[str, float]]:
+    """Per query: median HTTP round-trip seconds of method "templates" detection (after one warm-up) and the
+    median server-side total (the response's timings)."""
+    from graspd.server.runner import serve_in_thread
+    from graspd.server.settings import Settings
+    from graspd_client import GraspClient
+
+    out = []
+    with tempfile.TemporaryDirectory() as tmp, \
+            serve_in_thread(Settings(port=0, zenoh_enabled=False, template_library=url, detect_workers=1,
+                                     models_dir=Path(tmp) / "no-models", log_level="WARNING")) as base, \
+            GraspClient(base, timeout=60) as client:
+        for _, cloud in queries:
+            client.detect(cloud.points, cloud.viewpoints, method="templates", max_grasps=100)
+            trips, server = [], []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                g = client.detect(cloud.points, cloud.viewpoints, method="templates", max_grasps=100)
+                trips.append(time.perf_counter() - t0)
+                server.append(g.timings["total"])
+            out.append({"round_trip": float(np.median(trips)), "server": float(np.median(server))})
+    return out
+
+
 def plot(rows: list[tuple[str, int, dict[str, float]]], lib: TemplateLibrary, det: TemplateDetector,
          cloud: ViewpointCloud, path: Path) -> None:
     import matplotlib
@@ -142,6 +169,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--entries", type=int, default=50)
     ap.add_argument("--out", type=Path, default=Path("bench/results"))
+    ap.add_argument("--http", action="store_true", help="also time the queries through the service (HTTP)")
     args = ap.parse_args()
     hand = HandGeometry()
     with tempfile.TemporaryDirectory() as tmp:
@@ -173,6 +201,16 @@ def main() -> None:
         load = os.getloadavg()[0]
         print(f"target: total <= 500 ms on 2 cores (wall, median of {args.repeats}); cpu = process CPU time, what an "
               f"unshared machine needs; load average now {load:.1f} on {os.cpu_count()} cores; wrote {png}")
+        if args.http:
+            trips = time_http(lib.url, queries, args.repeats)
+            head = f"{'query (HTTP, method templates)':38s} {'in-process':>10s} {'server':>8s} {'round trip':>10s}"
+            print(head)
+            print("-" * len(head))
+            for (name, _, r), h in zip(rows, trips, strict=True):
+                print(f"{name:38s} {r['total'] * 1000:8.0f}ms {h['server'] * 1000:6.0f}ms "
+                      f"{h['round_trip'] * 1000:8.0f}ms")
+            print("server = the response's timings.total (decode, queue, detection, recording); round trip = what "
+                  "GraspClient.detect took (encode, HTTP, server, parse)")
         lib.close()
 
 
