@@ -165,6 +165,9 @@ def test_bad_input_is_named(app: TestClient, render_box, box_pose) -> None:
     far = top.copy()
     far[:3, 3] += [0.3, 0.0, 0.0]  # 30 cm beside the box: no side of it is approached
     assert "approaches no camera-facing side" in _problem(demo(hand_pose=far.tolist()), 422, "hand_pose")
+    above = top.copy()
+    above[:3, 3] += [0.0, 0.0, 0.5]  # on the top's axis but half a metre above it: the fingers hold nothing
+    assert "approaches no camera-facing side" in _problem(demo(hand_pose=above.tolist()), 422, "hand_pose")
     assert "made for" in _problem(demo(hand="panda"), 422, "hand")
     _problem(demo(label="x" * 201), 422, "label")
     _problem(demo(workspace=[1, 0, 0, 1, 0, 1]), 422, "workspace")

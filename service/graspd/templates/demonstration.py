@@ -62,12 +62,14 @@ def demonstration_template(scene: TemplateScene, hand_pose: F64, hand: HandGeome
     centres, normals = height_axes(scene, merge_angle_deg)
     cos_a = normals @ -approach
     d = centre - centres
-    off = np.linalg.norm(d - np.einsum("ij,ij->i", d, normals)[:, None] * normals, axis=1)
-    half = scene.geometry.size / 2.0
-    ok = (cos_a >= np.cos(np.radians(max_angle_deg))) & (off <= 0.8 * half)
+    along = np.einsum("ij,ij->i", d, normals)  # height of the finger centre over each facet (m)
+    off = np.linalg.norm(d - along[:, None] * normals, axis=1)
+    half, depth = scene.geometry.size / 2.0, scene.geometry.depth
+    ok = (cos_a >= np.cos(np.radians(max_angle_deg))) & (off <= 0.8 * half) & (np.abs(along) <= depth)
     if not ok.any():
         raise TemplateError("hand_pose: the hand approaches no camera-facing side of the object closely "
-                            f"enough (within {max_angle_deg:.0f} deg and {0.8 * half:.3f} m of a hull facet axis)")
+                            f"enough (within {max_angle_deg:.0f} deg and {0.8 * half:.3f} m of a hull facet axis, "
+                            f"fingers within {depth:.3f} m of the facet)")
     cost = np.where(ok, (1.0 - cos_a) + off / half, np.inf)
     a = int(np.argmin(cost))
     base = axis_frames(normals[a : a + 1], reference_x(normals[a : a + 1]))
