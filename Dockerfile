@@ -1,5 +1,6 @@
 # graspd: the grasp-detection service (HTTP :8000, Zenoh peer on :7447), shipped models baked in.
-# Build: docker build -t graspd .    Run: docker run -p 8000:8000 -p 7447:7447 graspd
+# Build: docker build -t graspd .    Run: docker run -p 8000:8000 -p 7447:7447 -v graspd-data:/var/lib/graspd graspd
+# (the volume keeps the grasp-template library, an SQLite file, across containers; or set GRASPD_TEMPLATE_LIBRARY)
 # CI has no Docker engine: tests/server/test_container_install.py (slow) replays the pip steps below.
 FROM python:3.11-slim
 
@@ -14,6 +15,7 @@ RUN apt-get update \
     && rm -rf /var/lib/apt/lists/*
 
 RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin graspd
+RUN mkdir -p /var/lib/graspd && chown graspd:graspd /var/lib/graspd
 
 WORKDIR /opt/graspd
 COPY client/ client/
@@ -26,9 +28,11 @@ COPY models/ models/
 ENV GRASPD_MODELS_DIR=/opt/graspd/models \
     GRASPD_HOST=0.0.0.0 \
     GRASPD_PORT=8000 \
+    GRASPD_DATA_DIR=/var/lib/graspd \
     GRASPD_ZENOH_LISTEN='["tcp/0.0.0.0:7447"]'
 
 USER graspd
+VOLUME /var/lib/graspd
 EXPOSE 8000 7447
 HEALTHCHECK --interval=15s --timeout=3s --start-period=60s --retries=3 \
     CMD ["python", "-c", "import sys, urllib.request; sys.exit(urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=2).status != 200)"]
