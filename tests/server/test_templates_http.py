@@ -200,6 +200,22 @@ def test_a_library_that_cannot_open_answers_503_and_gpd_still_works(make_setting
         assert c.post("/detect", json=body).status_code == 200
 
 
+def test_template_ids_survive_a_restart_gpd_ids_do_not(make_settings: Callable[..., Settings], render_box,
+                                                      box_pose) -> None:
+    pose = box_pose()
+    cloud = render_box(pose)
+    with TestClient(create_app(make_settings())) as c:
+        assert _demonstrate(c, cloud, box_top_grasp(pose, BOX), label="top").status_code == 200
+        template_id = _templates(c, cloud, max_grasps=2)["grasps"][0]["id"]
+        gpd = c.post("/detect", json=build_detect_request(cloud.points, cloud.viewpoints, num_samples=30)).json()
+    with TestClient(create_app(make_settings())) as c:  # the same library file, a new process state
+        assert c.get("/library").json()["entries"][0]["label"] == "top"
+        r = c.post("/feedback", json={"grasp_id": template_id, "success": False})
+        assert r.status_code == 200 and r.json()["failure_added"] is True, r.text
+        assert "forgotten" in _problem(c.post("/feedback", json={"grasp_id": gpd["grasps"][0]["id"], "success": True}),
+                                       404, "grasp_id")
+
+
 def test_template_endpoints_need_the_token_when_set(make_settings: Callable[..., Settings]) -> None:
     with TestClient(create_app(make_settings(token="s3cret"))) as c:
         _problem(c.get("/library"), 401, "Authorization")
