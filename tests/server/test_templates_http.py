@@ -216,6 +216,19 @@ def test_template_ids_survive_a_restart_gpd_ids_do_not(make_settings: Callable[.
                                        404, "grasp_id")
 
 
+def test_only_the_newest_template_detections_are_kept(make_settings: Callable[..., Settings], render_box,
+                                                     box_pose) -> None:
+    pose = box_pose()
+    cloud = render_box(pose)
+    with TestClient(create_app(make_settings(template_detections=2))) as c:
+        _demonstrate(c, cloud, box_top_grasp(pose, BOX))
+        ids = [_templates(c, cloud, max_grasps=1)["grasps"][0]["id"] for _ in range(3)]
+        assert c.get("/library").json()["num_detections"] == 2
+        assert "pruned" in _problem(c.post("/feedback", json={"grasp_id": ids[0], "success": True}), 404, "grasp_id")
+        for gid in ids[1:]:
+            assert c.post("/feedback", json={"grasp_id": gid, "success": True}).status_code == 200
+
+
 def test_template_endpoints_need_the_token_when_set(make_settings: Callable[..., Settings]) -> None:
     with TestClient(create_app(make_settings(token="s3cret"))) as c:
         _problem(c.get("/library"), 401, "Authorization")

@@ -57,6 +57,9 @@ class Settings(BaseSettings):
                                          "and feedback store; None: sqlite:///<data_dir>/templates.db")
     template_hand: str | None = Field(default=None, description="hand preset a new template library is made for; "
                                       "None: an existing library's hand, else 'gpd'")
+    template_detections: int = Field(default=2000, ge=1, description="template detections the library keeps "
+                                     "for feedback on their grasps (~0.3 MB each with their cloud); older ones are "
+                                     "deleted and their ids answer 404")
     feedback_detections: int = Field(default=256, ge=0, description="recent GPD detections remembered in memory "
                                       "for POST /feedback (older ids answer 404)")
     feedback_memory_mb: float = Field(default=256.0, ge=0, description="memory cap of those remembered "

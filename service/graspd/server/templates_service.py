@@ -4,7 +4,8 @@
 Where feedback finds a grasp by its id:
 - template grasps ("<detection id>.<k>") are recorded in the library store with their candidate
   template and a voxelized copy of the cloud (graspd.templates.store, table detections): they survive
-  restarts and are shared by every server using the same library URL;
+  restarts and are shared by every server using the same library URL; the newest
+  `template_detections` are kept, older ones deleted after each detection;
 - GPD grasps ("<request id>-<k>") are remembered in this process's memory only: the last
   `feedback_detections` detections (their cloud, poses and widths), at most `feedback_memory_mb`,
   least recently detected forgotten first.  An older, unknown or other process's id answers 404.
@@ -171,6 +172,8 @@ class TemplateService:
                                        workspace=None if ws is None else (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]))
         except (TemplateError, CloudError) as exc:
             raise template_problem(exc) from None
+        if det.detection_id is not None:  # bound the store: keep the newest template_detections
+            self.library.prune_detections(self.settings.template_detections)
         body = det.to_dict()
         body.update(request_id=det.detection_id or uuid.uuid4().hex, model=None, scored=True,
                     hand=self.library.hand.to_dict())

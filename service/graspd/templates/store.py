@@ -360,6 +360,18 @@ class TemplateLibrary:
                                                     cloud=None if cloud is None else to_npz(False, **cloud)))
         return det_id
 
+    def prune_detections(self, keep: int) -> int:
+        """Delete all but the `keep` newest recorded detections (their grasp ids then raise UnknownGrasp); how
+        many were deleted.  Entries, failure sets and outcomes stay."""
+        with self._begin() as conn:
+            if keep <= 0:
+                return int(conn.execute(detections.delete()).rowcount)
+            cutoff = conn.execute(sa.select(detections.c.created_at).order_by(detections.c.created_at.desc())
+                                  .offset(keep - 1).limit(1)).scalar()
+            if cutoff is None:
+                return 0
+            return int(conn.execute(detections.delete().where(detections.c.created_at < cutoff)).rowcount)
+
     def detection_grasp(self, grasp_id: str) -> tuple[dict[str, Any], dict[str, NDArray[Any]] | None]:
         """The stored template, entry, pose and width of a returned grasp, and the detection's cloud arrays
         (None if not kept).  TemplateError naming grasp_id if unknown."""
@@ -368,7 +380,8 @@ class TemplateLibrary:
             row = conn.execute(sa.select(detections.c.payload, detections.c.cloud)
                                .where(detections.c.id == det_id)).first()
         if row is None:
-            raise UnknownGrasp(f"grasp_id {grasp_id!r}: no such detection (ids come from template detection)")
+            raise UnknownGrasp(f"grasp_id {grasp_id!r}: no such detection (ids come from template detection; "
+                               "old detections may have been pruned)")
         p = from_npz(row[0])
         if k >= len(p["entry_ids"]):
             raise UnknownGrasp(f"grasp_id {grasp_id!r}: that detection returned {len(p['entry_ids'])} grasps")
