@@ -62,7 +62,7 @@ class Settings(BaseSettings):
                                      "deleted and their ids answer 404")
     feedback_detections: int = Field(default=256, ge=0, description="recent GPD detections remembered in memory "
                                       "for POST /feedback (older ids answer 404)")
-    feedback_memory_mb: float = Field(default=256.0, ge=0, description="memory cap of those remembered "
+    feedback_memory_mb: float = Field(default=128.0, ge=0, description="memory cap of those remembered "
                                       "detections (MiB; their clouds, poses and widths)")
 
     @property
