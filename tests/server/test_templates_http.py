@@ -137,6 +137,15 @@ def test_gpd_grasp_outcomes_are_stored_with_their_image(make_settings: Callable[
     assert np.allclose(stored[0]["pose"], new["grasps"][1]["pose"])
 
 
+def test_gpd_memory_cap_holds(make_settings: Callable[..., Settings], body: dict[str, Any]) -> None:
+    with TestClient(create_app(make_settings(feedback_memory_mb=0.01))) as c:  # 10 KiB: no krylon cloud fits
+        gid = c.post("/detect", json=body).json()["grasps"][0]["id"]
+        _problem(c.post("/feedback", json={"grasp_id": gid, "success": True}), 404, "grasp_id")
+    with TestClient(create_app(make_settings(feedback_memory_mb=1.0))) as c:  # one fits
+        gid = c.post("/detect", json=body).json()["grasps"][0]["id"]
+        assert c.post("/feedback", json={"grasp_id": gid, "success": True}).status_code == 200
+
+
 def test_empty_library_answers_no_grasps(app: TestClient, render_box, box_pose) -> None:
     body = _templates(app, render_box(box_pose()))
     assert body["grasps"] == [] and body["num_entries"] == 0 and body["num_candidates"] > 0
