@@ -83,3 +83,39 @@ def test_garbage_raises_wire_error_only(data: str, shape: list[int], dtype: str)
         decode_array({"dtype": dtype, "shape": shape, "data": data}, "f", shape=(None, 3))
     except WireError as exc:
         assert exc.field.startswith("f")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.one_of(st.binary(max_size=64).map(lambda b: base64.b64encode(b).decode()),
+                 st.text(alphabet="AB+/=a\n é*", max_size=16)))
+def test_fast_and_standard_base64_agree(text: str) -> None:
+    """With pybase64 (the server's) and without it (a robot with numpy + httpx only) the codec accepts the same
+    well-formed data with the same bytes, and refuses anything outside the alphabet either way; pybase64 is
+    only stricter about '=' after a complete quartet."""
+    from graspd_client import codec
+
+    assert codec._fast_b64 is not None, "pybase64 is a dependency of the server and installed with it"
+    obj = {"dtype": "uint8", "shape": [len(base64.b64decode(text)) if _valid(text) else 0], "data": text}
+    results = []
+    for fast in (codec._fast_b64, None):
+        saved, codec._fast_b64 = codec._fast_b64, fast
+        try:
+            results.append(("ok", decode_array(obj, "x").tobytes()))
+        except WireError as exc:
+            results.append(("error", exc.field))
+        finally:
+            codec._fast_b64 = saved
+    fast_result, standard = results
+    if fast_result[0] == "ok" or standard[0] == "error":
+        assert fast_result == standard
+    else:
+        assert text.rstrip("=") != text and len(text.rstrip("=")) % 4 == 0, text
+    assert codec._b64encode(text.encode()) == base64.b64encode(text.encode()).decode()
+
+
+def _valid(text: str) -> bool:
+    try:
+        base64.b64decode(text, validate=True)
+    except ValueError:
+        return False
+    return True

@@ -362,7 +362,8 @@ class DetectResponse(BaseModel):
     scored: bool = Field(description="whether grasps carry scores: gpd, a classifier ran (else scores null); "
                          "templates, always (match quality)")
     timings: dict[str, float] = Field(description="seconds per stage: decode, queue, preprocess, scene, sample, "
-                                      "encode, score, select, crops, total")
+                                      "encode, score, select, crops; detect (the detector's wall time, stages "
+                                      "included); total (decode to response, in the server)")
     num_candidates: int
     num_points: int = Field(description="points after preprocessing")
     hand: dict[str, float] = Field(description="hand geometry used (m)")
