@@ -60,9 +60,9 @@ class Settings(BaseSettings):
     template_detections: int = Field(default=2000, ge=1, description="template detections the library keeps "
                                      "for feedback on their grasps (~0.3 MB each with their cloud); older ones are "
                                      "deleted and their ids answer 404")
-    feedback_detections: int = Field(default=256, ge=0, description="recent GPD detections remembered in memory "
+    feedback_detections: int = Field(default=64, ge=0, description="recent GPD detections remembered in memory "
                                       "for POST /feedback (older ids answer 404)")
-    feedback_memory_mb: float = Field(default=128.0, ge=0, description="memory cap of those remembered "
+    feedback_memory_mb: float = Field(default=24.0, ge=0, description="memory cap of those remembered "
                                       "detections (MiB; their clouds, poses and widths)")
 
     @property
