@@ -13,10 +13,13 @@ from graspd.training import cli
 from graspd.training.dataset import read_manifest
 from graspd.training.evaluate import classification_metrics
 from graspd.training.export import check_parity
+from graspd.templates.store import TemplateLibrary
 from graspd.training.train import (
     TrainConfig,
+    grasp_probability,
     load_checkpoint,
     load_rows,
+    predict_logits,
     prefix_dataset,
     train,
     train_tiny_model,
@@ -100,3 +103,41 @@ def test_prefix_dataset_keeps_the_generators_view_split(tiny: Path, tmp_path: Pa
     assert images.shape[1] == 12 and len(labels) > 0
     with pytest.raises(ValueError, match="must hold"):
         prefix_dataset(data, tmp_path / "q", 5)
+
+
+def test_robot_feedback_joins_training_and_moves_scores_toward_the_outcomes(tiny: Path, tmp_path: Path) -> None:
+    """Outcomes stored by POST /feedback (with their grasp images) are training rows: a robot that reports the
+    opposite of the simulated labels on 40 grasps pulls the retrained model's scores on them its way."""
+    data = str(tiny.parent.parent / "dataset")
+    images, labels, _ = load_rows(data, "view", "test", "15", limit=40, seed=3)
+    outcomes = labels == 0  # what "the robot" reports: the opposite of the antipodal label
+    url = f"sqlite:///{tmp_path / 'feedback.db'}"
+    with TemplateLibrary(url) as store:
+        for i, (image, held) in enumerate(zip(images, outcomes, strict=True)):
+            store.add_outcome(f"gpd{i:04d}.0", bool(held), np.eye(4), 0.05, image, "15")
+        store.add_outcome("gpd9999.0", True, np.eye(4), 0.05, images[0, :3], "3")  # other representation
+    common = {"dataset": data, "name": "fb", "epochs": 4, "batch_size": 32, "patience": 8, "max_val": None}
+    with_fb = train(TrainConfig(**common, feedback=url, feedback_repeat=16), tmp_path / "a", log=lambda *a: None)
+    without = train(TrainConfig(**common), tmp_path / "b", log=lambda *a: None)
+    assert with_fb["feedback"] == {"store": url, "outcomes": 40, "successes": int(outcomes.sum()), "skipped": 1,
+                                   "repeat": 16}
+    assert without["feedback"] is None and with_fb["num_train"] == without["num_train"]
+    errors = []
+    for work in ("a", "b"):
+        net, _ = load_checkpoint(tmp_path / work / "checkpoint.pt")
+        errors.append(float(np.abs(grasp_probability(predict_logits(net, images)) - outcomes).mean()))
+    assert errors[0] < errors[1] - 0.2, errors
+    # a 3-channel model trained on the same store derives the 15-channel images and skips nothing it can use
+    three = train(TrainConfig(**{**common, "epochs": 1}, representation="3", feedback=url), tmp_path / "c",
+                  log=lambda *a: None)
+    assert three["feedback"]["outcomes"] == 41 and three["feedback"]["skipped"] == 0
+
+
+def test_feedback_store_that_does_not_exist_is_a_clear_error(tiny: Path, tmp_path: Path) -> None:
+    data = str(tiny.parent.parent / "dataset")
+    missing = f"sqlite:///{tmp_path / 'nope.db'}"
+    with pytest.raises(ValueError, match="no such store"):
+        train(TrainConfig(dataset=data, epochs=1, feedback=missing), tmp_path / "w", log=lambda *a: None)
+    assert not (tmp_path / "nope.db").exists()
+    with pytest.raises(ValueError, match="not a SQLAlchemy URL"):
+        train(TrainConfig(dataset=data, epochs=1, feedback="::"), tmp_path / "w", log=lambda *a: None)

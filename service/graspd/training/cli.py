@@ -36,13 +36,18 @@ def register(subparsers: Any) -> None:
     p.add_argument("--threads", type=int, help="torch and onnxruntime threads (default 2)")
     p.add_argument("--max-train", type=int, dest="max_train", help="use at most this many training exemplars")
     p.add_argument("--max-minutes", type=float, dest="max_minutes", help="stop training after this wall time")
+    p.add_argument("--feedback", help="SQLAlchemy URL of a feedback store (the service's GRASPD_TEMPLATE_DB): the "
+                   "executed grasps stored with their images (POST /feedback) join the training rows")
+    p.add_argument("--feedback-repeat", type=int, dest="feedback_repeat",
+                   help="draw each stored outcome this many times per epoch (default 4)")
     p.add_argument("--models-dir", default=None, help="where to write NAME.onnx and NAME.json (default models/)")
     p.add_argument("--work-dir", default=None, help="checkpoint and training metrics (default models-dir/.work/NAME)")
     p.set_defaults(func=_run)
 
 
 _CONFIG_FLAGS = ("dataset", "name", "representation", "architecture", "split", "categories", "epochs",
-                 "batch_size", "learning_rate", "patience", "seed", "threads", "max_train", "max_minutes")
+                 "batch_size", "learning_rate", "patience", "seed", "threads", "max_train", "max_minutes",
+                 "feedback", "feedback_repeat")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -75,7 +80,11 @@ def _run(args: argparse.Namespace) -> int:
     except (TypeError, ValueError) as exc:
         print(f"graspd train: {exc}", file=sys.stderr)
         return 2
-    path = train_and_export(config, models_dir, args.work_dir, command=command)
+    try:
+        path = train_and_export(config, models_dir, args.work_dir, command=command)
+    except ValueError as exc:  # e.g. a training part with one class, an unreadable feedback store
+        print(f"graspd train: {exc}", file=sys.stderr)
+        return 2
     _print_card(path)
     return 0
 

@@ -46,6 +46,8 @@ class TrainConfig:
     max_val: int | None = 20000
     max_minutes: float | None = None          # training time budget (after loading); the LR decays over it
     augment: bool = True                      # random mirror images across hand y and z (label-preserving)
+    feedback: str | None = None               # SQLAlchemy URL of a feedback store: executed grasps join training
+    feedback_repeat: int = 4                  # each stored outcome is drawn this many times per epoch
     network: dict[str, Any] = field(default_factory=dict)  # extra FastNet arguments (width, hidden)
 
     def __post_init__(self) -> None:
@@ -55,7 +57,7 @@ class TrainConfig:
             raise ValueError(f"architecture must be one of {list(ARCHITECTURES)}, got {self.architecture!r}")
         if self.split not in ("view", "object"):
             raise ValueError(f"split must be 'view' or 'object', got {self.split!r}")
-        for key in ("epochs", "batch_size", "threads"):
+        for key in ("epochs", "batch_size", "threads", "feedback_repeat"):
             if getattr(self, key) < 1:
                 raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
         if not self.learning_rate > 0:
@@ -170,6 +172,67 @@ def training_rows(dataset: str, kind: str, part: str, categories: list[str] | No
     return rows
 
 
+def feedback_rows(url: str, representation: str, image_size: int
+                  ) -> tuple[NDArray[np.uint8], NDArray[np.uint8], dict[str, Any]]:
+    """(images (M,C,S,S) uint8 of a representation, labels (M,): 1 = the grasp held, summary) of the executed
+    grasps stored with their grasp image in a feedback store (graspd.templates.store, any SQLAlchemy URL).
+
+    These are the robot's own outcomes (POST /feedback): real labels from the real sensor, added to the
+    training rows.  15-channel images are derived to any representation; an image stored in another
+    representation must match the one trained, and one of another size is skipped (counted in summary).
+    """
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError, SQLAlchemyError
+
+    from graspd.templates.store import TemplateError
+
+    from .dataset import derive_images
+
+    try:
+        shown = make_url(url).render_as_string(hide_password=True)
+    except ArgumentError as exc:
+        raise ValueError(f"feedback: not a SQLAlchemy URL: {url!r} ({exc})") from exc
+    channels = REPRESENTATIONS[representation]
+    images: list[NDArray[np.uint8]] = []
+    labels: list[int] = []
+    skipped = 0
+    try:
+        rows = list(_stored_outcomes(url))
+    except (SQLAlchemyError, TemplateError) as exc:
+        raise ValueError(f"feedback: cannot read the store {shown}: {exc}") from exc
+    for row in rows:
+        img, rep = row["image"], row["representation"]
+        if img.ndim != 3 or img.shape[1:] != (image_size, image_size):
+            skipped += 1
+        elif rep == representation and img.shape[0] == channels:
+            images.append(img)
+            labels.append(int(row["success"]))
+        elif rep == "15" and img.shape[0] == 15:
+            images.append(derive_images(img[None], representation)[0])
+            labels.append(int(row["success"]))
+        else:
+            skipped += 1
+    x = np.stack(images) if images else np.zeros((0, channels, image_size, image_size), np.uint8)
+    y = np.asarray(labels, np.uint8)
+    summary = {"store": shown, "outcomes": int(len(y)),
+               "successes": int(y.sum()), "skipped": skipped}
+    return x, y, summary
+
+
+def _stored_outcomes(url: str) -> Iterator[dict[str, Any]]:
+    """The outcomes with images of a feedback store (oldest first); the store must exist (no new file)."""
+    from sqlalchemy.engine import make_url
+
+    from graspd.templates.store import TemplateLibrary
+
+    parsed = make_url(url)
+    if parsed.get_backend_name() == "sqlite" and parsed.database not in (None, "", ":memory:") \
+            and not Path(parsed.database).exists():
+        raise ValueError(f"feedback: no such store {parsed.database}")
+    with TemplateLibrary(url) as store:
+        yield from store.iter_outcomes(with_images_only=True)
+
+
 _AXES = {"x": 0, "y": 1, "z": 2}
 _IMAGE_AXES = {0: (1, 2), 1: (0, 2), 2: (0, 1)}  # projection along hand axis p -> hand axes of (rows, cols)
 
@@ -282,24 +345,42 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
                                     config.seed + 1)
     x_va = derive_images(x_va15, config.representation)
     rep = config.representation
+    size = int(manifest["image_size"])
+    feedback: dict[str, Any] | None = None
+    x_fb = np.zeros((0, REPRESENTATIONS[rep], size, size), np.uint8)
+    y_fb = np.zeros(0, np.uint8)
+    if config.feedback is not None:
+        x_fb, y_fb, feedback = feedback_rows(config.feedback, rep, size)
+        feedback["repeat"] = config.feedback_repeat
+        log(f"[{config.name}] feedback: {feedback['outcomes']} executed grasps ({feedback['successes']} held, "
+            f"{feedback['skipped']} skipped) from {feedback['store']}, each drawn {config.feedback_repeat}x per epoch")
+    # training rows: the dataset's rows 0..n_ds-1, then every feedback outcome feedback_repeat times
+    n_ds = len(y_tr)
+    fb_index = np.repeat(np.arange(len(y_fb)), config.feedback_repeat)
+    y_all = np.concatenate([y_tr, y_fb[fb_index]])
 
     def batch_images(rows: NDArray[np.int64]) -> NDArray[np.uint8]:
-        images = x_tr[rows] if rep == "15" else derive_images(x_tr[rows], rep)
+        ds = rows[rows < n_ds]
+        images = x_tr[ds] if rep == "15" else derive_images(x_tr[ds], rep)
+        if len(ds) < len(rows):
+            images = np.concatenate([images, x_fb[fb_index[rows[rows >= n_ds] - n_ds]]])
         return augment(images, rep, rng) if config.augment else images
+
+    def batch_labels(rows: NDArray[np.int64]) -> NDArray[np.uint8]:
+        return np.concatenate([y_all[rows[rows < n_ds]], y_all[rows[rows >= n_ds]]])
 
     load_s = time.perf_counter() - t0
     log(f"[{config.name}] loaded {len(y_tr)} train / {len(y_va)} val exemplars in {load_s:.1f} s "
         f"(train positives {y_tr.mean():.3f})")
-    counts = np.bincount(y_tr, minlength=2).astype(np.float64)
+    counts = np.bincount(y_all, minlength=2).astype(np.float64)
     if counts.min() == 0:
         raise ValueError(f"training part has only one class (counts {counts.tolist()}); cannot train")
     class_weight = torch.tensor(counts.sum() / (2.0 * counts), dtype=torch.float32)
     channels = REPRESENTATIONS[config.representation]
-    size = int(manifest["image_size"])
     net = build_network(config.architecture, channels, size, **config.network)
     loss_fn = nn.CrossEntropyLoss(weight=class_weight)
     opt = torch.optim.Adam(net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
-    steps_per_epoch = -(-len(y_tr) // config.batch_size)
+    steps_per_epoch = -(-len(y_all) // config.batch_size)
     total_steps = config.epochs * steps_per_epoch
     limit_s = None if config.max_minutes is None else 60.0 * config.max_minutes
     t_train = time.perf_counter()
@@ -315,7 +396,7 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
         te = time.perf_counter()
         net.train()
         total, seen = 0.0, 0
-        for idx in _batches(len(y_tr), config.batch_size, rng):
+        for idx in _batches(len(y_all), config.batch_size, rng):
             # cosine learning-rate decay over the run: over the steps, or over the time budget if that ends first
             progress = step / total_steps
             if limit_s is not None:
@@ -326,8 +407,8 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
             for group in opt.param_groups:
                 group["lr"] = config.learning_rate * 0.5 * (1.0 + np.cos(np.pi * progress))
             step += 1
-            x = _to_tensor(batch_images(tr_index[idx]))
-            y = torch.from_numpy(y_tr[idx].astype(np.int64))
+            x = _to_tensor(batch_images(idx))
+            y = torch.from_numpy(batch_labels(idx).astype(np.int64))
             opt.zero_grad(set_to_none=True)
             loss = loss_fn(net(x), y)
             loss.backward()
@@ -365,7 +446,7 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print) -> dict[st
     metrics = {
         "config": config.to_dict(),
         "dataset_sha256": manifest.get("dataset_sha256"),
-        "num_train": int(len(y_tr)), "num_val": int(len(y_va)),
+        "num_train": int(len(y_tr)), "num_val": int(len(y_va)), "feedback": feedback,
         "train_class_counts": counts.astype(int).tolist(),
         "best_epoch": int(best["epoch"]), "best_val_loss": best["val_loss"], "best_val_accuracy": best["val_accuracy"],
         "stopped": stopped, "history": history,
@@ -430,6 +511,7 @@ def export_trained(net: nn.Module, config: TrainConfig, train_metrics: dict[str,
             "dataset_seed": manifest.get("seed"),
             "dataset_counts": manifest.get("counts"),
             "num_train": train_metrics["num_train"], "num_val": train_metrics["num_val"],
+            "feedback": train_metrics.get("feedback"),
             "best_epoch": train_metrics["best_epoch"], "epochs_run": len(train_metrics["history"]),
             "stopped": train_metrics["stopped"], "best_val_accuracy": train_metrics["best_val_accuracy"],
             "seconds": round(train_metrics["seconds_total"], 1), "torch_version": train_metrics["torch_version"],
@@ -453,6 +535,11 @@ def config_command(config: TrainConfig, models_dir: str | Path) -> str:
         parts += ["--max-train", str(config.max_train)]
     if config.max_minutes is not None:
         parts += ["--max-minutes", str(config.max_minutes)]
+    if config.feedback is not None:
+        from sqlalchemy.engine import make_url
+
+        parts += ["--feedback", make_url(config.feedback).render_as_string(hide_password=True),
+                  "--feedback-repeat", str(config.feedback_repeat)]
     return " ".join(parts)
 
 
