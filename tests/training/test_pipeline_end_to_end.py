@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from graspd.classifier import GraspClassifier, load_model
+from graspd.templates.store import TemplateLibrary
 from graspd.training import cli
 from graspd.training.dataset import read_manifest
 from graspd.training.evaluate import classification_metrics
 from graspd.training.export import check_parity
-from graspd.templates.store import TemplateLibrary
 from graspd.training.train import (
     TrainConfig,
     grasp_probability,
