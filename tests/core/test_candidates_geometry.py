@@ -93,7 +93,7 @@ def test_candidates_are_rotated_and_translated_with_the_cloud(cylinder_scene: Vi
     r = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
     r = r @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
     t = np.array([0.3, -1.2, 0.7])
-    params = SamplingParams(num_samples=60, seed=3)
+    params = SamplingParams(num_samples=200, seed=3)
     a, _ = search_hands(Scene.build(pre, HAND), HAND, params)
     b, _ = search_hands(Scene.build(pre.transformed(r, t), HAND), HAND, params)
     moved = a.transformed(r, t)
@@ -103,7 +103,10 @@ def test_candidates_are_rotated_and_translated_with_the_cloud(cylinder_scene: Vi
     same_app = np.einsum("ik,jk->ij", moved.approach, b.approach) > 1 - 1e-6
     same_axis = np.abs(np.einsum("ik,jk->ij", moved.axis, b.axis)) > 1 - 1e-6
     matched = (same_pos & same_app & same_axis).any(axis=1)
-    assert matched.mean() > 0.97
+    # Not exact: the unobserved-space grid is axis-aligned in the cloud frame, so hands whose collision check
+    # grazes a voxel boundary can flip (2-4% of ~400 hands, depending on the numpy/open3d build); a broken
+    # transform would match next to none.
+    assert matched.mean() > 0.95
 
 
 def test_grasp_frames_are_right_handed_rotations(cylinder_two_cameras: ViewpointCloud) -> None:
