@@ -67,7 +67,7 @@ BAD: list[tuple[str, Any, int, str]] = [
     ("crops without image", {"cloud": {"points": P}, "crops": {"intrinsics": INTR, "camera_pose": EYE}}, 422,
      "crops"),
     ("crops bad png", {"cloud": {"points": P}, "crops": {"image_png": "iVBORw0KGgoAAAA=", "intrinsics": INTR,
-                                                          "camera_pose": EYE}}, 422, "crops"),
+                                                          "camera_pose": EYE}}, 422, "crops.image_png"),
     ("crops not png", {"cloud": {"points": P}, "crops": {"image_png": base64.b64encode(b"GIF89a").decode(),
                                                           "intrinsics": INTR, "camera_pose": EYE}}, 422,
      "crops.image_png"),

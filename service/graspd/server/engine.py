@@ -37,14 +37,49 @@ log = logging.getLogger("graspd.server")
 M = TypeVar("M", bound=BaseModel)
 
 
+#: Deepest JSON nesting a request may have: orjson's own limit (the deepest valid request has ~6 levels).
+MAX_JSON_DEPTH = 1024
+
+
+class JsonTooDeep(ValueError):
+    """Valid JSON nested beyond MAX_JSON_DEPTH: a 422 naming the body, not a parse error."""
+
+
+def json_depth(obj: Any, limit: int = MAX_JSON_DEPTH) -> int:
+    """Nesting depth of decoded JSON, counted iteratively (no recursion) and only up to limit + 1."""
+    deepest = 0
+    stack: list[tuple[Any, int]] = [(obj, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict):
+            item = list(item.values())
+        elif not isinstance(item, list):
+            continue
+        deepest = max(deepest, depth)
+        if deepest > limit:
+            return deepest
+        stack.extend((v, depth + 1) for v in item if isinstance(v, list | dict))
+    return deepest
+
+
 def loads(payload: bytes | str) -> Any:
     """JSON text -> Python objects: orjson (~2x faster on megabyte bodies), else the standard library, which
     also reads NaN and Infinity (orjson refuses them) so that they reach validation and get a 422 naming the
-    field.  orjson reads integers beyond 64 bits as floats; every integer field is bounded far below."""
+    field.  orjson reads integers beyond 64 bits as floats; every integer field is bounded far below.
+    ValueError when the text is not JSON or nests deeper than MAX_JSON_DEPTH (no RecursionError escapes)."""
+    too_deep = f"JSON nested too deeply (at most about {MAX_JSON_DEPTH} levels)"
     try:
         return orjson.loads(payload)
-    except orjson.JSONDecodeError:
-        return json.loads(payload)
+    except orjson.JSONDecodeError as exc:
+        if "recursion" in str(exc).lower():
+            raise JsonTooDeep(too_deep) from None
+    try:
+        value = json.loads(payload)
+    except RecursionError:
+        raise JsonTooDeep(too_deep) from None
+    if isinstance(value, list | dict) and json_depth(value) > MAX_JSON_DEPTH:
+        raise JsonTooDeep(too_deep)
+    return value
 
 
 def dumps(body: Any) -> bytes:
@@ -65,6 +100,8 @@ def parse_model(model: type[M], payload: bytes | str | dict[str, Any]) -> M:
     if isinstance(payload, bytes | str):
         try:
             payload = loads(payload)
+        except JsonTooDeep as exc:
+            raise Problem(422, str(exc), "body") from None
         except (ValueError, UnicodeDecodeError) as exc:
             raise Problem(400, f"invalid JSON ({exc})", "body") from None
     if not isinstance(payload, dict):

@@ -18,15 +18,42 @@ def encode_png_b64(image: NDArray[np.uint8]) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def decode_png_rgb(b64: str, max_pixels: int = 50_000_000) -> NDArray[np.uint8]:
-    """(H,W,3) uint8 from base64 PNG text; ValueError says why it cannot be read."""
+#: Largest request image (pixels): 8 MP, above 4K UHD (3840 x 2160).  Decoding takes ~7 bytes a pixel at
+#: its peak (Pillow's 4-byte RGBX buffer, then the 3-byte array), so ~60 MB at the cap.
+MAX_IMAGE_PIXELS = 1 << 23
+#: Smallest request image side (pixels): a 1-pixel image holds no object to crop.
+MIN_IMAGE_SIDE = 2
+
+
+def png_size(raw: bytes) -> tuple[int, int]:
+    """(width, height) from a PNG's IHDR chunk without decoding anything; ValueError if there is none."""
+    if len(raw) < 24 or raw[:8] != b"\x89PNG\r\n\x1a\n" or raw[12:16] != b"IHDR":
+        raise ValueError("not a PNG (no IHDR chunk after the signature)")
+    return int.from_bytes(raw[16:20], "big"), int.from_bytes(raw[20:24], "big")
+
+
+def check_image_size(width: int, height: int, max_pixels: int = MAX_IMAGE_PIXELS) -> None:
+    """ValueError unless both sides are at least MIN_IMAGE_SIDE and the image has at most max_pixels."""
+    if width < MIN_IMAGE_SIDE or height < MIN_IMAGE_SIDE:
+        raise ValueError(f"image of {width}x{height} pixels is smaller than {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE}")
+    if width * height > max_pixels:
+        raise ValueError(f"image of {width}x{height} pixels exceeds the limit of {max_pixels} pixels")
+
+
+def decode_png_rgb(b64: str, max_pixels: int = MAX_IMAGE_PIXELS) -> NDArray[np.uint8]:
+    """(H,W,3) uint8 from base64 PNG text; ValueError says why it cannot be read.  The size declared in the
+    IHDR chunk is checked against max_pixels before any pixel is decoded."""
     from PIL import Image
 
     raw = base64.b64decode(b64)
+    width, height = png_size(raw)
+    check_image_size(width, height, max_pixels)
     try:
-        with Image.open(io.BytesIO(raw)) as img:
-            if img.width * img.height > max_pixels:
-                raise ValueError(f"image of {img.width}x{img.height} pixels exceeds {max_pixels}")
-            return np.array(img.convert("RGB"), np.uint8)
-    except (OSError, SyntaxError, ValueError) as exc:
+        with Image.open(io.BytesIO(raw), formats=["PNG"]) as img:
+            if img.size != (width, height):
+                raise ValueError(f"IHDR says {width}x{height}, Pillow reads {img.width}x{img.height}")
+            img.load()
+            rgb = img if img.mode == "RGB" else img.convert("RGB")
+            return np.asarray(rgb, np.uint8)  # read-only view of Pillow's bytes: nothing writes to it
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as exc:
         raise ValueError(f"unreadable PNG ({exc})") from None

@@ -204,8 +204,9 @@ class CropsRequest(BaseModel):
             return None
         if v.size and (v.min() < 0 or v.max() > 255):
             raise ValueError("values must lie in [0, 255] (uint8)")
-        if v.shape[0] < 1 or v.shape[1] < 1 or v.shape[0] * v.shape[1] > 50_000_000:
-            raise ValueError(f"image size {v.shape[:2]} out of range")
+        from .pngio import check_image_size
+
+        check_image_size(v.shape[1], v.shape[0])  # at least 2x2, at most 8 MP (as a PNG)
         return v.astype(np.uint8)
 
     @field_validator("image_png")
@@ -231,7 +232,12 @@ class CropsRequest(BaseModel):
             try:
                 self.image = decode_png_rgb(self.image_png)  # type: ignore[assignment]
             except ValueError as exc:
-                raise ValueError(f"image_png: {exc}") from None
+                raise ValueError(f".image_png: {exc}") from None  # "." + name: from_validation names crops.image_png
+        assert self.image is not None
+        h, w = self.image.shape[:2]
+        if not (0 <= self.intrinsics.cx <= w and 0 <= self.intrinsics.cy <= h):
+            raise ValueError(f".intrinsics: principal point ({self.intrinsics.cx:g}, {self.intrinsics.cy:g}) lies "
+                             f"outside the {w}x{h} image; intrinsics and image do not match")
         return self
 
     @field_validator("camera_pose")
