@@ -52,6 +52,16 @@ ZENOH_DEMONSTRATIONS_KEY = "demonstrations"  # the bodies and answers of POST /d
 ZENOH_FEEDBACK_KEY = "feedback"  # POST /feedback
 ZENOH_LIBRARY_KEY = "library"  # and GET /library (empty payload)
 
+#: Zenoh's twin of HTTP's `Authorization: Bearer <token>`: a server with GRASPD_TOKEN set answers a query
+#: (and takes a streamed cloud) only when its attachment is exactly b"Bearer <token>" (UTF-8); otherwise it
+#: sends an error reply with status 401 and does nothing.
+ZENOH_AUTH_SCHEME = b"Bearer "
+
+
+def zenoh_token_attachment(token: str) -> bytes:
+    """The Zenoh attachment that carries token (b"Bearer <token>")."""
+    return ZENOH_AUTH_SCHEME + token.encode()
+
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 

@@ -1,13 +1,16 @@
 """ZenohGraspClient: the detect request as a Zenoh query on `<prefix>/detect` (needs the zenoh extra), and the
 grasp-template requests on `<prefix>/demonstrations`, `<prefix>/feedback`, `<prefix>/library`.
 
-Connects in peer mode to the given endpoints (default: the server's loopback listener).
+Connects in peer mode to the given endpoints (default: the server's loopback listener), or as a Zenoh JSON5
+config file says (config=: TLS certificates, user/password).  token= is sent as the attachment
+b"Bearer <token>" of every query and streamed cloud (a server with GRASPD_TOKEN set refuses others: 401).
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from os import PathLike
 from typing import Any
 
 from numpy.typing import ArrayLike
@@ -16,6 +19,7 @@ from .errors import RequestRejected, ServerBusy, ServerError, TransportError
 from .grasps import Grasps
 from .http import parse_grasps
 from .wire import (
+    ZENOH_CLOUD_KEY,
     ZENOH_DEMONSTRATIONS_KEY,
     ZENOH_DETECT_KEY,
     ZENOH_FEEDBACK_KEY,
@@ -23,21 +27,26 @@ from .wire import (
     build_demonstration_request,
     build_detect_request,
     build_feedback_request,
+    zenoh_token_attachment,
 )
 
 DEFAULT_ENDPOINTS = ("tcp/127.0.0.1:7447",)
 
 
 def zenoh_config(mode: str = "peer", connect: Sequence[str] = DEFAULT_ENDPOINTS,
-                 listen: Sequence[str] = (), multicast: bool = False) -> Any:
-    """A zenoh.Config for mode/endpoints; multicast scouting off unless asked (loopback default)."""
+                 listen: Sequence[str] = (), multicast: bool = False,
+                 config_file: str | PathLike[str] | None = None) -> Any:
+    """A zenoh.Config for mode/endpoints; multicast scouting off unless asked (loopback default).  With
+    config_file (Zenoh JSON5: TLS, user/password...), a key the file sets wins; the arguments fill in the rest."""
     import zenoh
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    conf.insert_json5("scouting/multicast/enabled", json.dumps(multicast))
+    conf = zenoh.Config() if config_file is None else zenoh.Config.from_file(str(config_file))
+    default = zenoh.Config()
+    ours = {"mode": mode, "connect/endpoints": list(connect), "listen/endpoints": list(listen),
+            "scouting/multicast/enabled": multicast}
+    for key, value in ours.items():
+        if conf.get_json(key) == default.get_json(key):
+            conf.insert_json5(key, json.dumps(value))
     return conf
 
 
@@ -46,7 +55,8 @@ class ZenohGraspClient:
 
     def __init__(self, *, prefix: str = "graspd", connect: Sequence[str] = DEFAULT_ENDPOINTS,
                  mode: str = "peer", timeout: float = 30.0, retries: int = 3, session: Any = None,
-                 balance: bool = False) -> None:
+                 balance: bool = False, token: str | None = None,
+                 config: str | PathLike[str] | None = None) -> None:
         import zenoh
 
         self.prefix = prefix.rstrip("/")
@@ -57,7 +67,11 @@ class ZenohGraspClient:
         self._keys: list[str] = []
         self._next = 0
         self._own = session is None
-        self._session = session if session is not None else zenoh.open(zenoh_config(mode, connect))
+        self._session = session if session is not None else zenoh.open(zenoh_config(mode, connect,
+                                                                                     config_file=config))
+        #: what every query and published cloud carries as its attachment (None without a token)
+        self.attachment: bytes | None = zenoh_token_attachment(token) if token else None
+        self._publisher: Any = None
 
     def __enter__(self) -> ZenohGraspClient:
         return self
@@ -66,6 +80,9 @@ class ZenohGraspClient:
         self.close()
 
     def close(self) -> None:
+        if self._publisher is not None:
+            self._publisher.undeclare()
+            self._publisher = None
         if self._own:
             self._session.close()
 
@@ -76,7 +93,7 @@ class ZenohGraspClient:
         out = []
         for reply in self._session.get(f"{self.prefix}/instances/*", target=zenoh.QueryTarget.ALL,
                                        consolidation=zenoh.ConsolidationMode.NONE,
-                                       timeout=min(self.timeout, 5.0)):
+                                       timeout=min(self.timeout, 5.0), attachment=self.attachment):
             if reply.ok is not None:
                 try:
                     out.append(json.loads(reply.ok.payload.to_bytes()))
@@ -104,7 +121,7 @@ class ZenohGraspClient:
         for attempt in range(self.retries + 1):
             key = fixed or self._target_key()
             replies = list(self._session.get(key, payload=payload, timeout=self.timeout,
-                                             target=zenoh.QueryTarget.BEST_MATCHING))
+                                             target=zenoh.QueryTarget.BEST_MATCHING, attachment=self.attachment))
             if not replies:
                 self._keys = []  # an instance may have gone; rediscover next time
                 raise TransportError(f"zenoh {key}: no reply within {self.timeout} s (is a server up?)")
@@ -150,3 +167,15 @@ class ZenohGraspClient:
     def library(self) -> Any:
         """The template library summary (as GraspClient.library)."""
         return self.query(b"", f"{self.prefix}/{ZENOH_LIBRARY_KEY}")
+
+    def publish(self, payload: bytes) -> None:
+        """Stream one cloud (JSON DetectRequest or CDR sensor_msgs/PointCloud2 bytes) on <prefix>/cloud, with
+        the token; the server publishes its grasps (or an error body) on <prefix>/grasps."""
+        if self._publisher is None:
+            self._publisher = self._session.declare_publisher(f"{self.prefix}/{ZENOH_CLOUD_KEY}")
+        self._publisher.put(payload, attachment=self.attachment)
+
+    def publish_cloud(self, points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
+                      camera_source: ArrayLike | None = None, **options: Any) -> None:
+        """Stream a cloud as a JSON detect request (options as for detect) on <prefix>/cloud."""
+        self.publish(json.dumps(build_detect_request(points, viewpoints, camera_source, **options)).encode())

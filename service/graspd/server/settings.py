@@ -37,7 +37,8 @@ class Settings(BaseSettings):
     queue_size: int = Field(default=32, ge=0, description="requests that may wait for a worker before 503")
     deadline_s: float = Field(default=30.0, gt=0, description="per-request deadline, queueing included (s)")
     max_body_bytes: int = Field(default=64 << 20, gt=0, description="request size cap (bytes); larger gets 413")
-    token: SecretStr | None = Field(default=None, description="bearer token required on /detect and /models")
+    token: SecretStr | None = Field(default=None, description="bearer token required on /detect, /models and the "
+                                     "template routes, and as the attachment of every Zenoh query and streamed cloud")
     log_level: str = "INFO"
     log_json: bool = True
     zenoh_enabled: bool = True
@@ -45,6 +46,14 @@ class Settings(BaseSettings):
     zenoh_listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     zenoh_connect: list[str] = Field(default_factory=list)
     zenoh_multicast: bool = Field(default=False, description="multicast scouting (off: loopback, no router)")
+    zenoh_config: Path | None = Field(default=None, description="Zenoh JSON5 config file (TLS/mTLS, user/password "
+                                      "auth, access control); a key it sets wins over zenoh_mode/listen/connect/"
+                                      "multicast, which fill in only the keys it leaves at Zenoh's defaults")
+    zenoh_allow_anonymous: bool = Field(default=False, description="let Zenoh listen or connect beyond loopback "
+                                        "with no token and no authentication in zenoh_config (trusted networks)")
+    zenoh_stream_token: bool = Field(default=True, description="with a token set, streamed clouds need it as "
+                                     "their attachment too; false for zenoh-bridge-ros2dds, which cannot attach "
+                                     "one (then guard <prefix>/cloud with zenoh_config's access control)")
     zenoh_prefix: str = "graspd"
     zenoh_instance: str = Field(default="", description="instance id for <prefix>/instances/<id>; '' = host-pid")
     zenoh_stream: bool = Field(default=True, description="subscribe <prefix>/cloud, publish <prefix>/grasps")

@@ -14,6 +14,8 @@ it (it remembers its own recent detections); template grasp ids work on any serv
 
 from __future__ import annotations
 
+import hmac
+import ipaddress
 import json
 import logging
 import os
@@ -22,7 +24,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any
+from typing import Any, TypeVar
 
 from graspd_client.wire import (
     ZENOH_CLOUD_KEY,
@@ -31,6 +33,7 @@ from graspd_client.wire import (
     ZENOH_FEEDBACK_KEY,
     ZENOH_GRASPS_KEY,
     ZENOH_LIBRARY_KEY,
+    zenoh_token_attachment,
 )
 
 from .engine import DetectionEngine, parse_model, parse_request
@@ -42,25 +45,137 @@ from .settings import Settings
 
 log = logging.getLogger("graspd.server")
 
+#: The Zenoh keys our settings fill in when GRASPD_ZENOH_CONFIG leaves them at Zenoh's defaults.
+SETTINGS_KEYS = ("mode", "listen/endpoints", "connect/endpoints", "scouting/multicast/enabled")
+_LOCAL_PROTOCOLS = frozenset({"unixsock-stream", "unixsock-seqpacket", "unixpipe"})
+
+
+class ZenohSetupError(RuntimeError):
+    """The Zenoh configuration is unusable or unsafe; the server refuses to start (names the setting)."""
+
 
 def zenoh_config(settings: Settings) -> Any:
-    """A zenoh.Config from the settings: mode, listen/connect endpoints, multicast scouting."""
+    """A zenoh.Config: the file GRASPD_ZENOH_CONFIG if set (TLS, auth, access control pass through untouched),
+    then mode, listen/connect endpoints and multicast scouting from the settings for every one of those keys
+    the file leaves at Zenoh's default (a key the file sets wins)."""
     import zenoh
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(settings.zenoh_mode))
-    conf.insert_json5("listen/endpoints", json.dumps(list(settings.zenoh_listen)))
-    conf.insert_json5("connect/endpoints", json.dumps(list(settings.zenoh_connect)))
-    conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.zenoh_multicast))
+    if settings.zenoh_config is None:
+        conf = zenoh.Config()
+    else:
+        path = settings.zenoh_config
+        if not path.is_file():
+            raise ZenohSetupError(f"GRASPD_ZENOH_CONFIG: {path} is not a file")
+        try:
+            conf = zenoh.Config.from_file(str(path))
+        except Exception as exc:  # zenoh.ZError: a JSON5 syntax error or an unknown key
+            raise ZenohSetupError(f"GRASPD_ZENOH_CONFIG: {path} is not a valid Zenoh config ({exc})") from None
+    default = zenoh.Config()
+    ours: dict[str, Any] = {"mode": settings.zenoh_mode, "listen/endpoints": list(settings.zenoh_listen),
+                            "connect/endpoints": list(settings.zenoh_connect),
+                            "scouting/multicast/enabled": settings.zenoh_multicast}
+    for key in SETTINGS_KEYS:
+        if conf.get_json(key) == default.get_json(key):
+            conf.insert_json5(key, json.dumps(ours[key]))
     return conf
 
 
+def _strings(value: Any) -> list[str]:
+    """Every string in a JSON value (endpoint lists may be keyed by mode: {"router": [...], "peer": [...]})."""
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, dict):
+        return [s for v in value.values() for s in _strings(v)]
+    if isinstance(value, list):
+        return [s for v in value for s in _strings(v)]
+    return []
+
+
+def is_local_endpoint(endpoint: str) -> bool:
+    """Whether a Zenoh endpoint ("tcp/127.0.0.1:7447", "tls/[::1]:7447", "unixsock-stream//run/z.sock") only
+    reaches this machine; a host name other than localhost, or an unspecified address, does not."""
+    proto, _, rest = endpoint.partition("/")
+    if proto in _LOCAL_PROTOCOLS:
+        return True
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    host = address.rsplit(":", 1)[0].strip("[]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _json(conf: Any, key: str) -> Any:
+    try:
+        return json.loads(conf.get_json(key))
+    except Exception:  # a key this zenoh version does not know
+        return None
+
+
+def exposure(conf: Any) -> list[str]:
+    """What makes a Zenoh config reachable from other machines: non-loopback listen/connect endpoints,
+    multicast scouting.  Empty: loopback only."""
+    out = [e for key in ("listen/endpoints", "connect/endpoints") for e in _strings(_json(conf, key))
+           if not is_local_endpoint(e)]
+    if _json(conf, "scouting/multicast/enabled") is not False:
+        out.append("multicast scouting")
+    return out
+
+
+def authenticates(conf: Any) -> bool:
+    """Whether a Zenoh config authenticates peers itself: user/password, mutual TLS, or access control."""
+    return (_json(conf, "transport/auth/usrpwd/user") is not None
+            or _json(conf, "transport/link/tls/enable_mtls") is True
+            or _json(conf, "access_control/enabled") is True)
+
+
+def check_exposure(settings: Settings, conf: Any) -> None:
+    """Refuse (ZenohSetupError) to open Zenoh beyond loopback when nothing authenticates peers: no
+    GRASPD_TOKEN, no auth in GRASPD_ZENOH_CONFIG, and no explicit GRASPD_ZENOH_ALLOW_ANONYMOUS."""
+    reach = exposure(conf)
+    if not reach or settings.token is not None or authenticates(conf) or settings.zenoh_allow_anonymous:
+        return
+    raise ZenohSetupError(
+        f"Zenoh would be reachable from other machines ({', '.join(reach)}) with no authentication, so anyone "
+        "there could run detections and write the template library.  Set GRASPD_TOKEN (clients send it: "
+        "ZenohGraspClient(token=...)), or GRASPD_ZENOH_CONFIG with user/password, mTLS or access control, or "
+        "listen on loopback (GRASPD_ZENOH_LISTEN='[\"tcp/127.0.0.1:7447\"]'); on a trusted network only, "
+        "GRASPD_ZENOH_ALLOW_ANONYMOUS=true")
+
+
 def error_payload(exc: Problem) -> bytes:
+    """The JSON error body of a Zenoh error reply: HTTP's error body plus its status."""
     return json.dumps({**exc.body(), "status": exc.status}).encode()
 
 
+def unauthorized() -> Problem:
+    """The 401 of a query without the token (the body HTTP sends, naming the attachment)."""
+    return Problem(401, "missing or wrong token: send the attachment b'Bearer <token>' "
+                   "(graspd_client.wire.zenoh_token_attachment)", "attachment")
+
+
+def internal_error() -> Problem:
+    """A genuine server fault: no exception text in the reply (it may hold internals), the log has it."""
+    return Problem(500, "internal error (the server log has the details)")
+
+
+def _attachment(obj: Any) -> bytes | None:
+    att = getattr(obj, "attachment", None)
+    return None if att is None else bytes(att.to_bytes())
+
+
+def _size(zbytes: Any) -> int:
+    return 0 if zbytes is None else len(zbytes)
+
+
 class ZenohNode:
-    """Owns one Zenoh session and turns queries and streamed clouds into engine requests."""
+    """Owns one Zenoh session and turns queries and streamed clouds into engine requests.
+
+    Every queryable and the stream go through the same gate: the token (when GRASPD_TOKEN is set) as the
+    attachment, compared in constant time, then the size cap, before any parsing; every query gets a reply,
+    an error reply with HTTP's JSON error body (plus "status") when anything goes wrong."""
 
     def __init__(self, settings: Settings, engine: DetectionEngine, metrics: Metrics) -> None:
         self.settings = settings
@@ -76,6 +191,10 @@ class ZenohNode:
         self._stop = False
         self._stream_thread: threading.Thread | None = None
         self._templates_pool = ThreadPoolExecutor(1, thread_name_prefix="graspd-zenoh-templates")
+        token = settings.token
+        self._expected = None if token is None else zenoh_token_attachment(token.get_secret_value())
+        self._refused_stream = 0
+        self._refused_logged = 0.0
 
     @property
     def ready(self) -> bool:
@@ -90,18 +209,22 @@ class ZenohNode:
         return f"{self.prefix}/instances/{self.instance}"
 
     def start(self) -> None:
+        """Open the session (ZenohSetupError for a bad or unsafe configuration) and declare the keys."""
         import zenoh
 
-        self.session = zenoh.open(zenoh_config(self.settings))
+        conf = zenoh_config(self.settings)
+        check_exposure(self.settings, conf)
+        self.session = zenoh.open(conf)
         s = self.session
-        self._declared.append(s.declare_queryable(self.detect_key, self._on_query, complete=True))
-        self._declared.append(s.declare_queryable(f"{self.instance_key}/{ZENOH_DETECT_KEY}", self._on_query,
-                                                  complete=True))
+        for key in (self.detect_key, f"{self.instance_key}/{ZENOH_DETECT_KEY}"):
+            self._declared.append(s.declare_queryable(key, lambda q, k=key: self._on_query(q, k), complete=True))
         self._declared.append(s.declare_queryable(self.instance_key, self._on_info, complete=True))
         templates = self.engine.templates
         handlers: dict[str, Callable[[bytes], Any]] = {
-            ZENOH_DEMONSTRATIONS_KEY: lambda p: templates.demonstrate(parse_model(DemonstrationRequest, p)),
-            ZENOH_FEEDBACK_KEY: lambda p: templates.feedback(parse_model(FeedbackRequest, p)),
+            ZENOH_DEMONSTRATIONS_KEY: lambda p: templates.demonstrate(
+                guarded_parse(lambda b: parse_model(DemonstrationRequest, b), p)),
+            ZENOH_FEEDBACK_KEY: lambda p: templates.feedback(guarded_parse(lambda b: parse_model(FeedbackRequest, b),
+                                                                           p)),
             ZENOH_LIBRARY_KEY: lambda _: templates.summary(),
         }
         for name, work in handlers.items():
@@ -113,8 +236,10 @@ class ZenohNode:
             self._stream_thread = threading.Thread(target=self._stream_loop, name="graspd-zenoh-stream", daemon=True)
             self._stream_thread.start()
         log.info("zenoh node up", extra={"detect_key": self.detect_key, "instance": self.instance,
-                                         "mode": self.settings.zenoh_mode, "listen": self.settings.zenoh_listen,
-                                         "connect": self.settings.zenoh_connect})
+                                         "mode": _json(conf, "mode"), "listen": _json(conf, "listen/endpoints"),
+                                         "connect": _json(conf, "connect/endpoints"),
+                                         "config_file": str(self.settings.zenoh_config or ""),
+                                         "token": self._expected is not None})
 
     def close(self) -> None:
         with self._wake:
@@ -135,6 +260,28 @@ class ZenohNode:
             self.session.close()
             self.session = None
 
+    # ---- the gate every entrance goes through ------------------------------------------------
+    def authorized(self, attachment: bytes | None) -> bool:
+        """Whether a query or sample may be served: no token configured, or its attachment is
+        b"Bearer <token>" (constant-time comparison)."""
+        if self._expected is None:
+            return True
+        return attachment is not None and hmac.compare_digest(attachment, self._expected)
+
+    def admit(self, query: Any, key: str | None = None) -> bytes:
+        """The payload of a query allowed in: the token checked (401), an exact-key query when key is given
+        (400: a wildcard such as <prefix>/** never reaches a detector or a writer), the size cap (413), all
+        before the payload is copied or parsed."""
+        if not self.authorized(_attachment(query)):
+            raise unauthorized()
+        if key is not None and str(query.key_expr) != key:
+            raise Problem(400, f"send the query to the exact key {key!r}, not {str(query.key_expr)!r}", "key_expr")
+        size = _size(query.payload)
+        if size > self.settings.max_body_bytes:
+            raise Problem(413, f"payload of {size} bytes exceeds the limit of {self.settings.max_body_bytes}",
+                          "payload")
+        return b"" if query.payload is None else bytes(query.payload.to_bytes())
+
     # ---- requests --------------------------------------------------------------------------
     def request_from_payload(self, payload: bytes) -> tuple[Any, dict[str, Any] | None]:
         """A DetectRequest from JSON or CDR PointCloud2 bytes, plus the ROS header for CDR input."""
@@ -150,26 +297,37 @@ class ZenohNode:
         if not payload.lstrip()[:1] == b"{":
             raise Problem(400, "payload is neither a JSON DetectRequest nor a CDR sensor_msgs/PointCloud2",
                           "payload")
-        return parse_request(payload), None
+        return guarded_parse(parse_request, payload), None
 
     def _on_info(self, query: Any) -> None:
-        info = {"instance": self.instance, "detect_key": f"{self.instance_key}/{ZENOH_DETECT_KEY}",
-                "workers": self.engine.workers, "pending": self.engine.pending}
-        query.reply(query.key_expr, json.dumps(info).encode())
-        query.drop()
+        t0 = time.perf_counter()
+        try:
+            self.admit(query)
+            info = {"instance": self.instance, "detect_key": f"{self.instance_key}/{ZENOH_DETECT_KEY}",
+                    "workers": self.engine.workers, "pending": self.engine.pending}
+            self._finish(query, t0, None, json.dumps(info).encode(), "instance", self.instance_key)
+        except Problem as exc:
+            self._finish(query, t0, exc, name="instance")
+        except Exception:
+            log.exception("zenoh instance info failed")
+            self._finish(query, t0, internal_error(), name="instance")
 
-    def _on_query(self, query: Any) -> None:
+    def _on_query(self, query: Any, key: str) -> None:
         """Admit the query and reply from the worker when done (the Zenoh thread is not blocked)."""
         t0 = time.perf_counter()
-        payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
+            payload = self.admit(query, key)
             req, header = self.request_from_payload(payload)
             timings = {"decode": time.perf_counter() - t0}
             fut, _deadline = self.engine.submit(req, timings)
         except Problem as exc:
             self._finish(query, t0, exc)
             return
-        fut.add_done_callback(lambda f: self._reply(query, f, header, t0))
+        except Exception:  # a server fault before submission: still an answer
+            log.exception("zenoh detect failed")
+            self._finish(query, t0, internal_error())
+            return
+        fut.add_done_callback(lambda f: self._reply(query, f, header, t0, key))
         self.engine.trim_after(fut)
         if self.settings.deadline_s:
             timer = threading.Timer(self.settings.deadline_s, self._expire, (query, fut, t0))
@@ -182,34 +340,48 @@ class ZenohNode:
             self._finish(query, t0, Problem(504, f"no result within the deadline of {self.settings.deadline_s} s",
                                             "deadline"))
 
-    def _reply(self, query: Any, fut: Future[bytes], header: dict[str, Any] | None, t0: float) -> None:
+    def _reply(self, query: Any, fut: Future[bytes], header: dict[str, Any] | None, t0: float, key: str) -> None:
         if fut.cancelled():
             return
-        exc = fut.exception()
-        if exc is None:
-            body = fut.result()
-            if header is not None:
-                body = json.dumps({**json.loads(body), "header": header}).encode()
-            self._finish(query, t0, None, body)
-        elif isinstance(exc, Problem):
-            self._finish(query, t0, exc)
-        else:
-            log.error("zenoh detect failed", extra={"error": repr(exc)})
-            self._finish(query, t0, Problem(500, f"internal error: {type(exc).__name__}: {exc}"))
+        try:
+            exc = fut.exception()
+            if exc is None:
+                body = fut.result()
+                if header is not None:
+                    body = json.dumps({**json.loads(body), "header": header}).encode()
+                self._finish(query, t0, None, body, key=key)
+            elif isinstance(exc, Problem):
+                self._finish(query, t0, exc)
+            else:
+                log.error("zenoh detect failed", extra={"error": repr(exc)})
+                self._finish(query, t0, internal_error())
+        except Exception:
+            log.exception("zenoh detect reply failed")
+            self._finish(query, t0, internal_error())
 
     def _on_templates(self, query: Any, name: str, work: Callable[[bytes], Any]) -> None:
-        """A demonstrations/feedback/library query: the work runs on a small pool, not the Zenoh thread."""
+        """A demonstrations/feedback/library query: admitted here (token, exact key, size), the work runs on
+        a small pool, not the Zenoh thread."""
         t0 = time.perf_counter()
-        payload = query.payload.to_bytes() if query.payload is not None else b""
+        key = f"{self.prefix}/{name}"
+        try:
+            payload = self.admit(query, key)
+        except Problem as exc:
+            self._finish(query, t0, exc, name=name)
+            return
+        except Exception:
+            log.exception("zenoh %s failed", name)
+            self._finish(query, t0, internal_error(), name=name)
+            return
 
         def run() -> None:
             try:
-                self._finish(query, t0, None, json.dumps(work(payload)).encode(), name)
+                self._finish(query, t0, None, json.dumps(work(payload)).encode(), name, key)
             except Problem as exc:
                 self._finish(query, t0, exc, name=name)
-            except Exception as exc:
+            except Exception:
                 log.exception("zenoh %s failed", name)
-                self._finish(query, t0, Problem(500, f"internal error: {type(exc).__name__}: {exc}"), name=name)
+                self._finish(query, t0, internal_error(), name=name)
 
         try:
             self._templates_pool.submit(run)
@@ -217,14 +389,14 @@ class ZenohNode:
             self._finish(query, t0, Problem(503, "server is shutting down", retry_after=1.0), name=name)
 
     def _finish(self, query: Any, t0: float, problem: Problem | None, body: bytes | None = None,
-                name: str = "detect") -> None:
+                name: str = "detect", key: str | None = None) -> None:
         outcome = "ok"
         try:
             if problem is None:
-                query.reply(query.key_expr, body)
+                query.reply(key or query.key_expr, body)
             else:
-                outcome = {503: "busy", 504: "deadline"}.get(problem.status,
-                                                             "invalid" if problem.status < 500 else "error")
+                outcome = {401: "unauthorized", 413: "too_large", 503: "busy", 504: "deadline"}.get(
+                    problem.status, "invalid" if problem.status < 500 else "error")
                 query.reply_err(error_payload(problem))
             query.drop()
         except Exception as exc:  # query already finalised (deadline raced the result)
@@ -234,16 +406,45 @@ class ZenohNode:
         if name == "detect":  # the request metrics count detections
             self.metrics.requests.labels("zenoh", outcome).inc()
             self.metrics.request_seconds.labels("zenoh").observe(elapsed)
-        log.info(name, extra={"transport": "zenoh", "outcome": outcome, "ms": round(elapsed * 1000, 1)})
+        elif outcome == "unauthorized":
+            self.metrics.requests.labels("zenoh-" + name, outcome).inc()
+        extra: dict[str, Any] = {"transport": "zenoh", "outcome": outcome, "ms": round(elapsed * 1000, 1)}
+        if problem is not None:
+            extra.update(status=problem.status, field=problem.field)
+        (log.warning if outcome == "unauthorized" else log.info)(name, extra=extra)
 
     # ---- streaming -------------------------------------------------------------------------
     def _on_cloud(self, sample: Any) -> None:
-        """Keep only the newest cloud: a robot wants grasps for what it sees now."""
+        """Keep only the newest cloud: a robot wants grasps for what it sees now.  A cloud without the token
+        is dropped (counted, logged at most every 10 s); one over the size cap gets a 413 on the grasps key."""
+        try:
+            if self.settings.zenoh_stream_token and not self.authorized(_attachment(sample)):
+                self._refuse_stream()
+                return
+            size = _size(sample.payload)
+            if size > self.settings.max_body_bytes:
+                self.metrics.requests.labels("zenoh-stream", "too_large").inc()
+                self._publisher.put(error_payload(Problem(
+                    413, f"cloud of {size} bytes exceeds the limit of {self.settings.max_body_bytes}", "payload")))
+                return
+            payload = bytes(sample.payload.to_bytes())
+        except Exception:
+            log.exception("zenoh stream sample refused")
+            return
         with self._wake:
             if self._latest is not None:
                 self.metrics.stream_dropped.inc()
-            self._latest = sample.payload.to_bytes()
+            self._latest = payload
             self._wake.notify()
+
+    def _refuse_stream(self) -> None:
+        self.metrics.requests.labels("zenoh-stream", "unauthorized").inc()
+        self._refused_stream += 1
+        now = time.monotonic()
+        if now - self._refused_logged >= 10.0:
+            self._refused_logged = now
+            log.warning("stream cloud without the token dropped",
+                        extra={"transport": "zenoh", "outcome": "unauthorized", "dropped": self._refused_stream})
 
     def _stream_loop(self) -> None:
         while True:
@@ -266,8 +467,20 @@ class ZenohNode:
             except Problem as exc:
                 self._publisher.put(error_payload(exc))
                 outcome = "invalid" if exc.status < 500 else "error"
-            except Exception as exc:  # keep streaming whatever one frame did
+            except Exception:  # keep streaming whatever one frame did
                 log.exception("stream detect failed")
-                self._publisher.put(error_payload(Problem(500, f"internal error: {type(exc).__name__}: {exc}")))
+                self._publisher.put(error_payload(internal_error()))
                 outcome = "error"
             self.metrics.requests.labels("zenoh-stream", outcome).inc()
+
+
+T = TypeVar("T")
+
+
+def guarded_parse(parse: Callable[[bytes], T], payload: bytes) -> T:
+    """parse(payload), with JSON nested too deep for the parser (RecursionError) answered as the caller's
+    error (400 naming the body), never a server fault or a lost reply."""
+    try:
+        return parse(payload)
+    except RecursionError:
+        raise Problem(400, "JSON nested too deep", "body") from None
