@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
 # Set up graspd on a fresh Debian machine: system libraries the wheels need, then a virtual
-# environment in .venv with the server, the client, training (CPU torch) and dev tools.
+# environment in .venv with the server, the client, training (CPU torch), PostgreSQL support and dev tools.
+# The PostgreSQL server package is for the tests: they start a throwaway server of their own (initdb/pg_ctl).
 # Idempotent: re-running after a change to pyproject.toml reinstalls; otherwise it returns at once.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 PY=${PYTHON:-python3}
-SYSTEM_PACKAGES="libusb-1.0-0 libgomp1"   # open3d loads libusb; onnxruntime/torch use OpenMP
+SYSTEM_PACKAGES="libusb-1.0-0 libgomp1 postgresql"   # open3d loads libusb; onnxruntime/torch use OpenMP;
+                                                     # postgresql: the library-store tests run a real server
 
 missing=""
 for pkg in $SYSTEM_PACKAGES; do
@@ -28,6 +30,6 @@ if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then exit 0; fi
 .venv/bin/python -m pip install -q --upgrade pip
 # CPU build of torch (training and ONNX export only): pin it, a bare `torch` pulls a CUDA build.
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ./client -e ".[train,dev]"
+.venv/bin/python -m pip install -q -e ./client -e ".[train,dev,postgres]"
 echo "$want" > "$stamp"
 echo "setup: ready (.venv)"

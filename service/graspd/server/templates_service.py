@@ -11,7 +11,9 @@ Where feedback finds a grasp by its id:
   least recently detected forgotten first.  An older, unknown or other process's id answers 404.
 
 The library opens on first use (GRASPD_TEMPLATE_LIBRARY, else an SQLite file in the data folder); a
-library that cannot be opened answers 503 naming template_library, and GPD detection is unaffected.
+library that cannot be opened answers 503 naming template_library, and GPD detection is unaffected.  The
+library URL's password never appears in an answer or a log line: errors quote the URL with it masked, and
+driver messages are scrubbed of it (graspd.templates.store.redact_text).
 """
 
 from __future__ import annotations
@@ -21,17 +23,21 @@ import re
 import threading
 import uuid
 from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import sqlalchemy as sa
 from numpy.typing import NDArray
 
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection
 from graspd.hand import HandGeometry, hand_preset
 from graspd.templates import TemplateDetection, TemplateDetector, TemplateError, TemplateLibrary, UnknownGrasp
+from graspd.templates.store import redact_text, redact_url
 
 from .problems import Problem
 from .schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
@@ -109,6 +115,7 @@ class TemplateService:
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
         self.url = settings.resolved_template_library()
+        self.safe_url = redact_url(self.url)  # what errors and logs may show
         self.recent = RecentDetections(settings.feedback_detections, int(settings.feedback_memory_mb * 2**20))
         self._library: TemplateLibrary | None = None
         self._detector: TemplateDetector | None = None
@@ -126,11 +133,33 @@ class TemplateService:
                     hand = None if self.settings.template_hand is None else hand_preset(self.settings.template_hand)
                     self._library = TemplateLibrary(self.url, hand=hand)
                 except Exception as exc:  # a bad URL, an unreachable database, a hand mismatch, a read-only disk
-                    log.error("template library unavailable", extra={"url": self.url, "error": repr(exc)})
-                    raise Problem(503, f"the template library at {self.url} cannot be opened "
-                                  f"({type(exc).__name__}: {exc})", "template_library", retry_after=30) from None
+                    reason = self._reason(exc)
+                    log.error("template library unavailable", extra={"url": self.safe_url, "error": reason})
+                    raise Problem(503, f"the template library at {self.safe_url} cannot be opened ({reason})",
+                                  "template_library", retry_after=30) from None
                 self._detector = TemplateDetector(self._library)
             return self._library
+
+    def _reason(self, exc: BaseException) -> str:
+        """'<type>: <first line of the message>' with every password masked (drivers may quote the URL or
+        DSN; SQLAlchemy appends the SQL and its parameters after the first line)."""
+        orig = getattr(exc, "orig", None)
+        text = str(orig if isinstance(orig, BaseException) else exc).strip()
+        first = text.splitlines()[0] if text else ""
+        return redact_text(f"{type(exc).__name__}: {first}", self.url)
+
+    @contextmanager
+    def database(self) -> Iterator[None]:
+        """A database that fails after opening (server gone, connection dropped, pool exhausted) answers 503
+        naming template_library, its message scrubbed of the password."""
+        try:
+            yield
+        except (sa.exc.OperationalError, sa.exc.InterfaceError, sa.exc.TimeoutError,
+                sa.exc.DisconnectionError) as exc:
+            reason = self._reason(exc)
+            log.error("template library failed", extra={"url": self.safe_url, "error": reason})
+            raise Problem(503, f"the template library at {self.safe_url} failed ({reason})", "template_library",
+                          retry_after=5) from None
 
     @property
     def detector(self) -> TemplateDetector:
@@ -155,7 +184,8 @@ class TemplateService:
 
     def summary(self) -> dict[str, Any]:
         """GET /library: counts, hand, template geometry and one line per entry."""
-        return self.library.summary()
+        with self.database():
+            return self.library.summary()
 
     # ---- detection -----------------------------------------------------------------------------
     def detect(self, req: DetectRequest, cloud: ViewpointCloud, hand: HandGeometry | None
@@ -165,6 +195,11 @@ class TemplateService:
         unused = sorted(set(req.model_fields_set) - TEMPLATE_FIELDS)
         if unused:
             raise Problem(422, f"not used by method 'templates' (it uses {sorted(TEMPLATE_FIELDS)})", unused[0])
+        with self.database():
+            return self._detect(req, cloud, hand)
+
+    def _detect(self, req: DetectRequest, cloud: ViewpointCloud, hand: HandGeometry | None
+                ) -> tuple[TemplateDetection, dict[str, Any]]:
         self._check_hand(hand)
         ws = req.workspace
         try:
@@ -188,6 +223,10 @@ class TemplateService:
     # ---- demonstrations and feedback -------------------------------------------------------------
     def demonstrate(self, req: DemonstrationRequest) -> dict[str, Any]:
         """POST /demonstrations: add the demonstrated grasp to the library; its entry id and the counts."""
+        with self.database():
+            return self._demonstrate(req)
+
+    def _demonstrate(self, req: DemonstrationRequest) -> dict[str, Any]:
         try:
             hand = None if req.hand is None else req.hand.geometry()
         except ValueError as exc:
@@ -206,6 +245,10 @@ class TemplateService:
     def feedback(self, req: FeedbackRequest) -> dict[str, Any]:
         """POST /feedback: store the outcome (with the grasp's 15-channel image); a failed template grasp
         also joins the failure set F_l of its library entry."""
+        with self.database():
+            return self._feedback(req)
+
+    def _feedback(self, req: FeedbackRequest) -> dict[str, Any]:
         gid = req.grasp_id
         gpd = _GPD_ID.match(gid)
         try:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import threading
 import time
 import uuid
@@ -119,14 +120,58 @@ MIGRATIONS: list[Callable[[Connection], None]] = [_v1, _v2]
 SCHEMA_VERSION = len(MIGRATIONS)
 
 
+#: user:password@ in any URL-like text (the password is masked); DSN-style password=... (libpq keywords)
+_URL_CREDENTIALS = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.\-]*://[^:/@\s'\"]*):[^@\s'\"]*@")
+_DSN_PASSWORD = re.compile(r"(?i)\b(?P<key>password|passwd|pwd)(?P<eq>\s*=\s*)"
+                           r"(?:'(?:[^'\\]|\\.)*'|\"[^\"]*\"|[^\s&;,'\"]+)")
+MASK = "***"
+
+
+def _password_of(url: str) -> str | None:
+    """The password in an SQLAlchemy URL, also from a URL that does not parse (text between 'user:' and the
+    last '@')."""
+    try:
+        password = sa.engine.make_url(url).password
+        if password:
+            return str(password)
+    except Exception:  # not a URL SQLAlchemy can parse: look at the text
+        pass
+    m = re.match(r"^[^:/]+://[^:/@]*:(.+)@[^@]*$", url.strip())
+    return m.group(1) if m else None
+
+
+def redact_url(url: str) -> str:
+    """url with its password masked (SQLAlchemy's render_as_string(hide_password=True)), for errors and logs."""
+    try:
+        return str(sa.engine.make_url(url).render_as_string(hide_password=True))
+    except Exception:  # unparsable: mask whatever looks like credentials
+        return redact_text(url, url)
+
+
+def redact_text(text: str, url: str | None = None) -> str:
+    """text (an exception message, a log line) with every URL password, DSN password=..., and the password of
+    url in any spelling (raw, %-encoded) masked: drivers and SQLAlchemy may quote the URL or DSN they got."""
+    out = text
+    password = _password_of(url) if url else None
+    if password:
+        from urllib.parse import quote, quote_plus, unquote
+
+        for form in sorted({password, unquote(password), quote(password, safe=""), quote_plus(password)},
+                           key=len, reverse=True):
+            out = out.replace(form, MASK)
+    out = _URL_CREDENTIALS.sub(lambda m: f"{m['head']}:{MASK}@", out)
+    return _DSN_PASSWORD.sub(lambda m: f"{m['key']}{m['eq']}{MASK}", out)
+
+
 def make_engine(url: str) -> Engine:
-    """An engine for url; SQLite gets WAL, a 60 s busy timeout and BEGIN IMMEDIATE transactions."""
+    """An engine for url; SQLite gets WAL, a 60 s busy timeout and BEGIN IMMEDIATE transactions.  Errors
+    quote the URL with its password masked."""
     if not isinstance(url, str) or not url:
-        raise TemplateError(f"library_url must be an SQLAlchemy URL string, got {url!r}")
+        raise TemplateError(f"library_url must be an SQLAlchemy URL string, got {url!r}")  # not a secret: empty
     try:
         parsed = sa.engine.make_url(url)
     except sa.exc.ArgumentError:
-        raise TemplateError(f"library_url is not an SQLAlchemy URL: {url!r}") from None
+        raise TemplateError(f"library_url is not an SQLAlchemy URL: {redact_url(url)!r}") from None
     if parsed.get_backend_name() != "sqlite":
         return sa.create_engine(url, pool_pre_ping=True)
     memory = parsed.database in (None, "", ":memory:")
