@@ -172,3 +172,48 @@ def load_models(models_dir: str | Path | None = None, threads: int = 2,
     folder = Path(models_dir) if models_dir is not None else default_models_dir()
     return {name: load_model(name, folder, threads=threads, batch_size=batch_size)
             for name in available_models(folder)}
+
+
+def model_candidates(models_dir: str | Path | None = None) -> list[str]:
+    """Names a folder means to ship: every .onnx file, and every model card (a JSON object with a
+    "representation" key) even without its .onnx, so that a deleted network is reported, not ignored."""
+    folder = Path(models_dir) if models_dir is not None else default_models_dir()
+    if not folder.is_dir():
+        return []
+    names = {p.stem for p in folder.glob("*.onnx")}
+    for card in folder.glob("*.json"):
+        if card.stem in names:
+            continue
+        try:
+            text = json.loads(card.read_text())
+        except (OSError, ValueError):
+            continue  # a file that is not a card at all (plan.json and the like)
+        if isinstance(text, dict) and "representation" in text:
+            names.add(card.stem)
+    return sorted(names)
+
+
+def load_models_checked(models_dir: str | Path | None = None, threads: int = 2, batch_size: int = 1024
+                        ) -> tuple[dict[str, OnnxGraspClassifier], dict[str, str]]:
+    """Every model in a folder, each loaded on its own: (the models that load, {name: why} for the rest).
+
+    A truncated, empty or corrupt .onnx, a broken card or a card without its .onnx fails only that model.
+    """
+    folder = Path(models_dir) if models_dir is not None else default_models_dir()
+    models: dict[str, OnnxGraspClassifier] = {}
+    errors: dict[str, str] = {}
+    for name in model_candidates(folder):
+        onnx_path, card_path = folder / f"{name}.onnx", folder / f"{name}.json"
+        try:
+            if not onnx_path.is_file():
+                raise ModelError(f"model file {onnx_path} does not exist (its card {card_path.name} does)")
+            if not card_path.is_file():
+                raise ModelError(f"model card {card_path} does not exist (its network {onnx_path.name} does)")
+            model = OnnxGraspClassifier(onnx_path, read_card(card_path), threads=threads, batch_size=batch_size)
+            probe = model.score(np.zeros((1, model.channels, model.image_size, model.image_size), np.uint8))
+            if probe.shape != (1,) or not np.isfinite(probe).all():  # loads, but does not score as its card says
+                raise ModelError(f"model {name!r} gave {probe!r} for one blank image, not one probability")
+            models[name] = model
+        except Exception as exc:  # onnxruntime and a malformed card raise many types; each model fails alone
+            errors[name] = str(exc) if isinstance(exc, ModelError) else f"{type(exc).__name__}: {exc}"
+    return models, errors

@@ -24,6 +24,6 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str,
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     settings = Settings(port=0, zenoh_enabled=True, zenoh_listen=[endpoint], zenoh_stream=False, deadline_s=300,
                         models_dir=tmp_path_factory.mktemp("no-models"), detect_workers=1, queue_size=0,
-                        data_dir=tmp_path_factory.mktemp("data"))
+                        data_dir=tmp_path_factory.mktemp("data"), allow_unscored=True)
     with serve_in_thread(settings) as url:
         yield url, endpoint, settings

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Mapping
 from contextlib import asynccontextmanager
 from typing import Any
 
@@ -11,12 +11,16 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel
+from starlette.datastructures import MutableHeaders
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from graspd import __version__
 
 from .deps import ServiceState
-from .engine import DetectionEngine
+from .engine import DetectionEngine, dumps
+from .logs import begin_request
 from .metrics import Metrics
 from .problems import Problem, from_validation
 from .registry import ModelRegistry
@@ -48,11 +52,67 @@ The same request and response travel over Zenoh on `<prefix>/detect` (default pr
 """
 
 
-def problem_response(exc: Problem) -> JSONResponse:
-    headers = {"Retry-After": str(int(exc.retry_after))} if exc.retry_after is not None else None
+def problem_response(exc: Problem, headers: Mapping[str, str] | None = None) -> JSONResponse:
+    """The JSON error body of a Problem with its headers: Retry-After (503), WWW-Authenticate (401),
+    Connection: close (408: the rest of the body is not read)."""
+    out = dict(headers or {})
+    if exc.retry_after is not None:
+        out["Retry-After"] = str(int(exc.retry_after))
     if exc.status == 401:
-        headers = {"WWW-Authenticate": "Bearer"}
-    return JSONResponse(exc.body(), status_code=exc.status, headers=headers)
+        out["WWW-Authenticate"] = "Bearer"
+    if exc.status == 408:
+        out["Connection"] = "close"
+    return JSONResponse(exc.body(), status_code=exc.status, headers=out or None)
+
+
+class RequestGuard:
+    """ASGI middleware around every HTTP request: a request id (the contextvar of graspd.server.logs, so every
+    log line carries it; returned as X-Request-ID), and the last line of defence: an exception escaping the
+    routes becomes a 500 whose body holds no internal text (the log has the traceback), answered without
+    re-raising so that uvicorn keeps the keep-alive connection; a client that went away is logged at INFO."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        ctx = begin_request()
+        started = False
+
+        async def send_with_id(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+                MutableHeaders(scope=message)["X-Request-ID"] = ctx.id  # the id the body returns (templates: later)
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_with_id)
+        except ClientDisconnect:
+            log.info("client disconnected before its request was read", extra={"path": scope.get("path")})
+        except Exception as exc:
+            log.error("unhandled error", exc_info=True, extra={"path": scope.get("path"), "error": type(exc).__name__})
+            if started:  # nothing can be said any more; uvicorn closes the half-sent response
+                return
+            body = dumps({"error": f"internal error (request {ctx.id}; the server log has the details)",
+                          "field": None, "detail": []})
+            headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+                       (b"x-request-id", ctx.id.encode())]
+            await send({"type": "http.response.start", "status": 500, "headers": headers})
+            await send({"type": "http.response.body", "body": body})
+
+
+def add_unauthorized_responses(schema: dict[str, Any]) -> None:
+    """Document the 401 on every operation that takes the bearer token (FastAPI lists the scheme only)."""
+    for path in schema.get("paths", {}).values():
+        for op in path.values():
+            if isinstance(op, dict) and op.get("security"):
+                responses = op.setdefault("responses", {})
+                responses.setdefault("401", {
+                    "description": "missing or wrong bearer token (when the server sets GRASPD_TOKEN)",
+                    "content": {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}})
 
 
 def create_app(settings: Settings | None = None, registry: ModelRegistry | None = None) -> FastAPI:
@@ -62,7 +122,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         reg = registry or ModelRegistry.load(settings.resolved_models_dir(), settings.default_model,
-                                             settings.model_threads)
+                                             settings.model_threads, allow_unscored=settings.allow_unscored)
         mets = Metrics()
         engine = DetectionEngine(settings, reg, mets)
         state = ServiceState(settings, reg, mets, engine)
@@ -73,6 +133,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
             state.zenoh = ZenohNode(settings, engine, mets)
             state.zenoh.start()
         log.info("graspd ready", extra={"models": reg.names(), "default_model": reg.default,
+                                        "model_errors": reg.errors, "not_ready": reg.load_error,
                                         "workers": engine.workers, "queue": settings.queue_size,
                                         "zenoh": settings.zenoh_enabled})
         try:
@@ -84,6 +145,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
             engine.close(wait=True)
 
     app = FastAPI(title="graspd", version=__version__, description=DESCRIPTION, lifespan=lifespan)
+    app.add_middleware(RequestGuard)
     for r in (detect.router, health.router, models.router, metrics.router, templates_router):
         app.include_router(r)
 
@@ -92,21 +154,17 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
         return problem_response(exc)
 
     @app.exception_handler(RequestValidationError)
-    async def _invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
+    async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
         detail = [{"field": ".".join(str(p) for p in e.get("loc", ()) if p not in ("body", "query")),
                    "message": str(e.get("msg", "invalid"))} for e in exc.errors()]
         first = detail[0] if detail else {"field": "", "message": "invalid request"}
+        log.info("invalid request", extra={"path": request.url.path, "status": 422, "field": first["field"],
+                                           "error": first["message"]})
         return problem_response(Problem(422, first["message"], first["field"] or None, detail=detail))
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
-        return problem_response(Problem(exc.status_code, str(exc.detail)))
-
-    @app.exception_handler(Exception)
-    async def _crash(_: Request, exc: Exception) -> JSONResponse:
-        log.exception("unhandled error", extra={"error": repr(exc)})
-        return JSONResponse({"error": f"internal error: {type(exc).__name__}: {exc}", "field": None, "detail": []},
-                            status_code=500)
+        return problem_response(Problem(exc.status_code, str(exc.detail)), headers=exc.headers)  # 405: Allow
 
     def openapi() -> dict[str, Any]:
         """FastAPI's schema plus DetectRequest (its body is read by hand to also accept PCD/PLY files)."""
@@ -121,6 +179,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
                 extra = model.model_json_schema(ref_template="#/components/schemas/{model}")
                 comps.update(extra.pop("$defs", {}))
                 comps[model.__name__] = extra
+            add_unauthorized_responses(schema)
             app.openapi_schema = schema
         return app.openapi_schema
 

@@ -39,13 +39,12 @@ def serve(args: argparse.Namespace) -> int:
     from .allocator import tune_malloc
     from .app import create_app
     from .logs import configure_logging
+    from .runner import uvicorn_config
 
     tune_malloc()  # before any worker thread exists: large request buffers go back to the OS
     settings = settings_from_args(args)
     configure_logging(settings.log_level, settings.log_json)
-    config = uvicorn.Config(create_app(settings), host=settings.host, port=settings.port, log_config=None,
-                            access_log=False, timeout_graceful_shutdown=int(settings.deadline_s) + 1)
-    uvicorn.Server(config).run()
+    uvicorn.Server(uvicorn_config(create_app(settings), settings)).run()  # HTTP limits: Settings.http_*
     return 0
 
 

@@ -4,12 +4,14 @@ a worker pool sized to the cores, per-request deadlines, and request -> detectio
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import json
 import logging
 import math
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any, TypeVar
@@ -25,6 +27,7 @@ from graspd_client.codec import WireError
 
 from . import proposals
 from .allocator import IdleTrimmer, trim_function
+from .logs import current_request
 from .metrics import Metrics
 from .pngio import encode_png_b64
 from .problems import Problem, from_validation, from_wire
@@ -169,22 +172,42 @@ class DetectionEngine:
         self._lock = threading.Lock()
         self._pending = 0
         self._running = 0
-        self._avg_seconds = 1.0
+        self._avg_seconds = 1.0  # EWMA of a request's time on a worker (parse + detect), seconds
         self._trimmer = IdleTrimmer(trim_function(), busy=lambda: self._pending > 0)
         self.templates = TemplateService(settings)  # method "templates", and what feedback needs
         self.closed = False
 
     # ---- admission -------------------------------------------------------------------------
+    def retry_after(self) -> float:
+        """Seconds until a worker is expected to free a slot: the measured service time (EWMA) over the
+        workers, at least 1 s and at most settings.max_retry_after_s (what the clients wait at most)."""
+        wait = self._avg_seconds / self.workers
+        return float(min(self.settings.max_retry_after_s, max(1, math.ceil(wait))))
+
     def _admit(self) -> None:
+        """Reserve a place (running or queued) or refuse with 503: when the queue is full, or when the queue's
+        expected wait (measured service time x requests ahead / workers) would pass the deadline."""
         with self._lock:
             if self.closed:
                 raise Problem(503, "server is shutting down", retry_after=1.0)
+            ahead = self._pending - self.workers + 1  # requests a new one would wait for
             if self._pending >= self.capacity:
-                wait = self._avg_seconds * (self._pending / self.workers)
                 raise Problem(503, f"server busy ({self._pending} requests queued or running)",
-                              retry_after=float(min(30, max(1, math.ceil(wait)))))
+                              retry_after=self.retry_after())
+            if ahead > 0 and self._avg_seconds * ahead / self.workers > self.settings.deadline_s:
+                raise Problem(503, f"server busy: {self._pending} requests ahead would take longer than the "
+                              f"deadline of {self.settings.deadline_s:g} s", retry_after=self.retry_after())
             self._pending += 1
             self.metrics.queue_depth.set(self._pending - self._running)
+
+    def admit(self) -> None:
+        """Reserve a place before the request body is read (Problem 503 when full); hand it to enqueue(), or
+        give it back with release() if the request ends before."""
+        self._admit()
+
+    def release(self) -> None:
+        """Give back a place taken by admit() that was not handed to enqueue()."""
+        self._release()
 
     def _release(self, _future: Future[Any] | None = None) -> None:
         with self._lock:
@@ -200,7 +223,9 @@ class DetectionEngine:
         return self._pending
 
     # ---- the work --------------------------------------------------------------------------
-    def _job(self, req: DetectRequest, enqueued: float, deadline: float, timings: dict[str, float]) -> bytes:
+    def _job(self, parse: Callable[[], DetectRequest], enqueued: float, deadline: float,
+             timings: dict[str, float]) -> bytes:
+        """Parse (on this worker, not the event loop) and detect; the response JSON bytes, or Problem."""
         start = time.perf_counter()
         with self._lock:
             self._running += 1
@@ -208,9 +233,12 @@ class DetectionEngine:
             self.metrics.queue_depth.set(max(0, self._pending - self._running))
         try:
             timings["queue"] = start - enqueued
+            before = timings.get("read", 0.0) + timings.get("decode", 0.0)  # spent before enqueue (body read)
             if start > deadline:
                 raise Problem(504, f"deadline of {self.settings.deadline_s} s passed while queued", "deadline")
-            model = self.registry.resolve(req.model)
+            req = parse()
+            timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
+            model = self.registry.resolve(req.model, req.use_classifier and req.method == "gpd")
             try:
                 hand = req.hand_geometry()
                 cloud = ViewpointCloud(points=req.cloud.points, viewpoints=np.asarray(req.cloud.viewpoints, np.float32),
@@ -224,13 +252,16 @@ class DetectionEngine:
                 field = text.split(" ", 1)[0] if text.startswith(("cloud.", "hand.")) else "body"
                 raise Problem(422, text, field) from None
             det: Detection | TemplateDetection
+            ctx = current_request()
             if req.method == "templates":
                 det, body = self.templates.detect(req, cloud, hand)
                 request_id = body.pop("request_id")
+                if ctx is not None:
+                    ctx.id = request_id  # the request's later log lines and X-Request-ID carry the returned id
             else:
                 det = self.registry.detector(model).detect(cloud, params, hand)
                 body = det.to_dict()
-                request_id = uuid.uuid4().hex[:16]
+                request_id = ctx.id if ctx is not None else uuid.uuid4().hex[:16]
                 self.templates.remember(request_id, cloud, det)
                 for i, g in enumerate(body["grasps"]):
                     g["id"] = f"{request_id}-{i}"
@@ -245,24 +276,31 @@ class DetectionEngine:
             self.metrics.candidates.observe(det.num_candidates)
             self.metrics.grasps.observe(len(det.grasps))
             self.metrics.points.observe(det.num_points)
-            elapsed = time.perf_counter() - start
-            self._avg_seconds = 0.8 * self._avg_seconds + 0.2 * elapsed
-            timings["total"] = time.perf_counter() - enqueued + timings.get("decode", 0.0)
+            timings["total"] = time.perf_counter() - enqueued + before
             self.metrics.observe_timings(timings)
             body = {"request_id": request_id, "method": req.method, **body, "timings": timings}
             return dumps(body)
         finally:
+            elapsed = time.perf_counter() - start
             with self._lock:
                 self._running -= 1
                 self.metrics.running.set(self._running)
+                if elapsed > 0.01 or self._avg_seconds < 0.01:  # refusals in microseconds say nothing of the load
+                    self._avg_seconds = 0.8 * self._avg_seconds + 0.2 * elapsed
 
     def submit(self, req: DetectRequest, timings: dict[str, float]) -> tuple[Future[bytes], float]:
         """Admit a request (Problem 503 when full) and queue it; returns the future and its deadline."""
         self._admit()
+        return self.enqueue(lambda: req, timings)
+
+    def enqueue(self, parse: Callable[[], DetectRequest], timings: dict[str, float]) -> tuple[Future[bytes], float]:
+        """Queue an admitted request (admit() first): parse() runs on a worker, then the detection.  Returns
+        the future and its deadline; the place is given back when the future is done."""
         now = time.perf_counter()
         deadline = now + self.settings.deadline_s
+        context = contextvars.copy_context()  # the request id follows the work onto the worker thread
         try:
-            fut = self.executor.submit(self._job, req, now, deadline, timings)
+            fut = self.executor.submit(context.run, self._job, parse, now, deadline, timings)
         except RuntimeError:  # executor shut down
             self._release()
             raise Problem(503, "server is shutting down", retry_after=1.0) from None
@@ -282,6 +320,14 @@ class DetectionEngine:
     async def run(self, req: DetectRequest, timings: dict[str, float]) -> bytes:
         """Awaitable detect for the HTTP app: the work runs off the event loop."""
         fut, deadline = self.submit(req, timings)
+        return await self._wait(fut, deadline)
+
+    async def run_admitted(self, parse: Callable[[], DetectRequest], timings: dict[str, float]) -> bytes:
+        """Awaitable parse + detect of a request admitted with admit(): both run on a worker thread."""
+        fut, deadline = self.enqueue(parse, timings)
+        return await self._wait(fut, deadline)
+
+    async def _wait(self, fut: Future[bytes], deadline: float) -> bytes:
         waiter = asyncio.wrap_future(fut)
         self.trim_after(fut)
         try:

@@ -1,5 +1,7 @@
-"""The model registry: whatever graspd.classifier loads from the models folder, by name, plus the
-detector for each (and the unscored detector when there is no model)."""
+"""The model registry: the classifiers of the models folder, each loaded on its own, by name, plus the detector
+for each.  A model that fails to load is reported by name (and why) in /readyz and the log while the others
+serve; the default model missing or broken makes the service not ready, and requests that would use it get
+a 503 naming `model` instead of silently unscored grasps."""
 
 from __future__ import annotations
 
@@ -17,41 +19,57 @@ log = logging.getLogger("graspd.server")
 
 @dataclass
 class ModelRegistry:
-    """Classifiers by name and the default name (None: no model, detections come back unscored)."""
+    """Classifiers by name; `default` is the loaded default model's name (None when it did not load, or, with
+    allow_unscored, when there is none: then requests naming no model come back unscored)."""
 
     classifiers: dict[str, Any] = field(default_factory=dict)
     default: str | None = None
-    load_error: str | None = None
+    load_error: str | None = None  # the default model's problem, when the service cannot be ready
+    errors: dict[str, str] = field(default_factory=dict)  # models that failed to load: name -> why
+    wanted_default: str | None = None  # the configured (or built-in) default name
+    allow_unscored: bool = False
     _detectors: dict[str | None, GraspDetector] = field(default_factory=dict)
 
     @classmethod
-    def load(cls, models_dir: Path, default: str | None = None, threads: int = 1) -> ModelRegistry:
-        """Load every model in models_dir through graspd.classifier.load_models; a folder without models
-        gives an empty registry (the service then runs unscored and says so)."""
+    def load(cls, models_dir: Path, default: str | None = None, threads: int = 1,
+             allow_unscored: bool = False) -> ModelRegistry:
+        """Load every model in models_dir, each on its own (graspd.classifier.load_models_checked); failures
+        are logged at ERROR by name.  default: the configured default name, else classifier's generic15."""
         from graspd import classifier
 
-        try:
-            models = dict(classifier.load_models(models_dir, threads=threads))
-        except Exception as exc:  # a broken model must not stop the service; /readyz reports it
-            log.error("model loading failed", extra={"models_dir": str(models_dir), "error": str(exc)})
-            return cls(load_error=f"{type(exc).__name__}: {exc}")
-        if default is not None and default not in models:
-            return cls(models, None, load_error=f"default model {default!r} not in {sorted(models)}")
-        if default is None and models:
-            preferred = classifier.default_model_name()
-            default = preferred if preferred in models else sorted(models)[0]
-        return cls(models, default)
+        models, errors = classifier.load_models_checked(models_dir, threads=threads)
+        for name, why in sorted(errors.items()):
+            log.error("model failed to load", extra={"model": name, "error": why, "models_dir": str(models_dir)})
+        wanted = default or classifier.default_model_name()
+        load_error = None
+        if wanted in errors:
+            load_error = f"default model {wanted!r} failed to load: {errors[wanted]}"
+        elif wanted not in models and not (allow_unscored and default is None):
+            load_error = f"default model {wanted!r} is not in {models_dir} (models there: {sorted(models)})"
+        if load_error is not None:
+            log.error("default model unavailable: not ready", extra={"model": wanted, "error": load_error})
+        return cls(models, wanted if wanted in models else None, load_error, errors, wanted, allow_unscored)
 
     def names(self) -> list[str]:
         return sorted(self.classifiers)
 
-    def resolve(self, name: str | None) -> str | None:
-        """The model a request gets: its own (422 naming 'model' if unknown) or the default."""
-        if name is None:
-            return self.default
-        if name not in self.classifiers:
+    def resolve(self, name: str | None, scoring: bool = True) -> str | None:
+        """The model a request gets: its own, else the default.  A name that is not in the folder is a 422
+        naming 'model'; one that failed to load, or a missing default while scoring was asked for, is a 503
+        naming 'model'.  With scoring False (use_classifier false) a missing default is no error."""
+        if name is not None:
+            if name in self.classifiers:
+                return name
+            if name in self.errors:
+                raise Problem(503, f"model {name!r} is unavailable: it failed to load ({self.errors[name]})",
+                              "model")
             raise Problem(422, f"unknown model {name!r}; known: {self.names()}", "model")
-        return name
+        if self.default is not None or not scoring:
+            return self.default
+        if self.load_error is None:  # allow_unscored and no default model: unscored by configuration
+            return None
+        raise Problem(503, f"{self.load_error}; name another model (GET /models) or set use_classifier false",
+                      "model")
 
     def detector(self, name: str | None) -> GraspDetector:
         if name not in self._detectors:

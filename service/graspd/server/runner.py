@@ -1,13 +1,16 @@
-"""Run the service in a background thread of this process (tests, notebooks): a real uvicorn server on
-a real socket, stopped gracefully on exit."""
+"""Run the service with uvicorn: the limits that guard the HTTP entrance (keep-alive, request-header and body
+timeouts, connection limit, header size, graceful shutdown), shared by `graspd serve` and serve_in_thread, a
+real server on a real socket in a background thread of this process (tests, benches)."""
 
 from __future__ import annotations
 
+import asyncio
 import socket
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any
 
 from .settings import Settings
 
@@ -19,6 +22,67 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+def guarded_h11_protocol(header_timeout_s: float) -> type[asyncio.Protocol]:
+    """uvicorn's h11 protocol with a request-header deadline: from the moment a connection opens, or a kept-alive
+    connection receives the first byte of its next request, the request line and headers must be complete
+    within header_timeout_s, else the connection is closed.  uvicorn's own keep-alive timer only runs after a
+    response and restarts on every byte, so a client trickling headers (or never sending any) held a
+    connection forever.  Bodies are timed by the routes (routers.detect.read_capped)."""
+    from uvicorn.protocols.http.h11_impl import H11Protocol
+
+    class GuardedH11Protocol(H11Protocol):
+        _header_timer: asyncio.TimerHandle | None = None
+        _armed_cycle: Any = None
+
+        def _arm(self) -> None:
+            self._armed_cycle = self.cycle
+            self._header_timer = self.loop.call_later(header_timeout_s, self._header_timeout)
+
+        def _disarm(self) -> None:
+            if self._header_timer is not None:
+                self._header_timer.cancel()
+                self._header_timer = None
+
+        def _header_timeout(self) -> None:
+            self._header_timer = None
+            if self.cycle is self._armed_cycle and not self.transport.is_closing():  # headers still incomplete
+                self.logger.info("closing a connection whose request headers did not arrive in %.3g s",
+                                 header_timeout_s)
+                self.transport.close()
+
+        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+            super().connection_made(transport)
+            self._arm()
+
+        def data_received(self, data: bytes) -> None:
+            if self._header_timer is None and (self.cycle is None or self.cycle.response_complete):
+                self._arm()  # the next request on a kept-alive connection begins
+            super().data_received(data)
+            if self.cycle is not self._armed_cycle:  # a new request's headers were parsed
+                self._disarm()
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            self._disarm()
+            super().connection_lost(exc)
+
+    return GuardedH11Protocol
+
+
+def uvicorn_config(app: Any, settings: Settings, port: int | None = None) -> Any:
+    """A uvicorn.Config for app with the settings' HTTP limits (see Settings.http_*, shutdown_grace_s)."""
+    import uvicorn
+
+    return uvicorn.Config(
+        app, host=settings.host, port=settings.port if port is None else port, log_config=None, access_log=False,
+        lifespan="on",
+        http=guarded_h11_protocol(settings.http_header_timeout_s),  # type: ignore[arg-type]
+        timeout_keep_alive=max(1, round(settings.http_keep_alive_s)),
+        limit_concurrency=settings.http_max_connections,
+        h11_max_incomplete_event_size=settings.http_max_header_bytes,
+        timeout_graceful_shutdown=max(1, round(settings.shutdown_grace_s)),
+    )
+
+
 @contextmanager
 def serve_in_thread(settings: Settings, startup_timeout: float = 60.0) -> Iterator[str]:
     """Serve create_app(settings) on settings.host:port (0 = a free port); yields the base URL."""
@@ -27,9 +91,7 @@ def serve_in_thread(settings: Settings, startup_timeout: float = 60.0) -> Iterat
     from .app import create_app
 
     port = settings.port or free_port(settings.host)
-    config = uvicorn.Config(create_app(settings), host=settings.host, port=port, log_config=None,
-                            access_log=False, lifespan="on")
-    server = uvicorn.Server(config)
+    server = uvicorn.Server(uvicorn_config(create_app(settings), settings, port))
     thread = threading.Thread(target=server.run, name="graspd-uvicorn", daemon=True)
     thread.start()
     deadline = time.monotonic() + startup_timeout

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
+from collections.abc import Mapping
 from typing import Any
 
 from fastapi import APIRouter, Request
@@ -12,7 +14,7 @@ from fastapi.responses import Response
 from ..deps import Authorized, State
 from ..engine import parse_request
 from ..problems import Problem
-from ..schemas import DetectResponse, ErrorBody
+from ..schemas import DetectRequest, DetectResponse, ErrorBody
 from ..uploads import sniff, upload_request
 
 router = APIRouter(tags=["detect"])
@@ -60,19 +62,42 @@ OPENAPI_EXTRA: dict[str, Any] = {
 }
 
 
-async def read_capped(request: Request, cap: int) -> bytes:
-    """The request body, or 413 as soon as it is known to exceed cap bytes."""
+async def read_capped(request: Request, cap: int, timeout_s: float | None = None) -> bytes:
+    """The request body, or 413 as soon as it is known to exceed cap bytes, or 408 when it has not all
+    arrived within timeout_s (default: the service's http_body_timeout_s): a trickling client cannot hold a
+    connection and its buffer indefinitely."""
     length = request.headers.get("content-length")
     if length is not None and length.isdigit() and int(length) > cap:
         raise Problem(413, f"request body of {length} bytes exceeds the limit of {cap}", "body")
+    if timeout_s is None:
+        service = getattr(request.app.state, "service", None)
+        timeout_s = service.settings.http_body_timeout_s if service is not None else 60.0
     chunks: list[bytes] = []
     size = 0
-    async for chunk in request.stream():
+    stream = request.stream().__aiter__()
+    end = time.monotonic() + timeout_s
+    while True:
+        try:
+            chunk = await asyncio.wait_for(anext(stream), timeout=max(0.0, end - time.monotonic()))
+        except StopAsyncIteration:
+            break
+        except TimeoutError:
+            raise Problem(408, f"request body not received within {timeout_s:g} s ({size} bytes arrived)",
+                          "body") from None
         size += len(chunk)
         if size > cap:
             raise Problem(413, f"request body exceeds the limit of {cap} bytes", "body")
         chunks.append(chunk)
     return b"".join(chunks)
+
+
+def parse_body(data: bytes, content_type: str, query: Mapping[str, str], viewpoints: list[str]) -> DetectRequest:
+    """A validated DetectRequest from the body (JSON, PCD or PLY; options of a file in the query); runs on a
+    worker thread: PCD/PLY/PNG decoding takes tens of milliseconds to seconds."""
+    kind = sniff(data, content_type)
+    if kind == "json":
+        return parse_request(data)
+    return parse_request(upload_request(data, kind, query, viewpoints))
 
 
 @router.post(
@@ -84,9 +109,11 @@ async def read_capped(request: Request, cap: int) -> bytes:
     response_class=Response,
     responses={
         200: {"model": DetectResponse, "description": "grasps, timings, model used"},
-        400: {"model": ErrorBody}, 401: {"model": ErrorBody}, 413: {"model": ErrorBody},
+        400: {"model": ErrorBody}, 401: {"model": ErrorBody, "description": "missing or wrong bearer token"},
+        408: {"model": ErrorBody, "description": "the body did not arrive in time"}, 413: {"model": ErrorBody},
         415: {"model": ErrorBody}, 422: {"model": ErrorBody},
-        503: {"model": ErrorBody, "description": "queue full; retry after the Retry-After header (s)"},
+        503: {"model": ErrorBody, "description": "queue full (retry after the Retry-After header, s), or the "
+                                                 "model asked for, or the default, is unavailable (field model)"},
         504: {"model": ErrorBody, "description": "deadline passed"},
     },
     openapi_extra=OPENAPI_EXTRA,
@@ -96,26 +123,34 @@ async def detect(request: Request, state: State) -> Response:
     metrics = state.metrics
     outcome = "error"
     status = 500
+    problem: Problem | None = None
     try:
-        data = await read_capped(request, state.settings.max_body_bytes)
-        kind = sniff(data, request.headers.get("content-type", ""))
-        if kind == "json":
-            req = parse_request(data)
-        else:
-            q = request.query_params
-            req = parse_request(upload_request(data, kind, {k: q[k] for k in q}, q.getlist("viewpoint")))
-        timings = {"decode": time.perf_counter() - t0}
-        body = await state.engine.run(req, timings)
+        state.engine.admit()  # 503 when full, before the body is read or parsed
+        try:
+            data = await read_capped(request, state.settings.max_body_bytes)
+        except BaseException:
+            state.engine.release()
+            raise
+        q = request.query_params
+        content_type, query, viewpoints = request.headers.get("content-type", ""), {k: q[k] for k in q}, \
+            q.getlist("viewpoint")
+        timings = {"read": time.perf_counter() - t0}
+        body = await state.engine.run_admitted(lambda: parse_body(data, content_type, query, viewpoints), timings)
         outcome, status = "ok", 200
         return Response(body, media_type="application/json")
     except Problem as exc:
-        status = exc.status
+        problem, status = exc, exc.status
         outcome = {503: "busy", 504: "deadline", 413: "too_large", 401: "unauthorized"}.get(
             exc.status, "invalid" if exc.status < 500 else "error")
+        if exc.status == 503 and exc.field == "model":
+            outcome = "model_unavailable"
         raise
     finally:
         elapsed = time.perf_counter() - t0
         metrics.requests.labels("http", outcome).inc()
         metrics.request_seconds.labels("http").observe(elapsed)
-        log.info("detect", extra={"transport": "http", "status": status, "outcome": outcome,
-                                  "ms": round(elapsed * 1000, 1)})
+        extra: dict[str, Any] = {"transport": "http", "status": status, "outcome": outcome,
+                                 "ms": round(elapsed * 1000, 1)}
+        if problem is not None:  # say why: the field and the message (the first of them)
+            extra.update(field=problem.field, error=problem.message)
+        log.info("detect", extra=extra)

@@ -17,12 +17,13 @@ def healthz() -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/readyz", summary="Ready: models loaded (or none configured) and Zenoh up when enabled",
-            responses={503: {"description": "not ready; body says why"}})
+@router.get("/readyz", summary="Ready: the default model loaded (models that failed to load are listed by name "
+            "in model_errors) and Zenoh up when enabled",
+            responses={503: {"description": "not ready; problems says why (the default model by name)"}})
 def readyz(state: State) -> Any:
     problems = []
     if state.registry.load_error:
-        problems.append(f"models: {state.registry.load_error}")
+        problems.append(f"model: {state.registry.load_error}")
     if state.settings.zenoh_enabled and (state.zenoh is None or not state.zenoh.ready):
         problems.append("zenoh: session not open")
     if state.engine.closed:
@@ -33,6 +34,7 @@ def readyz(state: State) -> Any:
         "models": state.registry.names(),
         "default_model": state.registry.default,
         "scoring": state.registry.default is not None,
+        "model_errors": state.registry.errors,  # models that failed to load: name -> why (the others serve)
         "zenoh": state.zenoh is not None and state.zenoh.ready,
         "workers": state.engine.workers,
         "queue_capacity": state.engine.capacity,
