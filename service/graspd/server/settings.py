@@ -73,6 +73,24 @@ class Settings(BaseSettings):
                                       "for POST /feedback (older ids answer 404)")
     feedback_memory_mb: float = Field(default=24.0, ge=0, description="memory cap of those remembered "
                                       "detections (MiB; their clouds, poses and widths)")
+    allow_unscored: bool = Field(default=False, description="without a default model in the models folder, "
+                                 "serve requests naming no model unscored (scored: false) instead of answering 503 "
+                                 "and reporting not ready; for tests and ablations (a broken default is never "
+                                 "allowed)")
+    max_retry_after_s: float = Field(default=5.0, ge=1, description="largest Retry-After of a 503 (s); the "
+                                     "clients wait at most 5 s between retries")
+    http_keep_alive_s: float = Field(default=5.0, gt=0, description="idle keep-alive connections close after "
+                                     "this (s)")
+    http_header_timeout_s: float = Field(default=10.0, gt=0, description="a request line and headers must "
+                                         "arrive within this (s), or the connection closes (slow clients)")
+    http_body_timeout_s: float = Field(default=60.0, gt=0, description="the whole request body must arrive "
+                                       "within this (s), or 408 and the connection closes (slow clients)")
+    http_max_connections: int = Field(default=256, ge=1, description="open HTTP connections at most; more are "
+                                      "answered 503 by uvicorn")
+    http_max_header_bytes: int = Field(default=64 << 10, ge=1024, description="request line and headers at "
+                                       "most (bytes)")
+    shutdown_grace_s: float = Field(default=35.0, ge=0, description="on SIGTERM: time running requests get "
+                                    "to finish before connections are closed (s)")
 
     @property
     def workers(self) -> int:
