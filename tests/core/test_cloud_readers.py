@@ -56,3 +56,103 @@ def test_unknown_suffix_and_broken_header_are_named(tmp_path: Path) -> None:
     (tmp_path / "bad.pcd").write_bytes(b"VERSION 0.7\nFIELDS a b\nDATA ascii\n1 2\n")
     with pytest.raises(CloudError, match="pcd"):
         read_cloud(tmp_path / "bad.pcd")
+
+
+# ---- headers that lie, caps, binary_compressed (issue 11) -------------------------------------------------------
+def _binary_pcd(points: np.ndarray, **header: object) -> bytes:
+    fields = {"WIDTH": len(points), "HEIGHT": 1, "POINTS": len(points), **header}
+    text = "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+    text += "".join(f"{k} {v}\n" for k, v in fields.items()) + "DATA binary\n"
+    return text.encode() + points.astype("<f4").tobytes()
+
+
+PTS = np.random.default_rng(3).normal(size=(500, 3)).astype(np.float32)
+ASCII_ROWS = "\n".join(" ".join(f"{v:.6g}" for v in p) for p in PTS[:10]).encode() + b"\n"
+
+LYING_PCD = [
+    ("POINTS beyond 64 bits", _binary_pcd(PTS, POINTS=10**20), "POINTS"),
+    ("POINTS negative", _binary_pcd(PTS, POINTS=-1), "POINTS"),
+    ("POINTS 5 with 500 records", _binary_pcd(PTS, POINTS=5, WIDTH=5), "6000 bytes"),
+    ("POINTS 5000 with 500 records", _binary_pcd(PTS, POINTS=5000, WIDTH=5000), "6000 bytes"),
+    ("WIDTH not POINTS", _binary_pcd(PTS, WIDTH=7), "WIDTH x HEIGHT"),
+    ("POINTS above the cap", _binary_pcd(PTS, POINTS=6_000_000, WIDTH=6_000_000), "limit"),
+    ("POINTS not a number", _binary_pcd(PTS, POINTS="1e3"), "POINTS"),
+    ("ascii 1000 declared, 10 rows", _pcd_header(1000, "ascii") + ASCII_ROWS, "10 rows"),
+    ("ascii short row", _pcd_header(2, "ascii") + b"1 2\n3 4 5\n", "unreadable"),
+    ("ascii words", _pcd_header(1, "ascii") + b"a b c\n", "unreadable"),
+    ("VIEWPOINT short", _binary_pcd(PTS, VIEWPOINT="1 2"), "VIEWPOINT"),
+]
+
+
+@pytest.mark.parametrize(("name", "data", "why"), LYING_PCD, ids=[c[0] for c in LYING_PCD])
+def test_pcd_headers_that_lie_are_refused(name: str, data: bytes, why: str) -> None:
+    from graspd.cloud_io import parse_pcd
+
+    with pytest.raises(CloudError, match=why):
+        parse_pcd(data)
+
+
+def test_binary_compressed_pcd_round_trips_with_its_viewpoint(tmp_path: Path) -> None:
+    """PCL's most common format, written by open3d (LZF); the VIEWPOINT line is honoured in every format."""
+    import open3d as o3d
+
+    from graspd.cloud_io import parse_pcd
+
+    path = tmp_path / "c.pcd"
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(PTS.astype(np.float64)))
+    assert o3d.io.write_point_cloud(str(path), cloud, write_ascii=False, compressed=True)
+    data = path.read_bytes()
+    assert b"DATA binary_compressed\n" in data
+    points, viewpoint = parse_pcd(data.replace(b"VIEWPOINT 0 0 0 1 0 0 0", b"VIEWPOINT 0.5 0 0.25 1 0 0 0"))
+    assert np.array_equal(points, PTS) and np.allclose(viewpoint, [0.5, 0, 0.25])
+    head, _, body = data.partition(b"DATA binary_compressed\n")
+    fewer = head.replace(b"POINTS 500", b"POINTS 400").replace(b"WIDTH 500", b"WIDTH 400")
+    with pytest.raises(CloudError, match="uncompressed"):  # the size words say 500 points
+        parse_pcd(fewer + b"DATA binary_compressed\n" + body)
+    with pytest.raises(CloudError, match="compressed bytes"):  # truncated
+        parse_pcd(data[:-100])
+
+
+def test_pcd_with_other_fields_and_types_reads_xyz() -> None:
+    """x y z in float64 beside a 3-value descriptor, and int16 coordinates: open3d reads xyz of any layout."""
+    from graspd.cloud_io import parse_pcd
+
+    dt = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("f", "<f4", (3,))])
+    rec = np.zeros(2, dt)
+    rec["x"], rec["z"] = [1, 2], [3, 4]
+    head = b"FIELDS x y z fpfh\nSIZE 8 8 8 4\nTYPE F F F F\nCOUNT 1 1 1 3\nWIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA binary\n"
+    points, viewpoint = parse_pcd(b"# .PCD v0.7\n" + head + rec.tobytes())
+    assert np.array_equal(points, [[1, 0, 3], [2, 0, 4]]) and viewpoint is None
+
+
+PLY_HEAD = "ply\nformat binary_little_endian 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n" \
+           "property float z\n{extra}end_header\n"
+LYING_PLY = [
+    ("list bomb 2e7", PLY_HEAD.format(n=20_000_000, extra="property list uchar int idx\n").encode() + bytes(40),
+     "limit"),
+    ("list bomb under the cap", PLY_HEAD.format(n=4_000_000, extra="property list uchar int idx\n").encode()
+     + bytes(40), "bytes"),
+    ("short binary", PLY_HEAD.format(n=100, extra="").encode() + bytes(12 * 99), "bytes"),
+    ("negative count", PLY_HEAD.format(n=-5, extra="").encode(), "count"),
+    ("unknown type", PLY_HEAD.format(n=1, extra="property quad w\n").encode() + bytes(16), "not understood"),
+    ("face bomb", PLY_HEAD.format(n=1, extra="element face 900000000\nproperty list uchar int vertex_indices\n")
+     .encode() + bytes(12), "bytes"),
+]
+
+
+@pytest.mark.parametrize(("name", "data", "why"), LYING_PLY, ids=[c[0] for c in LYING_PLY])
+def test_ply_counts_are_checked_before_reading(name: str, data: bytes, why: str) -> None:
+    from graspd.cloud_io import parse_ply
+
+    assert len(data) < 2000  # a few hundred bytes that declare up to hundreds of megabytes
+    with pytest.raises(CloudError, match=why):
+        parse_ply(data)
+
+
+def test_ply_with_a_list_property_still_reads(tmp_path: Path) -> None:
+    from graspd.cloud_io import parse_ply
+
+    rec = np.zeros(3, np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("n", "u1"), ("i", "<i4", (2,))]))
+    rec["x"], rec["n"] = [1, 2, 3], 2
+    data = PLY_HEAD.format(n=3, extra="property list uchar int idx\n").encode() + rec.tobytes()
+    assert np.array_equal(parse_ply(data)[:, 0], [1, 2, 3])
