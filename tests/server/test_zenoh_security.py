@@ -297,3 +297,72 @@ def test_user_password_config_end_to_end(make_settings: Callable[..., Settings],
         for conf in (client_config(connect=[endpoint]), client_config(connect=[endpoint], config_file=stranger)):
             with zenoh.open(conf) as session:
                 assert _replies(session, "graspd/library", attachment=zenoh_token_attachment(TOKEN)) == []
+
+
+def _make_certs(folder: Path) -> None:
+    """A CA and a server certificate for 127.0.0.1/localhost (P-256), with the openssl command."""
+    import shutil
+    import subprocess
+
+    if shutil.which("openssl") is None:
+        pytest.skip("the openssl command is not installed (needed to make test certificates)")
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+
+    def run(*args: str) -> None:
+        subprocess.run(["openssl", *args], cwd=folder, check=True, capture_output=True, timeout=60)
+
+    run("req", "-x509", *ec, "-keyout", "ca-key.pem", "-out", "ca.pem", "-days", "2", "-subj", "/CN=graspd test CA")
+    run("req", *ec, "-keyout", "server-key.pem", "-out", "server.csr", "-subj", "/CN=localhost")
+    (folder / "san.ext").write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\n")
+    run("x509", "-req", "-in", "server.csr", "-CA", "ca.pem", "-CAkey", "ca-key.pem", "-CAcreateserial",
+        "-out", "server.pem", "-days", "2", "-extfile", "san.ext")
+
+
+def _example(name: str, out: Path, **overrides: Any) -> Path:
+    """examples/zenoh/<name> as Zenoh reads it, with some keys replaced (paths, endpoints), written to out."""
+    import zenoh
+
+    conf = zenoh.Config.from_file(str(Path(__file__).resolve().parents[2] / "examples" / "zenoh" / name))
+    for key, value in overrides.items():
+        conf.insert_json5(key.replace("__", "/"), json.dumps(value))
+    out.write_text(str(conf))
+    return out
+
+
+def test_example_secure_deployment_end_to_end(make_settings: Callable[..., Settings], tmp_path: Path,
+                                              krylon: ViewpointCloud) -> None:
+    """The README's secure deployment (examples/zenoh/*.json5: TLS, user/password, access control, and the
+    token): the robot detects; no credentials, a user the access rules do not name, a plain-TCP peer and a
+    robot without the token get nothing done."""
+    import zenoh
+
+    _make_certs(tmp_path)
+    port = free_port()
+    (tmp_path / "users.txt").write_text("robot:robot-pw\nviewer:viewer-pw\n")
+    tls = {"transport__link__tls__root_ca_certificate": str(tmp_path / "ca.pem")}
+    server_conf = _example("graspd-server.json5", tmp_path / "server.json", **tls,
+                           listen__endpoints=[f"tls/127.0.0.1:{port}"],
+                           transport__link__tls__listen_certificate=str(tmp_path / "server.pem"),
+                           transport__link__tls__listen_private_key=str(tmp_path / "server-key.pem"),
+                           transport__auth__usrpwd__dictionary_file=str(tmp_path / "users.txt"))
+    robot = _example("robot.json5", tmp_path / "robot.json", **tls, transport__auth__usrpwd__password="robot-pw")
+    viewer = _example("robot.json5", tmp_path / "viewer.json", **tls, transport__auth__usrpwd__user="viewer",
+                      transport__auth__usrpwd__password="viewer-pw")
+    stranger = _example("robot.json5", tmp_path / "stranger.json", **tls, transport__auth__usrpwd__password="guess")
+    endpoint = f"tls/127.0.0.1:{port}"
+    settings = make_settings(zenoh_enabled=True, zenoh_config=server_conf, token=TOKEN, zenoh_stream=False,
+                             zenoh_listen=["tcp/127.0.0.1:1"])  # ignored: the file sets listen
+    with TestClient(create_app(settings)) as http:
+        with ZenohGraspClient(connect=[endpoint], timeout=30, token=TOKEN, config=robot) as zc:
+            assert len(zc.detect(krylon.points, krylon.viewpoints, num_samples=20)) > 0
+            assert zc.library()["num_entries"] == 0
+        with ZenohGraspClient(connect=[endpoint], timeout=30, retries=0, config=robot) as no_token:
+            with pytest.raises(RequestRejected) as info:
+                no_token.library()
+            assert info.value.status == 401
+        for conf in (viewer, stranger, None):
+            config = client_config(connect=[endpoint], config_file=conf) if conf else \
+                client_config(connect=[f"tcp/127.0.0.1:{port}"])
+            with zenoh.open(config) as session:
+                assert _replies(session, "graspd/library", attachment=zenoh_token_attachment(TOKEN)) == [], conf
+        assert 'graspd_requests_total{outcome="ok",transport="zenoh"} 1.0' in http.get("/metrics").text
