@@ -84,14 +84,15 @@ def uvicorn_config(app: Any, settings: Settings, port: int | None = None) -> Any
 
 
 @contextmanager
-def serve_in_thread(settings: Settings, startup_timeout: float = 60.0) -> Iterator[str]:
-    """Serve create_app(settings) on settings.host:port (0 = a free port); yields the base URL."""
+def serve_in_thread(settings: Settings, startup_timeout: float = 60.0, app: Any = None) -> Iterator[str]:
+    """Serve app (default: create_app(settings)) on settings.host:port (0 = a free port) with the settings'
+    HTTP limits; yields the base URL."""
     import uvicorn
 
     from .app import create_app
 
     port = settings.port or free_port(settings.host)
-    server = uvicorn.Server(uvicorn_config(create_app(settings), settings, port))
+    server = uvicorn.Server(uvicorn_config(app if app is not None else create_app(settings), settings, port))
     thread = threading.Thread(target=server.run, name="graspd-uvicorn", daemon=True)
     thread.start()
     deadline = time.monotonic() + startup_timeout

@@ -10,6 +10,7 @@ from typing import Any
 
 from fastapi import APIRouter, Request
 from fastapi.responses import Response
+from starlette.requests import ClientDisconnect
 
 from ..deps import Authorized, State
 from ..engine import parse_request
@@ -138,6 +139,9 @@ async def detect(request: Request, state: State) -> Response:
         body = await state.engine.run_admitted(lambda: parse_body(data, content_type, query, viewpoints), timings)
         outcome, status = "ok", 200
         return Response(body, media_type="application/json")
+    except ClientDisconnect:  # the client went away while sending: nothing to answer (RequestGuard logs it)
+        status, outcome = 499, "disconnected"
+        raise
     except Problem as exc:
         problem, status = exc, exc.status
         outcome = {503: "busy", 504: "deadline", 413: "too_large", 401: "unauthorized"}.get(
