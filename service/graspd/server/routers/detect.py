@@ -109,7 +109,10 @@ def parse_body(data: bytes, content_type: str, query: Mapping[str, str], viewpoi
                 "position is the centre of the hand base, rotation columns [approach, binormal, axis].",
     response_class=Response,
     responses={
-        200: {"model": DetectResponse, "description": "grasps, timings, model used"},
+        200: {"model": DetectResponse, "description": "grasps, timings, model used",
+              "links": {"FeedbackOnTheBestGrasp": {  # a robot reports how the best grasp went
+                  "operationId": "feedback_feedback_post",
+                  "requestBody": {"grasp_id": "$response.body#/grasps/0/id"}}}},
         400: {"model": ErrorBody}, 401: {"model": ErrorBody, "description": "missing or wrong bearer token"},
         408: {"model": ErrorBody, "description": "the body did not arrive in time"}, 413: {"model": ErrorBody},
         415: {"model": ErrorBody}, 422: {"model": ErrorBody},
