@@ -240,9 +240,8 @@ def check_ply(data: bytes) -> int:
 def parse_ply(data: bytes) -> NDArray[np.float32]:
     """Vertex positions (N,3) of a PLY file (ASCII or binary), read with open3d; a file holding fewer
     vertices than its header declares is refused."""
-    import open3d as o3d
-
     declared = check_ply(data)
+    import open3d as o3d  # after the check: nothing is allocated for a file that lies
 
     with tempfile.NamedTemporaryFile(suffix=".ply") as tmp:
         tmp.write(data)

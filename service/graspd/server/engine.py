@@ -74,7 +74,7 @@ def loads(payload: bytes | str) -> Any:
     try:
         return orjson.loads(payload)
     except orjson.JSONDecodeError as exc:
-        if "recursion" in str(exc).lower():
+        if any(word in str(exc).lower() for word in ("depth limit", "recursion")):  # orjson 3.x wordings
             raise JsonTooDeep(too_deep) from None
     try:
         value = json.loads(payload)
