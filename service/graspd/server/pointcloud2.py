@@ -11,6 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 MSG_TYPE = "sensor_msgs/msg/PointCloud2"
+#: Most points a cloud may declare (the /detect cap, graspd.server.schemas.MAX_POINTS).
+MAX_POINTS = 5_000_000
 #: sensor_msgs/PointField datatype codes -> numpy type characters.
 _POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 
@@ -50,6 +52,11 @@ def decode_pointcloud2(payload: bytes) -> DecodedCloud:
         raise PointCloud2Error(f"fields lack {missing} (have {sorted(fields)})")
     n = int(msg.width) * int(msg.height)
     step = int(msg.point_step)
+    if n > MAX_POINTS:  # checked before any array is shaped from the declared layout
+        raise PointCloud2Error(f"width x height = {n} points exceeds the limit of {MAX_POINTS}")
+    if n * step > len(msg.data) or int(msg.height) * int(msg.row_step) > len(msg.data):
+        raise PointCloud2Error(f"width x height x point_step = {n * step} bytes, row_step x height = "
+                               f"{int(msg.height) * int(msg.row_step)}; data has {len(msg.data)} bytes")
     order = ">" if msg.is_bigendian else "<"
     names, formats, offsets = [], [], []
     for a in "xyz":
