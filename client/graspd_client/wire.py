@@ -39,6 +39,7 @@ GRASP_FIELDS: tuple[str, ...] = (
 UPLOAD_QUERY_PARAMS: tuple[str, ...] = (
     "viewpoint", "model", "hand", "num_samples", "max_grasps", "min_score", "workspace", "selection", "seed",
     "method", "clustering", "use_classifier", "gravity", "exclude_support_plane", "min_aperture", "max_aperture",
+    "environment", "approach_distance",
 )
 
 #: Detectors a detect request may ask for ("method"): GPD, or grasp templates from demonstrations.
@@ -98,6 +99,8 @@ def build_detect_request(
     camera_pose: ArrayLike | None = None,
     crop_size: int | None = None,
     method: str | None = None,
+    environment: str | Mapping[str, Any] | None = None,
+    approach_distance: float | None = None,
 ) -> dict[str, Any]:
     """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
 
@@ -106,7 +109,9 @@ def build_detect_request(
     camera-to-cloud) asks for one object-proposal crop per grasp.  method "templates" asks the grasp-template
     detector (it takes cloud, workspace, max_grasps and hand only).  gravity (3,) is the direction gravity
     pulls in the cloud frame (ranks by score x utility J(h)); use_classifier=False is the unscored ablation;
-    min_aperture/max_aperture (m) bound the grasp width; exclude_support_plane keeps samples off a table.
+    min_aperture/max_aperture (m) bound the grasp width; exclude_support_plane overrides where samples go.
+    environment "auto" (the server's default), "declared" or "none", or {"mode", "support_plane": [a, b, c, d],
+    "boxes": [[xmin, xmax, ymin, ymax, zmin, zmax], ...]}; approach_distance (m) the pre-grasp distance.
     """
     body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source)}
     if method is not None:
@@ -120,8 +125,10 @@ def build_detect_request(
     options = {"model": model, "num_samples": num_samples, "max_grasps": max_grasps, "min_score": min_score,
                "selection": selection, "seed": seed, "clustering": clustering, "use_classifier": use_classifier,
                "exclude_support_plane": exclude_support_plane, "min_aperture": min_aperture,
-               "max_aperture": max_aperture}
+               "max_aperture": max_aperture, "approach_distance": approach_distance}
     body.update({k: v for k, v in options.items() if v is not None})
+    if environment is not None:
+        body["environment"] = environment if isinstance(environment, str) else dict(environment)
     if gravity is not None:
         body["gravity"] = _vec(gravity, 3, "gravity")
     if approach_direction is not None:

@@ -30,7 +30,9 @@ CHUNK = 256
 class SamplingParams:
     """num_samples points drawn uniformly (seeded) from the cloud (or from the points where sample_pool
     is True: the region of interest), or exactly sample_indices;
-    |Phi| orientations in [-pi/2, pi/2) and |Y| finger placements; frame_radius r (m)."""
+    |Phi| orientations in [-pi/2, pi/2) and |Y| finger placements; frame_radius r (m).  clear_behind (m):
+    how far behind the finger roots the hand's body and approach path must be free of points (palm depth
+    plus approach distance); None checks only the points within the hand's own reach, as GPD does."""
 
     num_samples: int = 1000
     num_orientations: int = 8
@@ -39,6 +41,7 @@ class SamplingParams:
     seed: int | None = 0
     sample_indices: tuple[int, ...] | None = None
     sample_pool: NDArray[np.bool_] | None = None
+    clear_behind: float | None = None
 
 
 def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float
@@ -145,7 +148,8 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     samples = scene.points[sample_idx]
 
     # Neighbours that can touch any hand of this sample, in the sample frame, within the hand's height.
-    reach = float(np.sqrt(y_max**2 + hd**2 + (hh / 2) ** 2))
+    behind = 0.0 if p.clear_behind is None else p.clear_behind
+    reach = float(np.sqrt(y_max**2 + (hd + behind) ** 2 + (hh / 2) ** 2))
     sid, idx = ball_pairs(scene.tree, samples, reach)
     d = scene.points[idx] - samples[sid]
     fr = frames.astype(np.float32)

@@ -1,7 +1,8 @@
 """GraspDetector: Algorithm 1 of the IJRR paper end to end, with a classifier passed in.
 
-preprocess -> scene (kd-tree, unobserved volume) -> sample hands -> feasibility filters -> encode
-grasp images -> score -> select.  Without a classifier (or with use_classifier off) the pipeline
+preprocess -> environment (support, walls, declared boxes, up) -> scene (kd-tree, unobserved volume)
+-> sample hands on object points -> environment and feasibility filters -> encode grasp images -> score
+-> select (utility J(h) with up from the support).  Without a classifier (or with use_classifier off) the pipeline
 runs as the paper's "no classification" ablation and says so (scored = False).
 """
 
@@ -16,11 +17,12 @@ from numpy.typing import NDArray
 
 from .candidates import SamplingParams, search_hands
 from .cloud import ViewpointCloud
+from .environment import Environment, EnvironmentParams, Label, hand_hits_environment, model_environment
 from .grasp import GraspSet
 from .hand import HandGeometry
 from .images import encode_batches
 from .preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
-from .scene import Scene
+from .scene import ClosingRegionPoints, Scene
 from .selection import SelectionParams, Vec3, feasible_mask, select
 
 MAX_NUM_SAMPLES = 20_000
@@ -37,8 +39,13 @@ class Scorer(Protocol):
 
 @dataclass(frozen=True)
 class DetectionParams:
-    """Per-request knobs (metres, degrees).  workspace crops the cloud and the grasp positions;
-    exclude_support_plane keeps samples off the dominant plane (a table) while the plane still blocks hands."""
+    """Per-request knobs (metres, degrees).  workspace crops the cloud and the grasp positions.
+
+    environment: how objects are told from what holds them (default "auto": support plane and walls found
+    in the cloud); "none" is the pipeline without an environment model.  approach_distance: the pre-grasp
+    distance back along the approach over which the open hand's path must be free.  exclude_support_plane
+    None follows the environment (samples on object points only); True/False override it.  width_margin
+    (m): grasps whose width leaves less than this inside the opening rank lower (0 = off)."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -56,7 +63,10 @@ class DetectionParams:
     seed: int | None = 0
     voxel_size: float = 0.003
     remove_outliers: bool = False
-    exclude_support_plane: bool = False
+    exclude_support_plane: bool | None = None
+    environment: EnvironmentParams = field(default_factory=EnvironmentParams)
+    approach_distance: float = 0.05
+    width_margin: float = 0.01
     num_orientations: int = 8
     num_finger_placements: int = 10
     frame_radius: float = 0.01
@@ -71,8 +81,21 @@ class DetectionParams:
             raise ValueError(f"voxel_size must be in [0, 0.05] m, got {self.voxel_size}")
         if not 1 <= self.num_orientations <= 64 or not 1 <= self.num_finger_placements <= 64:
             raise ValueError("num_orientations and num_finger_placements must be in [1, 64]")
+        if not 0.0 <= self.approach_distance <= 0.5:
+            raise ValueError(f"approach_distance must be in [0, 0.5] m, got {self.approach_distance}")
+        if not 0.0 <= self.width_margin <= 0.1:
+            raise ValueError(f"width_margin must be in [0, 0.1] m, got {self.width_margin}")
 
-    def selection(self, hand: HandGeometry) -> SelectionParams:
+    def selection(self, hand: HandGeometry, env: Environment | None = None) -> SelectionParams:
+        """Selection knobs; with an environment that knows "up", J(h) ranks by default (gravity = -up) with
+        heights measured from the support, and the width margin applies."""
+        gravity, table_height, margin = self.gravity, None, None
+        if env is not None and env.mode != "none":
+            margin = self.width_margin or None
+            if gravity is None and env.up is not None:
+                gravity = (float(-env.up[0]), float(-env.up[1]), float(-env.up[2]))
+            if env.support is not None and env.up is not None and float(env.up @ env.support.normal) > 0.99:
+                table_height = -env.support.offset
         return SelectionParams(
             workspace=self.workspace,
             min_aperture=self.min_aperture,
@@ -81,7 +104,9 @@ class DetectionParams:
             approach_max_angle_deg=self.approach_max_angle_deg,
             min_score=self.min_score,
             use_clustering=self.use_clustering,
-            gravity=self.gravity,
+            gravity=gravity,
+            table_height=table_height,
+            width_margin=margin,
             reference_position=self.reference_position,
             max_grasps=self.max_grasps,
         )
@@ -98,6 +123,7 @@ class Detection:
     num_candidates: int
     num_points: int
     hand: HandGeometry = field(default_factory=HandGeometry)
+    environment: Environment | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -108,6 +134,7 @@ class Detection:
             "num_candidates": self.num_candidates,
             "num_points": self.num_points,
             "hand": self.hand.to_dict(),
+            "environment": None if self.environment is None else self.environment.to_dict(),
         }
 
 
@@ -140,16 +167,27 @@ class GraspDetector:
         pre = PreprocessParams(voxel_size=p.voxel_size, workspace=p.workspace, remove_outliers=p.remove_outliers)
         prepared = preprocess(cloud, pre)
         lap("preprocess")
+        env = model_environment(prepared, h, p.environment, gravity=p.gravity, seed=p.seed)
+        lap("environment")
         scene = Scene.build(prepared, h)
         lap("scene")
-        pool = ~support_plane_mask(prepared.points) if p.exclude_support_plane else None
+        modelled = env.mode != "none"
+        if p.exclude_support_plane is False or (p.exclude_support_plane is None and not modelled):
+            pool = None
+        elif modelled:
+            pool = env.object_mask
+        else:
+            pool = ~support_plane_mask(prepared.points)
         sampling = SamplingParams(num_samples=p.num_samples, num_orientations=p.num_orientations,
                                   num_finger_placements=p.num_finger_placements, frame_radius=p.frame_radius,
-                                  seed=p.seed, sample_pool=pool)
+                                  seed=p.seed, sample_pool=pool,
+                                  clear_behind=h.palm_depth + p.approach_distance if modelled else None)
         candidates, region = search_hands(scene, h, sampling)
         lap("sample")
-        sel = p.selection(h)
+        sel = p.selection(h, env)
         feasible = feasible_mask(candidates, replace(sel, min_score=None))
+        if modelled:
+            feasible &= ~environment_conflicts(candidates, region, env, h, p.approach_distance)
         candidates, region = candidates[feasible], region.subset(feasible)
         scorer = self.classifier if p.use_classifier else None
         if scorer is not None and len(candidates):
@@ -182,4 +220,18 @@ class GraspDetector:
             num_candidates=len(candidates),
             num_points=len(prepared),
             hand=h,
+            environment=env,
         )
+
+
+def environment_conflicts(candidates: GraspSet, region: ClosingRegionPoints, env: Environment, hand: HandGeometry,
+                          approach_distance: float) -> NDArray[np.bool_]:
+    """Candidates that grasp the environment (an environment point between the fingers) or whose hand or
+    approach path enters it (see environment.hand_hits_environment)."""
+    bad = np.zeros(len(candidates), bool)
+    env_point = env.labels[region.index] != Label.OBJECT
+    bad[region.grasp[env_point]] = True
+    rest = ~bad
+    bad[rest] = hand_hits_environment(candidates.positions[rest], candidates.rotations[rest], hand, env,
+                                      approach_distance)
+    return bad

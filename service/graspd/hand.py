@@ -5,6 +5,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 
 @dataclass(frozen=True)
 class HandGeometry:
@@ -13,7 +16,9 @@ class HandGeometry:
     The hand base (palm) centre is the frame origin; the fingers span x in [0, hand_depth];
     the outer faces of the open fingers are hand_outer_diameter apart along y; everything is
     hand_height thick along z.  init_bite is the least depth (m) the fingertips must reach past
-    the sampled surface point for a candidate to count.
+    the sampled surface point for a candidate to count.  palm_depth is the gripper body behind the
+    finger roots (x in [-palm_depth, 0], as wide as the open hand): it must stay clear of points and of
+    the environment, like the fingers.
     """
 
     finger_width: float = 0.01
@@ -21,6 +26,7 @@ class HandGeometry:
     hand_depth: float = 0.06
     hand_height: float = 0.02
     init_bite: float = 0.01
+    palm_depth: float = 0.02
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -38,6 +44,22 @@ class HandGeometry:
         """Largest object width (m) that fits between the open fingers."""
         return self.hand_outer_diameter - 2.0 * self.finger_width
 
+    @property
+    def closing_half_width(self) -> float:
+        """Half the free span between the open fingers along y (m): the closing region is |y| <= this."""
+        return self.hand_outer_diameter / 2.0 - self.finger_width
+
+    def swept_boxes(self, approach_distance: float = 0.0) -> NDArray[np.float64]:
+        """The open hand's body as boxes in its own frame, swept back along -x by approach_distance (m)
+        (the path from the pre-grasp pose): (3, 2, 3) [left finger, right finger, palm] x [low, high] corners."""
+        od, fw, hd, hh, a = self.hand_outer_diameter, self.finger_width, self.hand_depth, self.hand_height, \
+            approach_distance
+        return np.array([
+            [[-a, -od / 2, -hh / 2], [hd, -od / 2 + fw, hh / 2]],
+            [[-a, od / 2 - fw, -hh / 2], [hd, od / 2, hh / 2]],
+            [[-a - self.palm_depth, -od / 2, -hh / 2], [0.0, od / 2, hh / 2]],
+        ])
+
     def with_overrides(self, **overrides: Any) -> HandGeometry:
         """A copy with some fields replaced (validated)."""
         return replace(self, **overrides)
@@ -47,14 +69,17 @@ class HandGeometry:
 
 
 #: Named hand geometries.  Franka Panda: 80 mm stroke, fingertips ~20 mm wide, ~45 mm reach
-#: past the palm; Robotiq 2F-85: 85 mm stroke, 22 mm pads, ~55 mm usable depth.
+#: past the palm, a hand body ~60 mm deep behind the finger roots; Robotiq 2F-85: 85 mm stroke,
+#: 22 mm pads, ~55 mm usable depth, ~60 mm of linkage and base behind the pads.
 HAND_PRESETS: dict[str, HandGeometry] = {
     "gpd": HandGeometry(),
     "panda": HandGeometry(
-        finger_width=0.01, hand_outer_diameter=0.10, hand_depth=0.045, hand_height=0.02, init_bite=0.01
+        finger_width=0.01, hand_outer_diameter=0.10, hand_depth=0.045, hand_height=0.02, init_bite=0.01,
+        palm_depth=0.06,
     ),
     "robotiq_2f85": HandGeometry(
-        finger_width=0.012, hand_outer_diameter=0.109, hand_depth=0.055, hand_height=0.022, init_bite=0.01
+        finger_width=0.012, hand_outer_diameter=0.109, hand_depth=0.055, hand_height=0.022, init_bite=0.01,
+        palm_depth=0.06,
     ),
 }
 

@@ -19,6 +19,7 @@ from .grasp import GraspSet
 from .preprocess import Workspace
 
 Vec3 = tuple[float, float, float]
+WIDTH_FLOOR = 0.2
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,8 @@ class SelectionParams:
     reference_position: Vec3 | None = None
     reference_max_distance: float = 1.0
     max_grasps: int | None = 100
+    table_height: float | None = None
+    width_margin: float | None = None
 
 
 def feasible_mask(grasps: GraspSet, params: SelectionParams) -> NDArray[np.bool_]:
@@ -116,6 +119,16 @@ def utility(grasps: GraspSet, params: SelectionParams, table_height: float | Non
     return j
 
 
+def width_preference(grasps: GraspSet, params: SelectionParams) -> NDArray[np.float64]:
+    """A factor in [WIDTH_FLOOR, 1]: 1 when the grasp's width leaves at least width_margin (m) free on each
+    side inside max_aperture, falling linearly to WIDTH_FLOOR when the object fills the opening (the seen
+    width of a partly hidden object understates its real one).  All ones when off."""
+    if params.width_margin is None or params.max_aperture is None or len(grasps) == 0:
+        return np.ones(len(grasps))
+    free = (params.max_aperture - grasps.widths) / (2.0 * params.width_margin)
+    return WIDTH_FLOOR + (1.0 - WIDTH_FLOOR) * np.clip(free, 0.0, 1.0)
+
+
 def select(grasps: GraspSet, params: SelectionParams, use_selection: bool = True,
            rng: np.random.Generator | None = None) -> GraspSet:
     """The final ranked list.  With use_selection off (the paper's ablation), the feasible, positively
@@ -131,5 +144,5 @@ def select(grasps: GraspSet, params: SelectionParams, use_selection: bool = True
         # Cluster the best candidates only: pairwise tests are O(n^2) in memory.
         top = np.argsort(-np.nan_to_num(g.scores, nan=0.0), kind="stable")[: params.cluster_max_candidates]
         g, _, rank = cluster(g[np.sort(top)], params)
-    key = rank * utility(g, params)
+    key = rank * utility(g, params, params.table_height) * width_preference(g, params)
     return g[np.argsort(-np.nan_to_num(key, nan=-np.inf), kind="stable")][: params.max_grasps]

@@ -48,8 +48,9 @@ def test_use_classifier_false_is_the_unscored_ablation(scored_client: TestClient
 
 def test_gravity_ranks_top_down_grasps_first(client: TestClient, tabletop: ViewpointCloud,
                                              small_body: Callable[..., dict[str, Any]]) -> None:
-    plain = grasps(client, small_body(tabletop, num_samples=150))
-    ranked = grasps(client, small_body(tabletop, num_samples=150, gravity=(2 * DOWN).tolist()))
+    # without an environment model nothing says which way is up, so only gravity turns J(h) on
+    plain = grasps(client, small_body(tabletop, num_samples=150, environment="none"))
+    ranked = grasps(client, small_body(tabletop, num_samples=150, gravity=(2 * DOWN).tolist(), environment="none"))
     # the same candidates either way (same seed); gravity only reorders by the utility J(h)
     assert ranked["num_candidates"] == plain["num_candidates"]
     top_plain = (column(plain, "approach")[:10] @ DOWN).mean()
@@ -60,12 +61,15 @@ def test_gravity_ranks_top_down_grasps_first(client: TestClient, tabletop: Viewp
 
 def test_exclude_support_plane_samples_nothing_on_the_table(client: TestClient, tabletop: ViewpointCloud,
                                                             small_body: Callable[..., dict[str, Any]]) -> None:
-    body = small_body(tabletop, num_samples=150, selection=False, max_grasps=1000)
+    body = small_body(tabletop, num_samples=150, selection=False, max_grasps=1000, environment="none")
     on_table = np.abs(column(grasps(client, body), "sample")[:, 2]) < TABLE_BAND
-    assert on_table.sum() > 10, "without the option some candidates are sampled on the table"
+    assert on_table.sum() > 10, "without the option or an environment some candidates are sampled on the table"
     out = grasps(client, {**body, "exclude_support_plane": True})
     samples = column(out, "sample")
     assert len(samples) > 10 and (np.abs(samples[:, 2]) >= TABLE_BAND).all()
+    # the default (environment "auto") samples on object points only, without the flag
+    default = column(grasps(client, {**body, "environment": "auto"}), "sample")
+    assert len(default) > 10 and (np.abs(default[:, 2]) >= TABLE_BAND).all()
 
 
 def test_aperture_bounds_the_widths(client: TestClient, krylon: ViewpointCloud,

@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from graspd.grasp import GraspSet
-from graspd.hand import HandGeometry
 from graspd.sim.gripper import Attempt, Outcome
 from graspd.sim.protocol import RoundResult, Setting, StopRule, feasible, summarize
 
@@ -28,17 +27,21 @@ def test_same_failure_on_same_object_three_times_stops() -> None:
     assert "same failure" in rule.update(Attempt(Outcome.EMPTY, 4))
 
 
-def test_feasibility_keeps_top_grasps_inside_the_tray() -> None:
-    hand = HandGeometry()
+def test_the_only_protocol_filter_is_the_arms_approach_cone() -> None:
     down = np.column_stack([[0, 0, -1.0], [1.0, 0, 0], [0, 1.0, 0]])
     up = np.column_stack([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0]])
     pos = np.array([[0, 0, 0.1], [0, 0, 0.1], [0.3, 0, 0.1], [0, 0, 0.1], [0, 0, 0.03]])
     grasps = GraspSet(positions=pos, rotations=np.array([down, up, down, down, down]),
                       widths=np.array([0.03, 0.03, 0.03, 0.2, 0.03]), scores=np.full(5, np.nan),
                       samples=pos + [0, 0, -0.05])
-    ok = feasible(grasps, hand, 80.0, 0.0, (-0.18, 0.18, -0.14, 0.14))
-    # from below, outside the tray, too wide, fingertips under the floor
-    assert ok.tolist() == [True, False, False, False, False]
+    ok = feasible(grasps, 80.0)
+    # from below is out of the arm's reach; outside the tray, too wide or under the floor is the detector's
+    # business, never filtered by the benchmark
+    assert ok.tolist() == [True, False, True, True, True]
+    tilted = np.column_stack([[np.sin(np.radians(85)), 0, -np.cos(np.radians(85))], [0, 1.0, 0],
+                              [np.cos(np.radians(85)), 0, np.sin(np.radians(85))]])
+    assert feasible(GraspSet(positions=pos[:1], rotations=tilted[None], widths=np.array([0.03]),
+                             scores=np.array([np.nan]), samples=pos[:1]), 80.0).tolist() == [False]
 
 
 def test_summary_pools_rounds_with_intervals() -> None:

@@ -22,6 +22,7 @@ from pydantic import BaseModel, ValidationError
 
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
+from graspd.environment import EnvironmentParams
 from graspd.templates import TemplateDetection
 from graspd_client.codec import WireError
 
@@ -134,6 +135,8 @@ def detection_params(req: DetectRequest) -> DetectionParams:
         use_classifier=req.use_classifier,
         gravity=None if req.gravity is None else (req.gravity[0], req.gravity[1], req.gravity[2]),
         exclude_support_plane=req.exclude_support_plane,
+        environment=EnvironmentParams() if req.environment is None else req.environment.params(),
+        approach_distance=req.approach_distance,
         seed=req.seed,
     )
 

@@ -26,6 +26,7 @@ from pydantic import (
     model_validator,
 )
 
+from graspd.environment import Box, EnvironmentParams, Plane
 from graspd.hand import HAND_PRESETS, HandGeometry
 from graspd_client import wire
 from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
@@ -249,6 +250,42 @@ class CropsRequest(BaseModel):
         return v
 
 
+class EnvironmentSpec(BaseModel):
+    """The environment stage: mode "auto" (detect support and walls, plus what is declared), "declared" (only
+    what is declared here) or "none" (no environment model: every point is an object point)."""
+
+    model_config = ConfigDict(extra="forbid")
+    mode: Literal["auto", "declared", "none"] = "auto"
+    support_plane: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
+        None, min_length=4, max_length=4,
+        description="[a, b, c, d]: the support a x + b y + c z + d = 0 (cloud frame), (a, b, c) pointing up")
+    boxes: list[list[Annotated[float, Field(allow_inf_nan=False)]]] = Field(
+        default_factory=list, max_length=64,
+        description="static boxes the hand must not enter and whose points are never grasped, each "
+                    "[xmin, xmax, ymin, ymax, zmin, zmax] (m, cloud frame)")
+
+    @field_validator("support_plane")
+    @classmethod
+    def _plane(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and math.sqrt(sum(c * c for c in v[:3])) < 1e-9:
+            raise ValueError("(a, b, c) must be a non-zero normal")
+        return v
+
+    @field_validator("boxes")
+    @classmethod
+    def _boxes(cls, v: list[list[float]]) -> list[list[float]]:
+        for k, b in enumerate(v):
+            if len(b) != 6 or any(b[i + 1] < b[i] for i in (0, 2, 4)):
+                raise ValueError(f"box {k}: [xmin, xmax, ymin, ymax, zmin, zmax] with each max >= its min expected")
+        return v
+
+    def params(self) -> EnvironmentParams:
+        return EnvironmentParams(
+            mode=self.mode,
+            support=None if self.support_plane is None else Plane.from_coefficients(tuple(self.support_plane)),
+            boxes=tuple(Box.from_bounds(b) for b in self.boxes))
+
+
 class DetectRequest(BaseModel):
     """POST /detect body and the Zenoh query payload (JSON)."""
 
@@ -275,8 +312,16 @@ class DetectRequest(BaseModel):
         None, min_length=3, max_length=3,
         description="direction gravity pulls (cloud frame, need not be unit; [0, 0, -1] when z is up): ranks by "
                     "score x utility J(h) (IJRR eq. 1), top-down approaches and high grasps first")
-    exclude_support_plane: bool = Field(False, description="sample no candidates on the dominant plane (a table, "
-                                        ">= 20% of the points, 1 cm); the plane still blocks hands")
+    exclude_support_plane: bool | None = Field(
+        None, description="override: true samples no candidates on the support, false samples everywhere; default "
+        "(null) follows the environment (samples on object points only)")
+    environment: EnvironmentSpec | None = Field(
+        None, description="how objects are told from what holds them; a plain string is read as {\"mode\": "
+        "string}.  Default \"auto\": the support plane and container walls are found in the cloud; grasps close "
+        "on objects only and no part of the hand or its approach path enters the environment")
+    approach_distance: float = Field(0.05, ge=0.0, le=0.5, allow_inf_nan=False,
+                                     description="pre-grasp distance (m) back along the approach over which the "
+                                     "open hand's path must be free of points and environment")
     min_aperture: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False,
                                        description="drop grasps whose width (object extent between the fingers) "
                                        "is below this (m)")
@@ -301,6 +346,11 @@ class DetectRequest(BaseModel):
     @classmethod
     def _hand(cls, v: Any) -> Any:
         return {"preset": v} if isinstance(v, str) else v
+
+    @field_validator("environment", mode="before")
+    @classmethod
+    def _environment(cls, v: Any) -> Any:
+        return {"mode": v} if isinstance(v, str) else v
 
     @field_validator("gravity")
     @classmethod

@@ -74,13 +74,13 @@ def upload_request(data: bytes, kind: str, query: Mapping[str, str], viewpoints:
         from graspd.cloud_io import nearest_camera
 
         body["cloud"]["camera_source"] = nearest_camera(points, np.asarray(vps))
-    for key in ("model", "hand", "method"):
+    for key in ("model", "hand", "method", "environment"):
         if key in query:
             body[key] = query[key]
     for key in ("num_samples", "max_grasps", "seed"):
         if key in query:
             body[key] = query[key]
-    for key in ("min_score", "min_aperture", "max_aperture"):
+    for key in ("min_score", "min_aperture", "max_aperture", "approach_distance"):
         if key in query:
             body[key] = query[key]
     for key in ("selection", "clustering", "use_classifier", "exclude_support_plane"):

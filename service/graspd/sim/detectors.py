@@ -29,8 +29,8 @@ class SimDetector(Protocol):
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         """Grasps in the cloud's frame, best first (scores NaN when unscored).  workspace [xmin, xmax, ymin,
-        ymax, zmin, zmax] is where the objects to grasp lie (the tray's inside, zmin its floor); the cloud
-        may extend beyond it (tray walls), so a detector must not crop it away."""
+        ymax, zmin, zmax] is the box around the scene the robot looks at, table and tray walls included (what
+        a user sends as the request's workspace)."""
         ...
 
 
@@ -73,12 +73,13 @@ class TopDownBaseline:
     max_seeds: int = 40
     num_yaws: int = 8
     max_grasps: int = 10
+    inset: float = 0.025
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         from scipy.spatial import cKDTree
 
         pts = voxel_downsample(cloud.points.astype(np.float64), 0.004)
-        floor = workspace[4]
+        floor = max(workspace[4], 0.0)
         pts = pts[pts[:, 2] > floor + 0.005]
         if len(pts) == 0:
             return GraspSet()
@@ -88,8 +89,10 @@ class TopDownBaseline:
         first = np.ones(len(order), bool)
         first[1:] = np.any(np.diff(cells[order], axis=0) != 0, axis=1)
         tops = pts[order[first]]
-        inside = ((tops[:, 0] > workspace[0] + 0.005) & (tops[:, 0] < workspace[1] - 0.005)
-                  & (tops[:, 1] > workspace[2] + 0.005) & (tops[:, 1] < workspace[3] - 0.005))
+        # seeds well inside the box (a workspace drawn around a tray holds its walls)
+        inset = self.inset
+        inside = ((tops[:, 0] > workspace[0] + inset) & (tops[:, 0] < workspace[1] - inset)
+                  & (tops[:, 1] > workspace[2] + inset) & (tops[:, 1] < workspace[3] - inset))
         tops = tops[inside]
         seeds = tops[np.argsort(-tops[:, 2])][: self.max_seeds]
         tree = cKDTree(pts[:, :2])
@@ -148,18 +151,6 @@ class TopDownBaseline:
         )
 
 
-#: Detection options for a robot above a tray: gravity down for the utility J(h), approaches within 80
-#: degrees of straight down (what the arm can reach), no sampling on the tray floor, enough grasps
-#: that some survive the benchmark's tray-wall filter.
-GPD_DEFAULTS: dict[str, Any] = {
-    "gravity": (0.0, 0.0, -1.0),
-    "approach_direction": (0.0, 0.0, -1.0),
-    "approach_max_angle_deg": 80.0,
-    "exclude_support_plane": True,
-    "max_grasps": 300,
-}
-
-
 @dataclass
 class InProcessGPD:
     """graspd's GraspDetector in this process; classifier None is the paper's "no classification"."""
@@ -171,19 +162,16 @@ class InProcessGPD:
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         from ..detector import DetectionParams, GraspDetector
 
-        options = {**GPD_DEFAULTS, **self.options}
-        params = DetectionParams(seed=seed,
-                                 use_classifier=self.classifier is not None, **options)
+        params = DetectionParams(seed=seed, workspace=workspace,
+                                 use_classifier=self.classifier is not None, **self.options)
         return GraspDetector(classifier=self.classifier, hand=hand).detect(cloud, params, hand=hand).grasps
 
 
 @dataclass
 class ServiceGPD:
-    """The graspd service over HTTP, through the robot-side client library (graspd_client.GraspClient).
-
-    The wire format has no gravity or support-plane switch, so the server ranks without the utility J(h)
-    and samples on the tray floor too; model None is the server's default model.
-    """
+    """The graspd service over HTTP, through the robot-side client library (graspd_client.GraspClient), called
+    as a user calls it: the cloud, its cameras, the hand, a workspace box around the scene and the service's
+    defaults for everything else (options only for named ablations); model None is the server's default."""
 
     url: str
     name: str = "gpd-service"
@@ -193,10 +181,8 @@ class ServiceGPD:
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         from graspd_client import GraspClient
 
-        opts: dict[str, Any] = {"max_grasps": 300, "approach_direction": (0.0, 0.0, -1.0),
-                                "approach_max_angle_deg": 80.0, **self.options}
         with GraspClient(self.url, timeout=120.0) as client:
-            g = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source,
-                              hand=hand.to_dict(), model=self.model, seed=seed % (2**32), **opts)
+            g = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source, workspace=workspace,
+                              hand=hand.to_dict(), model=self.model, seed=seed % (2**32), **self.options)
         return GraspSet(positions=g.positions, rotations=g.rotations, widths=g.widths, scores=g.scores,
                         samples=g.samples)

@@ -1,7 +1,8 @@
 """A free-floating parallel-jaw hand built from pybullet boxes to match a HandGeometry, and grasp execution.
 
 Hand frame = grasp frame of DESIGN.md: x approach, y closing (binormal), z axis; origin at the centre of
-the hand base.  The palm is a box behind x = 0; two finger boxes span x in [0, hand_depth] and slide
+the hand base.  The palm is a box hand.palm_depth deep behind x = 0; two finger boxes span x in
+[0, hand_depth] and slide
 along y on prismatic joints.  A fixed constraint to the world moves the base (a stiff, force-limited arm).
 """
 
@@ -19,7 +20,6 @@ from ..hand import HandGeometry
 from .world import SimWorld
 
 F64 = NDArray[np.float64]
-PALM_THICKNESS = 0.02
 PARK = np.array([0.0, 0.0, 2.0])
 
 
@@ -35,10 +35,11 @@ class Outcome(StrEnum):
 
 @dataclass(frozen=True)
 class ExecutionParams:
-    """Motion and force settings: pre-grasp distance (m) back along the approach, approach speed (m/s),
+    """Motion and force settings: pre-grasp distance (m) back along the approach (the service's default
+    approach_distance, as in the common clutter-removal protocols), approach speed (m/s),
     lift height (m), finger force (N) and closing speed (m/s), hold time (s)."""
 
-    pregrasp_distance: float = 0.08
+    pregrasp_distance: float = 0.05
     approach_speed: float = 0.2
     lift_height: float = 0.25
     lift_speed: float = 0.3
@@ -73,10 +74,11 @@ class Gripper:
         self.params = params or ExecutionParams()
         c = world.client
         fw, od, hd, hh = hand.finger_width, hand.hand_outer_diameter, hand.hand_depth, hand.hand_height
-        palm_col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[PALM_THICKNESS / 2, od / 2, hh / 2],
-                                           collisionFramePosition=[-PALM_THICKNESS / 2, 0, 0], physicsClientId=c)
-        palm_vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[PALM_THICKNESS / 2, od / 2, hh / 2],
-                                        visualFramePosition=[-PALM_THICKNESS / 2, 0, 0],
+        pd = max(hand.palm_depth, 0.005)  # the hand's body behind the finger roots (a sliver when it has none)
+        palm_col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[pd / 2, od / 2, hh / 2],
+                                           collisionFramePosition=[-pd / 2, 0, 0], physicsClientId=c)
+        palm_vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[pd / 2, od / 2, hh / 2],
+                                        visualFramePosition=[-pd / 2, 0, 0],
                                         rgbaColor=[0.2, 0.2, 0.2, 1], physicsClientId=c)
         fing_col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[hd / 2, fw / 2, hh / 2], physicsClientId=c)
         fing_vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[hd / 2, fw / 2, hh / 2],

@@ -86,23 +86,14 @@ class StopRule:
         return "same failure on same object 3 times" if self.streak_len >= 3 else ""
 
 
-def feasible(grasps: GraspSet, hand: HandGeometry, max_angle_deg: float, floor_z: float,
-             interior: tuple[float, float, float, float]) -> np.ndarray:
-    """Mask of grasps a robot above the tray could execute: approach within max_angle_deg of straight
-    down (reachable without IK failures), width within the aperture, fingertips above the floor and
-    between the fingers a point of the tray's interior [xmin, xmax, ymin, ymax] (never the walls)."""
+def feasible(grasps: GraspSet, max_angle_deg: float) -> np.ndarray:
+    """Mask of grasps the arm can execute: approach within max_angle_deg of straight down (a robot above
+    the table reaches those without IK failures).  The one filter the protocol applies to returned grasps,
+    the same for every detector: anything else a robot needs (no grasps of walls or the floor, hands clear
+    of the environment) is the detector's job."""
     if len(grasps) == 0:
         return np.zeros(0, bool)
-    down = -grasps.approach[:, 2]
-    ok = down >= np.cos(np.deg2rad(max_angle_deg))
-    ok &= grasps.widths <= hand.max_aperture
-    tips = grasps.positions + hand.hand_depth * grasps.approach
-    ok &= tips[:, 2] > floor_z
-    inset = 0.005
-    for pts in (grasps.positions + 0.5 * hand.hand_depth * grasps.approach, grasps.samples):
-        ok &= (pts[:, 0] > interior[0] + inset) & (pts[:, 0] < interior[1] - inset)
-        ok &= (pts[:, 1] > interior[2] + inset) & (pts[:, 1] < interior[3] - inset)
-    return np.asarray(ok)
+    return np.asarray(-grasps.approach[:, 2] >= np.cos(np.deg2rad(max_angle_deg)))
 
 
 def cameras_for(setting: Setting) -> list[Camera]:
@@ -123,8 +114,9 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
     result = RoundResult(seed=seed, num_objects=len(world.objects))
     x0, x1, y0, y1 = world.inside_region()
     margin = 0.02
-    region = (x0 - margin, x1 + margin, y0 - margin, y1 + margin, -0.005, 0.4)
-    workspace: Workspace = (x0, x1, y0, y1, 0.0, 0.4)
+    # what the cameras keep and the workspace box the robot sends: the scene, tray walls and floor included
+    region: Workspace = (x0 - margin, x1 + margin, y0 - margin, y1 + margin, -0.005, 0.4)
+    workspace = region
     noise = DepthNoise() if setting.noise else NO_NOISE
     cams = cameras_for(setting)
     try:
@@ -141,8 +133,7 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
             td = time.perf_counter()
             grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
             result.detect_seconds += time.perf_counter() - td
-            ok = np.flatnonzero(feasible(grasps, setting.hand, setting.max_approach_angle_deg, 0.0,
-                                         (x0, x1, y0, y1)))
+            ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
             if len(ok) == 0:
                 attempt = Attempt(Outcome.NO_GRASP, None)
             else:

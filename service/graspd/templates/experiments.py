@@ -108,7 +108,7 @@ def feasible_order(grasps: GraspSet, hand: HandGeometry) -> NDArrayInt:
     """Indices of the grasps a robot above the floor could execute, in their order (graspd.sim.protocol)."""
     from ..sim.protocol import feasible
 
-    return np.flatnonzero(feasible(grasps, hand, 80.0, 0.0, REGION[:4]))
+    return np.flatnonzero(feasible(grasps, 80.0))
 
 
 def scripted_demonstrations(library: TemplateLibrary, object_ids: list[int], demos: int, seed: int = 0,

@@ -1,0 +1,117 @@
+"""The environment model: grasps close on objects, never on the table, tray walls or declared boxes, and no
+hand or approach path enters them.  Scenes are rendered from boxes and cylinders (known geometry) or the
+real table_mug Kinect cloud."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from graspd.classifier import load_model
+from graspd.cloud import ViewpointCloud
+from graspd.cloud_io import read_cloud
+from graspd.detector import Detection, DetectionParams, GraspDetector
+from graspd.environment import Box, EnvironmentParams, Label, hand_hits_environment
+from graspd.hand import HandGeometry
+from graspd.training.noise import DepthNoise
+from graspd.training.render import render_scene, tabletop_cameras
+
+HAND = HandGeometry()
+MUG = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "table_mug.pcd"
+
+
+def box_mesh(bounds: tuple[float, float, float, float, float, float]) -> o3d.geometry.TriangleMesh:
+    """A solid box [xmin, xmax, ymin, ymax, zmin, zmax] (m)."""
+    x0, x1, y0, y1, z0, z1 = bounds
+    mesh = o3d.geometry.TriangleMesh.create_box(x1 - x0, y1 - y0, z1 - z0)
+    return mesh.translate((x0, y0, z0))
+
+
+TRAY_WALLS = [(-0.19, -0.18, -0.15, 0.15, 0.0, 0.06), (0.18, 0.19, -0.15, 0.15, 0.0, 0.06),
+              (-0.19, 0.19, -0.15, -0.14, 0.0, 0.06), (-0.19, 0.19, 0.14, 0.15, 0.0, 0.06)]
+
+
+def render(meshes: list[o3d.geometry.TriangleMesh], seed: int = 0) -> ViewpointCloud:
+    return render_scene(meshes, tabletop_cameras(2, distance=0.75), DepthNoise(), seed)
+
+
+def detect(cloud: ViewpointCloud, **options: Any) -> Detection:
+    return GraspDetector(None, HAND).detect(cloud, DetectionParams(num_samples=300, use_classifier=False, **options))
+
+
+@pytest.fixture(scope="module")
+def tray() -> ViewpointCloud:
+    floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
+    objects = [box_mesh((-0.17, -0.13, -0.05, 0.03, 0.0, 0.05)),  # against the left wall
+               box_mesh((0.02, 0.06, 0.02, 0.09, 0.0, 0.07))]
+    cyl = o3d.geometry.TriangleMesh.create_cylinder(0.025, 0.08).translate((0.1, -0.08, 0.04))
+    return render([floor, *[box_mesh(w) for w in TRAY_WALLS], *objects, cyl])
+
+
+def test_table_mug_top_ten_close_on_the_mug_and_clear_the_table() -> None:
+    cloud = read_cloud(MUG, viewpoints=np.zeros((1, 3), np.float32))
+    det = GraspDetector(load_model("generic15"), HAND).detect(cloud, DetectionParams(num_samples=500))
+    env = det.environment
+    assert env is not None and env.support is not None, "the table is found with no gravity given"
+    top = det.grasps[:10]
+    assert len(top) == 10
+    # every sample of the top ten stands clear above the table: on the mug
+    assert (env.support.distance(top.samples) > 0.015).all()
+    assert not hand_hits_environment(top.positions, top.rotations, HAND, env, 0.05).any()
+
+
+def test_tray_walls_and_floor_are_never_grasped(tray: ViewpointCloud) -> None:
+    det = detect(tray, max_grasps=1000, use_selection=False)
+    env = det.environment
+    assert env is not None and env.support is not None and len(env.walls) >= 3
+    g = det.grasps
+    assert len(g) > 20
+    walls = tuple(Box.from_bounds(w) for w in TRAY_WALLS)
+    on_wall = np.zeros(len(g), bool)
+    for w in walls:
+        on_wall |= w.contains(g.samples, margin=0.004)
+    assert not on_wall.any(), "no grasp is sampled on a wall"
+    assert (g.samples[:, 2] > 0.006).all(), "no grasp is sampled on the floor"
+    truth = type(env)(labels=env.labels, support=env.support, boxes=walls)
+    assert not hand_hits_environment(g.positions, g.rotations, HAND, truth, 0.0).any(), \
+        "no finger or palm goes through a real wall or the floor"
+
+
+def test_the_default_environment_changes_what_an_unmodelled_detector_grasps(tray: ViewpointCloud) -> None:
+    none = detect(tray, max_grasps=1000, use_selection=False, environment=EnvironmentParams(mode="none"))
+    assert none.environment is not None and none.environment.counts()["support"] == 0
+    on_floor = np.abs(none.grasps.samples[:, 2]) < 0.006
+    assert on_floor.sum() > 10, "without an environment (the old behaviour) the floor is sampled"
+
+
+def test_a_declared_box_removes_the_grasps_inside_it(tray: ViewpointCloud) -> None:
+    around = (0.0, 0.08, 0.0, 0.11, -0.01, 0.1)  # the second box
+    plain = detect(tray, max_grasps=1000, use_selection=False)
+    assert Box.from_bounds(around).contains(plain.grasps.samples).sum() > 5
+    env = EnvironmentParams(boxes=(Box.from_bounds(around),))
+    declared = detect(tray, max_grasps=1000, use_selection=False, environment=env)
+    assert declared.environment is not None and declared.environment.counts()["declared"] > 0
+    assert not Box.from_bounds(around).contains(declared.grasps.samples).any()
+    assert len(declared.grasps) > 5
+
+
+def test_an_object_in_the_air_without_any_plane_still_gets_grasps() -> None:
+    cyl = o3d.geometry.TriangleMesh.create_cylinder(0.03, 0.1).translate((0.0, 0.0, 0.2))
+    cloud = render([cyl])
+    det = detect(cloud, max_grasps=50)
+    assert det.environment is not None and det.environment.support is None
+    assert det.environment.counts()["object"] == det.num_points
+    assert len(det.grasps) > 5
+
+
+def test_wall_points_are_labelled_as_environment(tray: ViewpointCloud) -> None:
+    det = detect(tray, max_grasps=10)
+    env = det.environment
+    assert env is not None
+    counts = env.counts()
+    assert counts["support"] > counts["object"] and counts["wall"] > 100
+    assert int(Label.OBJECT) == 0
