@@ -28,7 +28,8 @@ MAX_CROP_SIZE = 512
 DEFAULT_CROP_SIZE = 120
 
 #: Hand-geometry fields (GPD names, metres) a request may override.
-HAND_FIELDS: tuple[str, ...] = ("finger_width", "hand_outer_diameter", "hand_depth", "hand_height", "init_bite")
+HAND_FIELDS: tuple[str, ...] = ("finger_width", "hand_outer_diameter", "hand_depth", "hand_height", "init_bite",
+                                "palm_depth")
 
 #: Per-grasp fields of a detect response.
 GRASP_FIELDS: tuple[str, ...] = (

@@ -144,6 +144,9 @@ class Hand(BaseModel):
     hand_height: Length | None = Field(None, description="hand thickness along the hand axis (m)")
     init_bite: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = Field(
         None, description="least depth past the surface the fingertips must reach (m)")
+    palm_depth: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = Field(
+        None, description="depth of the gripper body behind the finger roots (m); kept clear of points and "
+        "environment like the fingers")
 
     @field_validator("preset")
     @classmethod
