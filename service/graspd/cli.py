@@ -22,6 +22,7 @@ def _detect(args: argparse.Namespace) -> int:
     from .cloud import CloudError
     from .cloud_io import read_cloud
     from .detector import DetectionParams, GraspDetector
+    from .environment import EnvironmentParams
     from .hand import HandGeometry, hand_preset
 
     try:
@@ -34,7 +35,9 @@ def _detect(args: argparse.Namespace) -> int:
             max_grasps=args.max_grasps,
             gravity=tuple(args.gravity) if args.gravity else None,
             use_classifier=not args.no_classifier,
-            exclude_support_plane=args.exclude_table,
+            exclude_support_plane=True if args.exclude_table else None,
+            environment=EnvironmentParams(mode=args.environment),
+            approach_distance=args.approach_distance,
             seed=args.seed,
         )
     except (CloudError, KeyError, ValueError, OSError) as exc:
@@ -62,7 +65,11 @@ def _detect(args: argparse.Namespace) -> int:
         shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
         title = f"{Path(args.cloud).name}: top {min(args.top, len(detection.grasps))} of " \
                 f"{detection.num_candidates} candidates, model {detection.model or 'none (unscored)'}"
-        plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title, gravity=params.gravity)
+        env = detection.environment
+        labels = env.labels if env is not None and len(env.labels) == len(shown) else None
+        up = None if env is None or env.up is None else tuple(float(v) for v in -env.up)
+        plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title,
+                    gravity=params.gravity or up, labels=labels)  # type: ignore[arg-type]
     t = detection.timings
     print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates on {detection.num_points} points "
           f"in {t['total']:.2f} s (" + ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k != "total") + ")",
@@ -128,7 +135,11 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--models-dir", help="directory of ONNX models and cards (default: the shipped models/)")
     d.add_argument("--no-classifier", action="store_true", help="skip scoring (the paper's ablation)")
     d.add_argument("--exclude-table", action="store_true",
-                   help="do not sample on the dominant plane (the table); it still blocks hands")
+                   help="override: never sample on the dominant plane (the default samples on objects only)")
+    d.add_argument("--environment", choices=("auto", "declared", "none"), default="auto",
+                   help="environment model: auto (find the support and walls; default) or none (ablation)")
+    d.add_argument("--approach-distance", type=float, default=0.05,
+                   help="pre-grasp distance (m) whose path must be free of points and environment")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--out", help="write the grasps as JSON here (else print them)")
     d.add_argument("--plot", help="write a PNG of the cloud with the top grasps")

@@ -48,9 +48,11 @@ def _project(xyz: NDArray[np.floating], eye: NDArray[np.float64], basis: NDArray
 
 
 def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, path: str | Path,
-                top: int = 10, title: str = "", gravity: tuple[float, float, float] | None = None) -> Path:
+                top: int = 10, title: str = "", gravity: tuple[float, float, float] | None = None,
+                labels: NDArray[np.integer] | None = None) -> Path:
     """Write a PNG: the cloud seen from its first camera and from above (along gravity when given,
-    else along the camera's up axis), top grasps drawn as grippers (best thick green, then yellow to red)."""
+    else along the camera's up axis), top grasps drawn as grippers (best thick green, then yellow to red).
+    With labels (environment.Label per point), environment points are drawn light grey, objects by height."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -82,6 +84,11 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
         origin = eye if persp else np.zeros(3)
         uv = _project(pts, origin, basis, persp)
         order = np.argsort(colour_by)
+        if labels is not None:
+            env = np.asarray(labels)[keep][order] != 0
+            ax.scatter(uv[order][env, 0], uv[order][env, 1], s=1.0, c="#c8c8c8", linewidths=0,
+                       label="environment (support, walls, boxes)")
+            order = order[~env]
         ax.scatter(uv[order, 0], uv[order, 1], s=1.2, c=colour_by[order], cmap="viridis", linewidths=0)
         for k in range(len(g) - 1, -1, -1):
             colour = "limegreen" if k == 0 else colours[k]

@@ -285,7 +285,7 @@ class EnvironmentSpec(BaseModel):
     def params(self) -> EnvironmentParams:
         return EnvironmentParams(
             mode=self.mode,
-            support=None if self.support_plane is None else Plane.from_coefficients(tuple(self.support_plane)),
+            support=None if self.support_plane is None else Plane.from_coefficients(np.asarray(self.support_plane, np.float64)),
             boxes=tuple(Box.from_bounds(b) for b in self.boxes))
 
 
