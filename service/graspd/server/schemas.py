@@ -283,9 +283,10 @@ class EnvironmentSpec(BaseModel):
         return v
 
     def params(self) -> EnvironmentParams:
+        plane = None if self.support_plane is None else np.asarray(self.support_plane, np.float64)
         return EnvironmentParams(
             mode=self.mode,
-            support=None if self.support_plane is None else Plane.from_coefficients(np.asarray(self.support_plane, np.float64)),
+            support=None if plane is None else Plane.from_coefficients(plane),
             boxes=tuple(Box.from_bounds(b) for b in self.boxes))
 
 
