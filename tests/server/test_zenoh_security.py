@@ -225,6 +225,71 @@ def test_deep_json_gets_an_error_reply(guarded: tuple[TestClient, str], depth: i
             assert 400 <= info.value.status < 500, (key, info.value.body)
 
 
+def test_a_500_names_only_the_request_id(guarded: tuple[TestClient, str], caplog: pytest.LogCaptureFixture) -> None:
+    """A server fault behind a Zenoh queryable answers 500 with a generic message and the request id, never the
+    exception text; the log lines for it (the traceback, the outcome) carry the same id."""
+    import zenoh
+
+    from graspd.server.zenoh_node import in_fresh_context
+
+    http, endpoint = guarded
+    node = http.app.state.service.zenoh  # type: ignore[attr-defined]
+
+    def buggy(_payload: bytes) -> Any:
+        raise RuntimeError("secret internal state 0xdeadbeef")
+
+    on_query = in_fresh_context(node._on_templates)  # a writer with a bug: the node's guard is what is tested
+    boom = node.session.declare_queryable("graspd/boom", lambda q: on_query(q, "boom", buggy), complete=True)
+    def outcome_lines() -> list[logging.LogRecord]:
+        return [r for r in caplog.records if r.getMessage() == "boom"]
+
+    try:
+        with caplog.at_level(logging.INFO), zenoh.open(client_config(connect=[endpoint])) as session:
+            replies = _replies(session, "graspd/boom", b"{}", zenoh_token_attachment(TOKEN))
+            deadline = time.monotonic() + 5  # the outcome line is written just after the reply is sent
+            while not outcome_lines() and time.monotonic() < deadline:
+                time.sleep(0.01)
+    finally:
+        boom.undeclare()
+    assert len(replies) == 1
+    err = _error(replies[0])
+    text = json.dumps(err)
+    assert err["status"] == 500 and "deadbeef" not in text and "RuntimeError" not in text
+    rid = err["request_id"]
+    assert len(rid) == 16 and rid in err["error"]
+    failed = [r for r in caplog.records if r.getMessage() == "zenoh boom failed"]
+    assert len(failed) == 1 and failed[0].exc_info is not None  # the traceback is in the log, not the answer
+    assert failed[0].request_id == rid  # type: ignore[attr-defined]
+    outcome = outcome_lines()
+    assert len(outcome) == 1 and outcome[0].request_id == rid and outcome[0].status == 500  # type: ignore[attr-defined]
+
+
+def test_full_queue_answers_503_before_parsing(make_settings: Callable[..., Settings], krylon: ViewpointCloud,
+                                               small_body: Callable[..., dict[str, Any]]) -> None:
+    """With every worker busy and no queue, a query gets 503 with Retry-After before its payload is parsed
+    (garbage gets 503, not 400); once free, the same garbage gets its 400, and the reply's request id."""
+    import zenoh
+
+    from graspd.server.engine import parse_request
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    settings = make_settings(zenoh_enabled=True, zenoh_listen=[endpoint], zenoh_stream=False, detect_workers=1,
+                             queue_size=0)
+    with TestClient(create_app(settings)) as http, zenoh.open(client_config(connect=[endpoint])) as session:
+        engine = http.app.state.service.engine  # type: ignore[attr-defined]
+        slow, _ = engine.submit(parse_request(small_body(krylon, num_samples=3000)), {})
+        (busy,) = _replies(session, "graspd/detect", b"{not json")
+        running = not slow.done()
+        slow.result(timeout=120)
+        (invalid,) = _replies(session, "graspd/detect", b"{not json")
+    assert running, "the slow detection ended before the query: the test proves nothing"
+    err = _error(busy)
+    assert err["status"] == 503 and 1 <= err["retry_after"] <= settings.max_retry_after_s
+    err = _error(invalid)
+    assert err["status"] == 400 and err["field"] == "body" and len(err["request_id"]) == 16
+    assert engine.pending == 0  # the refused and the parsed-and-refused queries gave their places back
+
+
 # ---- configuration -----------------------------------------------------------------------------
 
 

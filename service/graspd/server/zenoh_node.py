@@ -14,6 +14,7 @@ it (it remembers its own recent detections); template grasp ids work on any serv
 
 from __future__ import annotations
 
+import contextvars
 import hmac
 import ipaddress
 import json
@@ -37,10 +38,11 @@ from graspd_client.wire import (
 )
 
 from .engine import DetectionEngine, parse_model, parse_request
+from .logs import RequestContext, begin_request
 from .metrics import Metrics
 from .pointcloud2 import PointCloud2Error, decode_pointcloud2, looks_like_cdr
 from .problems import Problem
-from .schemas import DemonstrationRequest, FeedbackRequest
+from .schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
 from .settings import Settings
 
 log = logging.getLogger("graspd.server")
@@ -145,9 +147,13 @@ def check_exposure(settings: Settings, conf: Any) -> None:
         "GRASPD_ZENOH_ALLOW_ANONYMOUS=true")
 
 
-def error_payload(exc: Problem) -> bytes:
-    """The JSON error body of a Zenoh error reply: HTTP's error body plus its status."""
-    return json.dumps({**exc.body(), "status": exc.status}).encode()
+def error_payload(exc: Problem, request_id: str | None = None) -> bytes:
+    """The JSON error body of a Zenoh error reply: HTTP's error body plus its status, and the request id that
+    the server's log lines for it carry (HTTP sends it as X-Request-ID; Zenoh replies have no headers)."""
+    body: dict[str, Any] = {**exc.body(), "status": exc.status}
+    if request_id is not None:
+        body["request_id"] = request_id
+    return json.dumps(body).encode()
 
 
 def unauthorized() -> Problem:
@@ -156,9 +162,17 @@ def unauthorized() -> Problem:
                    "(graspd_client.wire.zenoh_token_attachment)", "attachment")
 
 
-def internal_error() -> Problem:
-    """A genuine server fault: no exception text in the reply (it may hold internals), the log has it."""
-    return Problem(500, "internal error (the server log has the details)")
+def internal_error(request_id: str) -> Problem:
+    """A genuine server fault: no exception text in the reply (it may hold internals), only a generic message
+    and the request id; the log line with the traceback carries the same id (HTTP's 500 says the same)."""
+    return Problem(500, f"internal error (request {request_id}; the server log has the details)")
+
+
+def in_fresh_context(fn: Callable[..., None]) -> Callable[..., None]:
+    """fn run in a context of its own, so that the request id begin_request() sets there is seen by the lines
+    it logs and the work it hands to threads (engine.enqueue copies the context), never by the Zenoh
+    callback thread's later, unrelated callbacks."""
+    return lambda *args: contextvars.Context().run(fn, *args)
 
 
 def _attachment(obj: Any) -> bytes | None:
@@ -216,9 +230,11 @@ class ZenohNode:
         check_exposure(self.settings, conf)
         self.session = zenoh.open(conf)
         s = self.session
+        on_query, on_info, on_templates = (in_fresh_context(self._on_query), in_fresh_context(self._on_info),
+                                           in_fresh_context(self._on_templates))  # one request id per query
         for key in (self.detect_key, f"{self.instance_key}/{ZENOH_DETECT_KEY}"):
-            self._declared.append(s.declare_queryable(key, lambda q, k=key: self._on_query(q, k), complete=True))
-        self._declared.append(s.declare_queryable(self.instance_key, self._on_info, complete=True))
+            self._declared.append(s.declare_queryable(key, lambda q, k=key: on_query(q, k), complete=True))
+        self._declared.append(s.declare_queryable(self.instance_key, on_info, complete=True))
         templates = self.engine.templates
         handlers: dict[str, Callable[[bytes], Any]] = {
             ZENOH_DEMONSTRATIONS_KEY: lambda p: templates.demonstrate(
@@ -229,7 +245,7 @@ class ZenohNode:
         }
         for name, work in handlers.items():
             self._declared.append(s.declare_queryable(
-                f"{self.prefix}/{name}", lambda q, n=name, w=work: self._on_templates(q, n, w), complete=True))
+                f"{self.prefix}/{name}", lambda q, n=name, w=work: on_templates(q, n, w), complete=True))
         if self.settings.zenoh_stream:
             self._publisher = s.declare_publisher(f"{self.prefix}/{ZENOH_GRASPS_KEY}")
             self._declared.append(s.declare_subscriber(f"{self.prefix}/{ZENOH_CLOUD_KEY}", self._on_cloud))
@@ -268,10 +284,10 @@ class ZenohNode:
             return True
         return attachment is not None and hmac.compare_digest(attachment, self._expected)
 
-    def admit(self, query: Any, key: str | None = None) -> bytes:
-        """The payload of a query allowed in: the token checked (401), an exact-key query when key is given
-        (400: a wildcard such as <prefix>/** never reaches a detector or a writer), the size cap (413), all
-        before the payload is copied or parsed."""
+    def check(self, query: Any, key: str | None = None) -> None:
+        """Let a query in or raise Problem: the token (401), an exact-key query when key is given (400: a
+        wildcard such as <prefix>/** never reaches a detector or a writer), the size cap (413), all before the
+        payload is copied or parsed."""
         if not self.authorized(_attachment(query)):
             raise unauthorized()
         if key is not None and str(query.key_expr) != key:
@@ -280,10 +296,18 @@ class ZenohNode:
         if size > self.settings.max_body_bytes:
             raise Problem(413, f"payload of {size} bytes exceeds the limit of {self.settings.max_body_bytes}",
                           "payload")
+
+    @staticmethod
+    def payload_of(query: Any) -> bytes:
         return b"" if query.payload is None else bytes(query.payload.to_bytes())
 
+    def admit(self, query: Any, key: str | None = None) -> bytes:
+        """The payload of a query allowed in by check() (token, exact key, size cap)."""
+        self.check(query, key)
+        return self.payload_of(query)
+
     # ---- requests --------------------------------------------------------------------------
-    def request_from_payload(self, payload: bytes) -> tuple[Any, dict[str, Any] | None]:
+    def request_from_payload(self, payload: bytes) -> tuple[DetectRequest, dict[str, Any] | None]:
         """A DetectRequest from JSON or CDR PointCloud2 bytes, plus the ROS header for CDR input."""
         if looks_like_cdr(payload):
             try:
@@ -301,95 +325,118 @@ class ZenohNode:
 
     def _on_info(self, query: Any) -> None:
         t0 = time.perf_counter()
+        ctx = begin_request()
         try:
-            self.admit(query)
+            self.check(query)
             info = {"instance": self.instance, "detect_key": f"{self.instance_key}/{ZENOH_DETECT_KEY}",
                     "workers": self.engine.workers, "pending": self.engine.pending}
-            self._finish(query, t0, None, json.dumps(info).encode(), "instance", self.instance_key)
+            self._finish(query, t0, ctx, None, json.dumps(info).encode(), "instance", self.instance_key)
         except Problem as exc:
-            self._finish(query, t0, exc, name="instance")
+            self._finish(query, t0, ctx, exc, name="instance")
         except Exception:
-            log.exception("zenoh instance info failed")
-            self._finish(query, t0, internal_error(), name="instance")
+            log.exception("zenoh instance info failed", extra={"request_id": ctx.id})
+            self._finish(query, t0, ctx, internal_error(ctx.id), name="instance")
 
     def _on_query(self, query: Any, key: str) -> None:
-        """Admit the query and reply from the worker when done (the Zenoh thread is not blocked)."""
+        """Check the query (token, key, size), take a place in the engine's queue (503 when full, before the
+        payload is even copied), then parse and detect on a worker; the reply is sent from the worker when done
+        (the Zenoh thread is never blocked, nor the payload parsed on it)."""
         t0 = time.perf_counter()
+        ctx = begin_request()
         try:
-            payload = self.admit(query, key)
-            req, header = self.request_from_payload(payload)
-            timings = {"decode": time.perf_counter() - t0}
-            fut, _deadline = self.engine.submit(req, timings)
+            self.check(query, key)
+            self.engine.admit()
         except Problem as exc:
-            self._finish(query, t0, exc)
+            self._finish(query, t0, ctx, exc)
             return
-        except Exception:  # a server fault before submission: still an answer
-            log.exception("zenoh detect failed")
-            self._finish(query, t0, internal_error())
+        except Exception:  # a server fault before admission: still an answer
+            log.exception("zenoh detect failed", extra={"request_id": ctx.id})
+            self._finish(query, t0, ctx, internal_error(ctx.id))
             return
-        fut.add_done_callback(lambda f: self._reply(query, f, header, t0, key))
+        header: dict[str, Any] = {}  # the ROS header of a CDR payload, filled in on the worker
+
+        def parse() -> DetectRequest:
+            req, ros_header = self.request_from_payload(self.payload_of(query))
+            header.update(ros_header or {})
+            return req
+
+        try:
+            fut, _deadline = self.engine.enqueue(parse, {"read": time.perf_counter() - t0})
+        except Problem as exc:  # shutting down (the place was given back)
+            self._finish(query, t0, ctx, exc)
+            return
+        except Exception:
+            self.engine.release()
+            log.exception("zenoh detect failed", extra={"request_id": ctx.id})
+            self._finish(query, t0, ctx, internal_error(ctx.id))
+            return
+        fut.add_done_callback(lambda f: self._reply(query, f, header, t0, key, ctx))
         self.engine.trim_after(fut)
         if self.settings.deadline_s:
-            timer = threading.Timer(self.settings.deadline_s, self._expire, (query, fut, t0))
+            timer = threading.Timer(self.settings.deadline_s, self._expire, (query, fut, t0, ctx))
             timer.daemon = True
             timer.start()
             fut.add_done_callback(lambda _: timer.cancel())
 
-    def _expire(self, query: Any, fut: Future[bytes], t0: float) -> None:
+    def _expire(self, query: Any, fut: Future[bytes], t0: float, ctx: RequestContext) -> None:
         if fut.cancel() or not fut.done():
-            self._finish(query, t0, Problem(504, f"no result within the deadline of {self.settings.deadline_s} s",
-                                            "deadline"))
+            self._finish(query, t0, ctx, Problem(
+                504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline"))
 
-    def _reply(self, query: Any, fut: Future[bytes], header: dict[str, Any] | None, t0: float, key: str) -> None:
+    def _reply(self, query: Any, fut: Future[bytes], header: dict[str, Any], t0: float, key: str,
+               ctx: RequestContext) -> None:
         if fut.cancelled():
             return
         try:
             exc = fut.exception()
             if exc is None:
                 body = fut.result()
-                if header is not None:
+                if header:
                     body = json.dumps({**json.loads(body), "header": header}).encode()
-                self._finish(query, t0, None, body, key=key)
+                self._finish(query, t0, ctx, None, body, key=key)
             elif isinstance(exc, Problem):
-                self._finish(query, t0, exc)
+                self._finish(query, t0, ctx, exc)
             else:
-                log.error("zenoh detect failed", extra={"error": repr(exc)})
-                self._finish(query, t0, internal_error())
+                log.error("zenoh detect failed", exc_info=exc, extra={"request_id": ctx.id,
+                                                                      "error": type(exc).__name__})
+                self._finish(query, t0, ctx, internal_error(ctx.id))
         except Exception:
-            log.exception("zenoh detect reply failed")
-            self._finish(query, t0, internal_error())
+            log.exception("zenoh detect reply failed", extra={"request_id": ctx.id})
+            self._finish(query, t0, ctx, internal_error(ctx.id))
 
     def _on_templates(self, query: Any, name: str, work: Callable[[bytes], Any]) -> None:
-        """A demonstrations/feedback/library query: admitted here (token, exact key, size), the work runs on
-        a small pool, not the Zenoh thread."""
+        """A demonstrations/feedback/library query: checked here (token, exact key, size); the payload is
+        copied, parsed and worked on by a small pool, not the Zenoh thread."""
         t0 = time.perf_counter()
+        ctx = begin_request()
         key = f"{self.prefix}/{name}"
         try:
-            payload = self.admit(query, key)
+            self.check(query, key)
         except Problem as exc:
-            self._finish(query, t0, exc, name=name)
+            self._finish(query, t0, ctx, exc, name=name)
             return
         except Exception:
-            log.exception("zenoh %s failed", name)
-            self._finish(query, t0, internal_error(), name=name)
+            log.exception("zenoh %s failed", name, extra={"request_id": ctx.id})
+            self._finish(query, t0, ctx, internal_error(ctx.id), name=name)
             return
 
         def run() -> None:
             try:
-                self._finish(query, t0, None, json.dumps(work(payload)).encode(), name, key)
+                out = work(self.payload_of(query))
+                self._finish(query, t0, ctx, None, json.dumps(out).encode(), name, key)
             except Problem as exc:
-                self._finish(query, t0, exc, name=name)
+                self._finish(query, t0, ctx, exc, name=name)
             except Exception:
-                log.exception("zenoh %s failed", name)
-                self._finish(query, t0, internal_error(), name=name)
+                log.exception("zenoh %s failed", name, extra={"request_id": ctx.id})
+                self._finish(query, t0, ctx, internal_error(ctx.id), name=name)
 
-        try:
-            self._templates_pool.submit(run)
+        try:  # the work's own log lines carry the request id too
+            self._templates_pool.submit(contextvars.copy_context().run, run)
         except RuntimeError:  # shutting down
-            self._finish(query, t0, Problem(503, "server is shutting down", retry_after=1.0), name=name)
+            self._finish(query, t0, ctx, Problem(503, "server is shutting down", retry_after=1.0), name=name)
 
-    def _finish(self, query: Any, t0: float, problem: Problem | None, body: bytes | None = None,
-                name: str = "detect", key: str | None = None) -> None:
+    def _finish(self, query: Any, t0: float, ctx: RequestContext, problem: Problem | None,
+                body: bytes | None = None, name: str = "detect", key: str | None = None) -> None:
         outcome = "ok"
         try:
             if problem is None:
@@ -397,10 +444,12 @@ class ZenohNode:
             else:
                 outcome = {401: "unauthorized", 413: "too_large", 503: "busy", 504: "deadline"}.get(
                     problem.status, "invalid" if problem.status < 500 else "error")
-                query.reply_err(error_payload(problem))
+                if problem.status == 503 and problem.field == "model":
+                    outcome = "model_unavailable"
+                query.reply_err(error_payload(problem, ctx.id))
             query.drop()
         except Exception as exc:  # query already finalised (deadline raced the result)
-            log.debug("zenoh reply dropped", extra={"error": repr(exc)})
+            log.debug("zenoh reply dropped", extra={"request_id": ctx.id, "error": repr(exc)})
             return
         elapsed = time.perf_counter() - t0
         if name == "detect":  # the request metrics count detections
@@ -408,9 +457,10 @@ class ZenohNode:
             self.metrics.request_seconds.labels("zenoh").observe(elapsed)
         elif outcome == "unauthorized":
             self.metrics.requests.labels("zenoh-" + name, outcome).inc()
-        extra: dict[str, Any] = {"transport": "zenoh", "outcome": outcome, "ms": round(elapsed * 1000, 1)}
-        if problem is not None:
-            extra.update(status=problem.status, field=problem.field)
+        extra: dict[str, Any] = {"transport": "zenoh", "request_id": ctx.id, "outcome": outcome,
+                                 "ms": round(elapsed * 1000, 1)}
+        if problem is not None:  # say why, as HTTP's lines do
+            extra.update(status=problem.status, field=problem.field, error=problem.message)
         (log.warning if outcome == "unauthorized" else log.info)(name, extra=extra)
 
     # ---- streaming -------------------------------------------------------------------------
@@ -455,23 +505,28 @@ class ZenohNode:
                     return
                 payload: bytes = self._latest or b""
                 self._latest = None
-            t0 = time.perf_counter()
-            try:
-                req, header = self.request_from_payload(payload)
-                body = self.engine.run_sync(req, {"decode": time.perf_counter() - t0})
-                out = json.loads(body)
-                if header is not None:
-                    out["header"] = header
-                self._publisher.put(json.dumps(out).encode())
-                outcome = "ok"
-            except Problem as exc:
-                self._publisher.put(error_payload(exc))
-                outcome = "invalid" if exc.status < 500 else "error"
-            except Exception:  # keep streaming whatever one frame did
-                log.exception("stream detect failed")
-                self._publisher.put(error_payload(internal_error()))
-                outcome = "error"
-            self.metrics.requests.labels("zenoh-stream", outcome).inc()
+            contextvars.Context().run(self._stream_frame, payload)
+
+    def _stream_frame(self, payload: bytes) -> None:
+        """Detect on one streamed cloud and publish the grasps, or the error (a 500 says nothing internal)."""
+        t0 = time.perf_counter()
+        ctx = begin_request()
+        try:
+            req, header = self.request_from_payload(payload)
+            body = self.engine.run_sync(req, {"decode": time.perf_counter() - t0})
+            out = json.loads(body)
+            if header is not None:
+                out["header"] = header
+            self._publisher.put(json.dumps(out).encode())
+            outcome = "ok"
+        except Problem as exc:
+            self._publisher.put(error_payload(exc, ctx.id))
+            outcome = "invalid" if exc.status < 500 else "error"
+        except Exception:  # keep streaming whatever one frame did
+            log.exception("stream detect failed", extra={"request_id": ctx.id})
+            self._publisher.put(error_payload(internal_error(ctx.id), ctx.id))
+            outcome = "error"
+        self.metrics.requests.labels("zenoh-stream", outcome).inc()
 
 
 T = TypeVar("T")
