@@ -131,6 +131,36 @@ def test_full_queue_answers_503_before_the_body(make_settings: Callable[..., Set
         slow.result(timeout=120)
 
 
+def test_template_writers_answer_503_before_the_body_when_full(make_settings: Callable[..., Settings]) -> None:
+    """/demonstrations and /feedback are bounded as /detect is: with workers + queue places all taken (here
+    one, held by a demonstration whose body has not arrived), the next writer gets 503 before its body is
+    read; once the holder goes away its place comes back."""
+    settings = make_settings(port=0, detect_workers=1, queue_size=0, http_body_timeout_s=30.0)
+    feedback = json.dumps({"grasp_id": "0123456789abcdef-0", "success": False}).encode()
+    post = (b"POST /feedback HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: "
+            + str(len(feedback)).encode() + b"\r\n\r\n" + feedback)
+    with serve_in_thread(settings) as url:
+        with connect(url) as holder:
+            holder.sendall(b"POST /demonstrations HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                           b"Content-Length: 1000\r\n\r\n{")
+            time.sleep(0.3)  # the holder's place is taken while its body is awaited
+            with connect(url) as s:
+                t0 = time.monotonic()
+                s.sendall(post)
+                status, headers, body = read_response(s)
+            assert status == 503 and time.monotonic() - t0 < 1.0, body
+            assert 1 <= int(headers["retry-after"]) <= settings.max_retry_after_s
+        deadline = time.monotonic() + 5  # the holder hung up: its place is given back
+        while True:
+            with connect(url) as s:
+                s.sendall(post)
+                status, _, body = read_response(s)
+            if status != 503 or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
+        assert status == 404 and json.loads(body)["field"] == "grasp_id", body  # parsed and looked up
+
+
 def test_client_disconnect_is_info_without_traceback(make_settings: Callable[..., Settings],
                                                      caplog: pytest.LogCaptureFixture) -> None:
     caplog.handler.addFilter(RequestIdFilter())

@@ -8,6 +8,7 @@ import time
 from collections.abc import Callable
 from typing import Any, TypeVar
 
+import anyio
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel
@@ -44,20 +45,58 @@ def json_body(model: type[BaseModel]) -> dict[str, Any]:
         "application/json": {"schema": {"$ref": f"#/components/schemas/{model.__name__}"}}}}}
 
 
+class TemplateGate:
+    """Bounds the writers as /detect is bounded: at most workers + queue_size requests in flight (503 with
+    Retry-After when full, decided before the body is read), and at most `workers` bodies parsed and worked
+    on at once, on threads (never the event loop: a megabyte of JSON lists takes tens of milliseconds)."""
+
+    def __init__(self, workers: int, queue_size: int) -> None:
+        self.capacity = workers + queue_size
+        self.limiter = anyio.CapacityLimiter(workers)
+        self.in_flight = 0  # touched on the event loop only
+
+    @classmethod
+    def of(cls, request: Request, state: State) -> TemplateGate:
+        """The app's gate, made on first use (on the event loop: the limiter needs one)."""
+        gate: TemplateGate | None = getattr(request.app.state, "template_gate", None)
+        if gate is None:
+            gate = request.app.state.template_gate = cls(state.engine.workers, state.settings.queue_size)
+        return gate
+
+    def admit(self) -> None:
+        if self.in_flight >= self.capacity:
+            raise Problem(503, f"server busy ({self.in_flight} template requests in flight)", retry_after=1.0)
+        self.in_flight += 1
+
+    def release(self) -> None:
+        self.in_flight -= 1
+
+
 async def _call(request: Request, state: State, name: str, model: type[M], work: Callable[[M], Any]) -> Any:
-    """Read and validate the body (capped), run work off the event loop, log and count the outcome."""
+    """Take a place (503 when full), read the body (capped in size and time), then validate it and run work
+    on a thread of the gate's bounded pool; log and count the outcome."""
     t0 = time.perf_counter()
     status = 500
+    problem: Problem | None = None
+    gate = TemplateGate.of(request, state)
     try:
-        req = parse_model(model, await read_capped(request, state.settings.max_body_bytes))
-        out = await run_in_threadpool(work, req)
+        gate.admit()
+        try:
+            data = await read_capped(request, state.settings.max_body_bytes)
+            out = await anyio.to_thread.run_sync(lambda: work(parse_model(model, data)), limiter=gate.limiter)
+        finally:
+            gate.release()
         status = 200
         return out
     except Problem as exc:
-        status = exc.status
+        problem, status = exc, exc.status
         raise
     finally:
-        log.info(name, extra={"transport": "http", "status": status, "ms": round((time.perf_counter() - t0) * 1e3, 1)})
+        extra: dict[str, Any] = {"transport": "http", "status": status,
+                                 "ms": round((time.perf_counter() - t0) * 1e3, 1)}
+        if problem is not None:  # say why, as /detect's lines do
+            extra.update(field=problem.field, error=problem.message)
+        log.info(name, extra=extra)
 
 
 @router.post("/demonstrations", dependencies=[Authorized], response_model=DemonstrationResponse,
