@@ -20,6 +20,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--zenoh-listen", action="append", help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--zenoh-connect", action="append", help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--zenoh-instance", help="instance id under <prefix>/instances/ (several servers)")
+    p.add_argument("--zenoh-config", metavar="PATH",
+                   help="Zenoh JSON5 config file (TLS/mTLS, user/password, access control); keys it sets win "
+                        "over --zenoh-listen/--zenoh-connect (GRASPD_ZENOH_CONFIG)")
     p.set_defaults(func=serve)
 
 
@@ -28,7 +31,7 @@ def settings_from_args(args: argparse.Namespace) -> Any:
 
     overrides = {k: getattr(args, k, None) for k in ("host", "port", "models_dir", "default_model", "detect_workers",
                                                      "zenoh_enabled", "zenoh_listen", "zenoh_connect",
-                                                     "zenoh_instance")}
+                                                     "zenoh_instance", "zenoh_config")}
     return Settings(**{k: v for k, v in overrides.items() if v is not None})
 
 
