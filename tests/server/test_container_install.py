@@ -38,7 +38,7 @@ def dockerfile_steps() -> tuple[list[list[str]], list[str], dict[str, str]]:
 @pytest.mark.slow
 def test_dockerfile_install_steps_in_fresh_venv(tmp_path: Path) -> None:
     pip_steps, health, docker_env = dockerfile_steps()
-    assert pip_steps == [["./client"], ["."]], pip_steps
+    assert pip_steps == [["./client"], [".[postgres]"]], pip_steps  # the server with its PostgreSQL extra
     env_dir = tmp_path / "venv"
     venv.EnvBuilder(with_pip=True).create(env_dir)
     py = env_dir / "bin" / "python"
@@ -70,8 +70,8 @@ def test_dockerfile_install_steps_in_fresh_venv(tmp_path: Path) -> None:
             assert server.poll() is None, server.stdout.read() if server.stdout else ""
             assert time.monotonic() < deadline, "HEALTHCHECK never passed"
             time.sleep(0.5)
-        imported = subprocess.check_output([str(py), "-c", "import graspd, graspd_client; print(graspd.__file__)"],
-                                           text=True, cwd=tmp_path)
+        imported = subprocess.check_output([str(py), "-c", "import graspd, graspd_client, psycopg; "
+                                            "print(graspd.__file__)"], text=True, cwd=tmp_path)  # postgres extra
         assert str(env_dir) in imported  # the installed copy, not the checkout
     finally:
         server.send_signal(signal.SIGTERM)
