@@ -53,7 +53,11 @@ def test_shipped_model_card_and_scores(name: str, scene_and_grasps) -> None:
     card = read_card(Path(MODELS) / f"{name}.json")
     assert card["name"] == name
     assert card["channel_layout"] == channel_layout(card["representation"])
-    assert card["hand"] == HandGeometry().to_dict()
+    # the card records the hand the images were made for; palm_depth (the body behind the finger roots) is not
+    # part of a grasp image, so cards made before it existed match the default hand on every image field
+    hand = HandGeometry().to_dict()
+    assert set(hand) - set(card["hand"]) <= {"palm_depth"}
+    assert card["hand"] == {k: hand[k] for k in card["hand"]}
     assert card["output"]["range"] == [0.0, 1.0]
     assert card["training"]["dataset_manifest_sha256"] and card["command"].startswith("graspd train")
     for metrics in card["metrics"].values():
