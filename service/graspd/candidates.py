@@ -71,7 +71,7 @@ def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float
 
 def finger_offsets(hand: HandGeometry, count: int) -> NDArray[np.float64]:
     """Hand-centre offsets along the binormal (m) at which the sampled point lies between the fingers."""
-    half = 0.9 * (hand.hand_outer_diameter / 2.0 - hand.finger_width)
+    half = 0.9 * hand.closing_half_width
     return np.linspace(-half, half, count) if count > 1 else np.zeros(1)
 
 
@@ -203,7 +203,7 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     cand, elem = _segment_expand(si, starts, lengths)
     hx = x_phi[pi[cand], elem] - (t_star[cand] - hd)
     hy = y_phi[pi[cand], elem] - s_grid[bj][cand]
-    half_w = od / 2.0 - fw
+    half_w = hand.closing_half_width
     inside_c = (hx >= 0.0) & (hx <= hd) & (np.abs(hy) <= half_w)
     cand, elem, hx, hy = cand[inside_c], elem[inside_c], hx[inside_c], hy[inside_c]
     m = len(si)

@@ -10,7 +10,7 @@ environment (see hand_hits_environment).  Everything is in the cloud frame, metr
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Literal
 
@@ -130,7 +130,6 @@ class Environment:
     up: F64 | None = None
     mode: str = "auto"
     clearance: float = 0.003
-    timings: dict[str, float] = field(default_factory=dict, compare=False)
 
     @staticmethod
     def empty(num_points: int, mode: str = "none") -> Environment:
@@ -295,13 +294,10 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
                       gravity: tuple[float, float, float] | None = None, seed: int | None = 0) -> Environment:
     """Label every point of a preprocessed cloud as object, support, wall or declared, and say which way is up
     (against gravity when given, else the support's normal)."""
-    import time
-
     p = params or EnvironmentParams()
     n = len(cloud)
     if p.mode == "none":
         return Environment.empty(n, "none")
-    t0 = time.perf_counter()
     pts = cloud.points.astype(np.float64)
     g = None if gravity is None else np.asarray(gravity, np.float64) / max(float(np.linalg.norm(gravity)), 1e-12)
     rng = np.random.default_rng(seed if seed is not None else 0)
@@ -324,7 +320,7 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
         labels[box.contains(pts)] = Label.DECLARED
     up = -g if g is not None else (None if support is None else support.normal)
     return Environment(labels=labels, support=support, walls=walls, boxes=tuple(p.boxes), up=up, mode=p.mode,
-                       clearance=p.clearance, timings={"environment": time.perf_counter() - t0})
+                       clearance=p.clearance)
 
 
 def _box_corners_min(plane: Plane, centres: F64, rotations: F64, half: F64) -> F64:

@@ -47,7 +47,7 @@ def channel_layout(representation: str) -> list[str]:
 
 def _unit_coords(local: NDArray[np.float32], hand: HandGeometry) -> NDArray[np.float32]:
     """Hand-frame closing-region coordinates scaled into [0, 1]^3."""
-    half_w = hand.hand_outer_diameter / 2.0 - hand.finger_width
+    half_w = hand.closing_half_width
     lo = np.array([0.0, -half_w, -hand.hand_height / 2.0], np.float32)
     size = np.array([hand.hand_depth, 2.0 * half_w, hand.hand_height], np.float32)
     return np.clip((local - lo) / size, 0.0, 1.0)
@@ -91,7 +91,7 @@ def unobserved_grids(scene: Scene, grasps: GraspSet, hand: HandGeometry, chunk: 
     voxel pitch, lie in unobserved space."""
     grid = scene.unobserved
     v = grid.voxel
-    half_w = hand.hand_outer_diameter / 2.0 - hand.finger_width
+    half_w = hand.closing_half_width
     n = [max(int(np.ceil(e / v)), 1) for e in (hand.hand_depth, 2 * half_w, hand.hand_height)]
     axes = [(np.arange(k) + 0.5) / k for k in n]
     unit = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)

@@ -157,7 +157,7 @@ class ClosingRegionPoints:
 def closing_region_points(tree: cKDTree, points: NDArray[np.float32], positions: NDArray[np.float64],
                           rotations: NDArray[np.float64], hand: HandGeometry) -> ClosingRegionPoints:
     """The points of `points` (indexed by `tree`) that lie between the open fingers of each hand."""
-    half_w = hand.hand_outer_diameter / 2.0 - hand.finger_width
+    half_w = hand.closing_half_width
     centres = positions + rotations[:, :, 0] * (hand.hand_depth / 2.0)
     radius = float(np.sqrt((hand.hand_depth / 2) ** 2 + half_w**2 + (hand.hand_height / 2) ** 2))
     if len(positions) == 0 or tree.n == 0:
