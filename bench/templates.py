@@ -1,6 +1,6 @@
 """Template detection speed: a ~30k-point single-object cloud against a 50-entry library (target <= 0.5 s).
 
-The library holds 50 demonstrations: one top-down grasp (graspd.sim's scripted TopDownBaseline) on each of
+The library holds 50 demonstrations: one scripted top-down grasp (top_down_pose) on each of
 pybullet_data's training meshes 000-0xx (never the held-out 900-999), rendered on a table by a ray-cast
 depth camera.  Queries are other training meshes, cropped to a workspace around the object so the cloud
 has ~30k points (object + table), and the same with ~30k points on the object alone.  Prints a table
@@ -12,22 +12,36 @@ template it matched, as in the paper's Fig. 4).
 
 --http also serves the same library (graspd's app on a loopback port, one detect worker) and times each query
 as a robot sees it: GraspClient.detect(..., method="templates") round trips, with the server's own total.
+
+The paper's simulated experiments (scripted demonstrations in graspd.sim's pybullet world, (a) generalisation
+to held-out objects, (b) improvement over time with failure feedback) run from here too, with the arguments of
+graspd.sim.experiments:
+
+    PYTHONPATH=service:client .venv/bin/python bench/templates.py experiment a --demos 15 --objects 7 --tests 30
+    PYTHONPATH=service:client .venv/bin/python bench/templates.py experiment b --trials 34 --object 905
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
 
 from graspd.cloud import ViewpointCloud
 from graspd.hand import HandGeometry
+from graspd.server.runner import serve_in_thread
+from graspd.server.settings import Settings
 from graspd.templates import TemplateDetector, TemplateError, TemplateLibrary, TemplateParams
+from graspd.templates.geometry import candidate_templates, prepare_scene
 from graspd.templates.synthetic import random_urdf_mesh, render_cloud, table_mesh
+from graspd_client import GraspClient
 
 CAMERA = np.array([[0.45, 0.1, 0.45]])
 WORKSPACE = (-0.15, 0.15, -0.15, 0.15, -0.02, 0.3)
@@ -96,10 +110,6 @@ def time_detection(det: TemplateDetector, cloud: ViewpointCloud, repeats: int) -
 def time_http(url: str, queries: list[tuple[str, ViewpointCloud]], repeats: int) -> list[dict[str, float]]:
     """Per query: median HTTP round-trip seconds of method "templates" detection (after one warm-up) and the
     median server-side total (the response's timings)."""
-    from graspd.server.runner import serve_in_thread
-    from graspd.server.settings import Settings
-    from graspd_client import GraspClient
-
     out = []
     with tempfile.TemporaryDirectory() as tmp, \
             serve_in_thread(Settings(port=0, zenoh_enabled=False, template_library=url, detect_workers=1,
@@ -119,15 +129,9 @@ def time_http(url: str, queries: list[tuple[str, ViewpointCloud]], repeats: int)
 
 def plot(rows: list[tuple[str, int, dict[str, float]]], lib: TemplateLibrary, det: TemplateDetector,
          cloud: ViewpointCloud, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import ListedColormap
-
-    from graspd.templates.geometry import candidate_templates, prepare_scene
-
-    fig, axes = plt.subplots(1, 5, figsize=(20, 4))
+    """Stage times per query, and the best candidate template beside the library entry it matched."""
+    fig = Figure(figsize=(20, 4))
+    axes = fig.subplots(1, 5)
     ax = axes[0]
     left = np.zeros(len(rows))
     for stage in STAGES[:-1]:
@@ -165,6 +169,12 @@ def plot(rows: list[tuple[str, int, dict[str, float]]], lib: TemplateLibrary, de
 
 
 def main() -> None:
+    """Time template detection (or, with `experiment ...`, run a simulated experiment)."""
+    if sys.argv[1:2] == ["experiment"]:
+        from graspd.sim import experiments  # pybullet: only for the simulated experiments
+
+        experiments.main(sys.argv[2:])
+        return
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--entries", type=int, default=50)

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from graspd.hand import HandGeometry
+from graspd.sim.experiments import TemplateSimDetector, attempt, last_ten, scripted_demonstrations, training_urdf
 from graspd.templates import TemplateDetector, TemplateLibrary, TemplateParams
-from graspd.templates.experiments import attempt, last_ten, scripted_demonstrations, training_urdf
+from graspd.templates.synthetic import box_top_grasp
 
 
 def test_last_ten_is_the_success_rate_over_the_last_ten_trials() -> None:
@@ -34,9 +35,6 @@ def test_one_scripted_demonstration_then_one_template_grasp(tmp_path) -> None:
 
 
 def test_template_detector_behind_the_sim_interface(render_box, box_pose, tmp_path) -> None:
-    from graspd.templates.experiments import TemplateSimDetector
-    from graspd.templates.synthetic import box_top_grasp
-
     pose = box_pose()
     cloud = render_box(pose)
     lib = TemplateLibrary(f"sqlite:///{tmp_path}/lib.db")

@@ -8,8 +8,10 @@ executed by graspd.sim's free-floating hand.  Demonstrations are scripted: on ea
 lifts the object; that grasp and the cloud seen before it become a library entry.  Tests use the
 held-out objects 900-999 only.
 
-    PYTHONPATH=service:client python -m graspd.templates.experiments a --demos 15 --objects 7 --tests 30
-    PYTHONPATH=service:client python -m graspd.templates.experiments b --trials 34 --object 905
+    PYTHONPATH=service:client python -m graspd.sim.experiments a --demos 15 --objects 7 --tests 30
+    PYTHONPATH=service:client python -m graspd.sim.experiments b --trials 34 --object 905
+
+(bench/templates.py experiment ... runs the same.)
 """
 
 from __future__ import annotations
@@ -24,13 +26,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pybullet as pb
+import pybullet_data
+from matplotlib.figure import Figure
 
+from ..classifier import default_model_name, load_model
 from ..cloud import ViewpointCloud
 from ..grasp import GraspSet
 from ..hand import HandGeometry
-from .detector import TemplateDetector, TemplateParams
-from .geometry import TemplateError
-from .store import TemplateLibrary
+from ..templates import TemplateDetector, TemplateError, TemplateLibrary, TemplateParams
+from .detectors import InProcessGPD, TopDownBaseline
+from .gripper import Gripper
+from .objects import graspable_scale
+from .protocol import feasible
+from .sensing import NO_NOISE, DepthNoise, observe, side_camera
+from .world import SimWorld, random_quat
 
 NDArrayInt = np.ndarray
 REGION = (-0.15, 0.15, -0.15, 0.15, -0.005, 0.4)
@@ -40,8 +50,6 @@ TRAINING_IDS = tuple(range(0, 900))
 
 def training_urdf(object_id: int) -> str:
     """A training object's URDF; ValueError for the held-out ids 900-999."""
-    import pybullet_data
-
     if object_id not in TRAINING_IDS:
         raise ValueError(f"object_id must be a training object in 0..899, got {object_id}")
     return str(Path(pybullet_data.getDataPath()) / "random_urdfs" / f"{object_id:03d}" / f"{object_id:03d}.urdf")
@@ -49,8 +57,6 @@ def training_urdf(object_id: int) -> str:
 
 def fit_scale(object_id: int, hand: HandGeometry, fill: float = 0.7) -> float:
     """globalScaling (<= 1) so the middle extent is at most fill * the hand's aperture (as graspd.sim)."""
-    import pybullet_data
-
     path = Path(pybullet_data.getDataPath()) / "random_urdfs" / f"{object_id:03d}" / f"{object_id:03d}.obj"
     verts = np.array([ln.split()[1:4] for ln in path.read_text().splitlines() if ln.startswith("v ")], float)
     middle = float(np.sort(np.ptp(verts, axis=0))[1]) * MESH_SCALE
@@ -73,11 +79,6 @@ def make_trial(object_id: int, seed: int, hand: HandGeometry, noise: bool = True
                ) -> Trial:
     """A world with the object dropped in a random orientation (seed), settled, and its noisy side view
     (sensor noise from view_seed if given: the same pose seen anew)."""
-    import pybullet as pb
-
-    from ..sim.sensing import NO_NOISE, DepthNoise, observe, side_camera
-    from ..sim.world import SimWorld, random_quat
-
     rng = np.random.default_rng(seed)
     world = SimWorld.create(has_tray=False)
     pos = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), 0.12])
@@ -88,8 +89,6 @@ def make_trial(object_id: int, seed: int, hand: HandGeometry, noise: bool = True
                           physicsClientId=world.client)
         world.objects[body] = object_id
     else:
-        from ..sim.objects import graspable_scale
-
         world.add_object(object_id, pos, random_quat(rng), graspable_scale(object_id, hand))
     world.settle()
     view_rng = rng if view_seed is None else np.random.default_rng(view_seed)
@@ -99,15 +98,11 @@ def make_trial(object_id: int, seed: int, hand: HandGeometry, noise: bool = True
 
 def execute(trial: Trial, grasps: GraspSet, index: int, hand: HandGeometry) -> str:
     """Execute one grasp in the trial's world; the outcome name (graspd.sim.gripper.Outcome)."""
-    from ..sim.gripper import Gripper
-
     return str(Gripper(trial.world, hand).execute(grasps, index).outcome.value)
 
 
 def feasible_order(grasps: GraspSet, hand: HandGeometry) -> NDArrayInt:
     """Indices of the grasps a robot above the floor could execute, in their order (graspd.sim.protocol)."""
-    from ..sim.protocol import feasible
-
     return np.flatnonzero(feasible(grasps, 80.0))
 
 
@@ -116,8 +111,6 @@ def scripted_demonstrations(library: TemplateLibrary, object_ids: list[int], dem
     """Teach `demos` grasps spread over the training objects: per demonstration a new resting pose; the
     top-down baseline's feasible grasps are executed in order (the scene rebuilt from the same seed each
     time) until one lifts the object, which is added with the cloud seen before it."""
-    from ..sim.detectors import TopDownBaseline
-
     hand = library.hand
     taught: list[dict[str, Any]] = []
     k = 0
@@ -213,13 +206,9 @@ class TemplateSimDetector:
 
 def comparison_detector(name: str) -> Any:
     """A graspd.sim SimDetector by name: "baseline" (top-down) or "gpd" (default shipped classifier)."""
-    from ..sim.detectors import InProcessGPD, TopDownBaseline
-
     if name == "baseline":
         return TopDownBaseline()
     if name == "gpd":
-        from ..classifier import default_model_name, load_model
-
         return InProcessGPD(classifier=load_model(default_model_name()))
     raise ValueError(f"compare must name baseline or gpd, got {name!r}")
 
@@ -300,12 +289,9 @@ def last_ten(successes: NDArrayInt) -> NDArrayInt:
 
 
 def plot_improvement(with_fb: TrialLog, without: TrialLog, path: Path, object_id: int) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
+    """A PNG of the last-ten success curves with and without feedback (the paper's Fig. 6)."""
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
     for log_, name in ((with_fb, "with failure feedback"), (without, "without feedback (same poses)")):
         ax.plot(np.arange(1, len(log_.outcomes) + 1), 100 * last_ten(log_.successes), marker="o", ms=3, label=name)
     ax.set_xlabel("trial")
@@ -320,18 +306,14 @@ def plot_improvement(with_fb: TrialLog, without: TrialLog, path: Path, object_id
 def pool_improvement(out: Path) -> dict[str, Any]:
     """Pool every (b) result in out: per-run first/last ten, overall success by arm, and a PNG of the
     mean last-ten curves with and without feedback."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     runs = [json.loads(p.read_text()) for p in sorted(out.glob("templates_experiment_b_*.json"))]
     if not runs:
         raise FileNotFoundError(f"no templates_experiment_b_*.json in {out}")
     arms = {arm: [np.array([o == "success" for o in r[f"outcomes_{arm}"]]) for r in runs]
             for arm in ("feedback", "control")}
     n = min(len(a) for a in arms["feedback"])
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
     pooled: dict[str, Any] = {"runs": [{"object": r["object"], "pose_seed": r["pose_seed"],
                                         "first_ten": r["first_ten"], "last_ten": r["last_ten"],
                                         "control_first_ten": r["control_first_ten"],
@@ -353,6 +335,7 @@ def pool_improvement(out: Path) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Run one experiment (a, b, retry) or pool the (b) results, from the command line."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("experiment", choices=("a", "b", "retry", "pool"),
                     help="retry: (a) with failed poses retried, with and without feedback; "

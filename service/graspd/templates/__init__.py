@@ -40,12 +40,12 @@ grasp pose, template and GPD grasp image (uint8 (15, 60, 60) by default).
 
 Shell: `graspd templates {demonstrate,detect,feedback,library}` (graspd.templates.cli.register; add
 "graspd.templates.cli" to graspd.cli.SUBCOMMAND_MODULES).  Simulation experiments (scripted
-demonstrations, the paper's generalisation and improvement-over-time runs): python -m
-graspd.templates.experiments {a,b}.
+demonstrations, the paper's generalisation and improvement-over-time runs) live in graspd.sim.experiments
+(python bench/templates.py experiment {a,b,retry,pool}).
 
 Modules: geometry (templates, table, hull axes, occlusion), matching (eq. 1, eq. 2), store (SQLAlchemy
 library, migrations), demonstration (template of a demonstrated grasp; grasp images), detector, cli,
-experiments (graspd.sim), synthetic (ray-cast table scenes for tests and benchmarks).
+synthetic (ray-cast table scenes for tests and benchmarks).
 """
 
 from .detector import TemplateDetection, TemplateDetector, TemplateParams
