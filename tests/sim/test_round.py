@@ -8,8 +8,9 @@ from graspd.hand import HandGeometry
 from graspd.sim.detectors import InProcessGPD, TopDownBaseline
 from graspd.sim.gripper import Gripper, Outcome
 from graspd.sim.protocol import Setting, run_round
-from graspd.sim.sensing import NO_NOISE, observe, side_camera
+from graspd.sim.sensing import NO_NOISE, observe
 from graspd.sim.world import build_scene
+from graspd.world.cameras import side_camera
 
 WORKSPACE = (-0.15, 0.15, -0.15, 0.15, 0.0, 0.4)
 REGION = (-0.17, 0.17, -0.17, 0.17, -0.005, 0.4)

@@ -2,8 +2,10 @@
 
 import numpy as np
 
-from graspd.sim.sensing import NO_NOISE, DepthNoise, active_cameras, observe, passive_cameras, render_depth, side_camera
+from graspd.sim.sensing import NO_NOISE, observe, render_depth
 from graspd.sim.world import SimWorld
+from graspd.world.cameras import active_cameras, passive_cameras, side_camera
+from graspd.world.noise import DepthNoise
 
 REGION = (-0.15, 0.15, -0.12, 0.12, -0.05, 0.3)
 
@@ -27,7 +29,7 @@ def test_noise_spreads_depth_and_drops_pixels() -> None:
     with SimWorld.create(has_tray=True) as world:
         rng = np.random.default_rng(1)
         clean = observe(world.client, side_camera(), NO_NOISE, rng, REGION)
-        noisy = observe(world.client, side_camera(), DepthNoise(), rng, REGION)
+        noisy = observe(world.client, side_camera(), DepthNoise.benchmark(), rng, REGION)
         depth = render_depth(world.client, side_camera()[0])
     assert np.isfinite(depth).any()
     assert len(noisy) < len(clean)

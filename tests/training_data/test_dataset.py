@@ -107,8 +107,9 @@ def test_derived_images_equal_the_encoder_output() -> None:
     from graspd.images import encode_images
     from graspd.preprocess import preprocess
     from graspd.scene import Scene
-    from graspd.training.objects import procedural_object
-    from graspd.training.render import random_view, render_scene
+    from graspd.world.cameras import random_view
+    from graspd.world.objects import procedural_object
+    from graspd.world.render import render_scene
 
     hand = HandGeometry()
     obj = procedural_object("cylinder", 2)
@@ -143,7 +144,7 @@ def test_preview_png(tiny: Path, tmp_path: Path) -> None:
 def test_broken_source_mesh_is_skipped_not_fatal(tmp_path: Path) -> None:
     """pybullet_data random_urdfs/168 has NaN vertices: the generator records it as skipped and goes on."""
     from graspd.training.dataset import _generate_chunk
-    from graspd.training.objects import random_urdf_mesh
+    from graspd.world.objects import random_urdf_mesh
 
     with pytest.raises(ValueError, match="broken mesh"):
         random_urdf_mesh(168)

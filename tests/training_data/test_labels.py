@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from graspd.grasp import GraspSet
 from graspd.hand import HandGeometry
 from graspd.training.labels import LabelParams, label_grasps
-from graspd.training.objects import box_mesh, cylinder_mesh, sphere_mesh
+from graspd.world.meshes import box_mesh, cylinder_mesh, sphere_mesh
 
 HAND = HandGeometry()  # 0.10 m between the open fingers, 0.06 m deep
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from graspd.hand import HandGeometry
-from graspd.training.objects import (
+from graspd.world.objects import (
     PROCEDURAL_KINDS,
     HeldOutObjectError,
     load_object,

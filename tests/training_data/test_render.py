@@ -7,18 +7,12 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from graspd.training.noise import DepthNoise, axial_sigma, depth_edges, quantize_depth
-from graspd.training.objects import box_mesh, procedural_object
-from graspd.training.render import (
-    Camera,
-    MeshScene,
-    look_at_rig,
-    random_view,
-    render_scene,
-    render_scene_with_ids,
-    tabletop_cameras,
-    tabletop_scene,
-)
+from graspd.world.cameras import Camera, look_at_rig, random_view, tabletop_cameras
+from graspd.world.meshes import box_mesh
+from graspd.world.noise import DepthNoise, axial_sigma, depth_edges, quantize_depth
+from graspd.world.objects import procedural_object
+from graspd.world.render import MeshScene, render_scene, render_scene_with_ids
+from graspd.world.scenes import tabletop_scene
 
 
 def distances(mesh: o3d.geometry.TriangleMesh, points: np.ndarray) -> np.ndarray:
@@ -104,7 +98,7 @@ def test_noise_helpers() -> None:
 
 
 def test_random_tabletop_is_deterministic() -> None:
-    from graspd.training.render import random_tabletop
+    from graspd.world.scenes import random_tabletop
 
     a = random_tabletop(4, seed=2)
     b = random_tabletop(4, seed=2)

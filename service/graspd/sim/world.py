@@ -13,25 +13,11 @@ import numpy as np
 import pybullet as pb
 
 from ..hand import HandGeometry
+from ..world.scenes import TrayGeometry
 from .objects import TEST_OBJECT_IDS, graspable_scale, object_urdf
 
 SCENE_KINDS = ("pour", "pile", "packed")
 TIME_STEP = 1.0 / 240.0
-
-
-@dataclass(frozen=True)
-class TrayGeometry:
-    """Inner size (m) of the tray (x, y), wall height and thickness; the floor is the tray bottom."""
-
-    size_x: float = 0.36
-    size_y: float = 0.28
-    wall_height: float = 0.06
-    wall_thickness: float = 0.01
-
-    @property
-    def interior(self) -> tuple[float, float, float, float]:
-        """[xmin, xmax, ymin, ymax] of the tray's inside (m)."""
-        return (-self.size_x / 2, self.size_x / 2, -self.size_y / 2, self.size_y / 2)
 
 
 @dataclass

@@ -23,7 +23,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from ..cloud import ViewpointCloud
 from ..hand import HandGeometry
-from ..preprocess import voxelize
+from ..world.points import voxel_downsample
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
@@ -114,14 +114,6 @@ def segment_table(points: F32, viewpoints: F32, distance: float = 0.005, min_fra
     plane = TablePlane(normal=normal, offset=offset)
     mask = np.abs(plane.height(points)) < distance
     return plane, mask
-
-
-def voxel_downsample(points: F64, voxel: float) -> F64:
-    """One point (the mean) per occupied voxel of side voxel (m) (graspd.preprocess.voxelize)."""
-    if len(points) == 0:
-        return points
-    out, _, _ = voxelize(points.astype(np.float32), np.zeros(len(points), np.int32), voxel)
-    return out.astype(np.float64)
 
 
 @dataclass(frozen=True)
@@ -228,7 +220,8 @@ def prepare_scene(cloud: ViewpointCloud, geometry: TemplateGeometry, workspace: 
         keep = ~on_table & (plane.height(pts) > 0.005)
     else:
         keep = np.ones(len(pts), bool)
-    obj = voxel_downsample(pts[keep], 0.6 * geometry.tile)
+    # keyed and averaged in float32, as the templates always were (graspd.preprocess.voxelize)
+    obj = voxel_downsample(pts[keep].astype(np.float32), 0.6 * geometry.tile).astype(np.float64)
     obj, segments = connected_pieces(obj, 1.5 * geometry.tile)
     if len(obj) < 4:
         raise TemplateError("cloud.points: fewer than 4 object points above the table")

@@ -35,7 +35,7 @@ chunks ([{file, rows, positive, sha256}]), counts ({total, positive, negative, b
 per_view (the quota), dataset_sha256 (sha256 of the chunk hashes concatenated in order), command.
 timing.json beside it holds the generation time and exemplars per minute (not part of the hashes).
 
-Objects 900-999 of pybullet_data random_urdfs are never used (graspd.training.objects refuses them).
+Objects 900-999 of pybullet_data random_urdfs are never used (graspd.world.objects refuses them).
 """
 
 from __future__ import annotations
@@ -62,10 +62,11 @@ from ..hand import HAND_PRESETS, HandGeometry, hand_preset
 from ..images import channel_layout, encode_images
 from ..preprocess import PreprocessParams, preprocess
 from ..scene import Scene
+from ..world.cameras import PAPER_CAMERA_SEPARATION_DEG, Camera, random_view
+from ..world.noise import DepthNoise
+from ..world.objects import PROCEDURAL_KINDS, GraspObject, load_object, object_catalogue
+from ..world.render import MeshScene, render_scene
 from .labels import LabelParams, label_grasps, normal_slack_deg
-from .noise import DepthNoise
-from .objects import PROCEDURAL_KINDS, GraspObject, load_object, object_catalogue
-from .render import PAPER_CAMERA_SEPARATION_DEG, Camera, MeshScene, random_view, render_scene
 
 FORMAT = "graspd-grasp-images/1"
 CATEGORIES: dict[str, int] = {"box": 0, "cylinder": 1, "other": 2}

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from ..grasp import GraspSet
 from ..hand import HandGeometry
-from .render import MeshScene
+from ..world.render import MeshScene
 
 
 @dataclass(frozen=True)

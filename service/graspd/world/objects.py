@@ -1,28 +1,44 @@
-"""Graspable object meshes with no download: procedural shapes and pybullet_data's random_urdfs.
+"""The one object catalogue: procedural shapes and pybullet_data's random_urdfs, with no download.
 
-Every object is an open3d TriangleMesh in metres, centred on its bounding-box centre, scaled so a
+Every catalogue object is an open3d TriangleMesh in metres, centred on its bounding-box centre, scaled so a
 two-finger hand can close on it (smallest bounding extent at most `fit` x the hand's max aperture),
 and tagged with a category as in the IJRR paper's dataset: box-like, cylinder-like or other.
 
 pybullet_data random_urdfs 900-999 are the project's held-out test objects (DESIGN.md, "Data
-rules"): random_urdf_mesh refuses them unless the caller says it is the held-out evaluation.
+rules"). The rule is written once, in urdf_folder: every loader of a random_urdfs file (the training
+meshes, the sized meshes of scripted scenes, the simulator's URDFs and extents) goes through it and
+is refused a held-out object unless the caller says it is the held-out evaluation (held_out_ok).
+pybullet_data ships inside the pybullet wheel (the optional extra graspd[sim] or graspd[train]).
 """
 
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 import open3d as o3d
 
 from ..hand import HandGeometry
+from .meshes import (
+    box_mesh,
+    capsule_mesh,
+    clean_mesh,
+    composite_mesh,
+    cone_mesh,
+    cylinder_mesh,
+    rot_z,
+    sphere_mesh,
+)
 
 CATEGORY_NAMES = ("box", "cylinder", "other")
 HELD_OUT_URDFS = range(900, 1000)
 TRAINING_URDFS = range(0, 900)
 PROCEDURAL_KINDS = ("box", "cylinder", "sphere", "cone", "capsule", "composite")
+#: Scale of the random_urdfs meshes in their own URDF files (mesh units -> metres).
+URDF_MESH_SCALE = 0.015
 
 
 class HeldOutObjectError(PermissionError):
@@ -52,14 +68,15 @@ class GraspObject:
 
 
 def pybullet_data_dir() -> Path:
-    """The pybullet_data folder shipped inside the pybullet wheel."""
+    """The pybullet_data folder shipped inside the pybullet wheel (an optional dependency)."""
     import pybullet_data
 
     return Path(pybullet_data.getDataPath())
 
 
 def check_not_held_out(index: int, held_out_ok: bool = False) -> None:
-    """Raise HeldOutObjectError for random_urdfs 900-999 unless held_out_ok (held-out evaluation only)."""
+    """The held-out rule: raise HeldOutObjectError for random_urdfs 900-999 unless held_out_ok (held-out
+    evaluation only), ValueError for an index outside [0, 999]."""
     if index in HELD_OUT_URDFS and not held_out_ok:
         raise HeldOutObjectError(
             f"random_urdfs/{index:03d} is a held-out test object (900-999): never load it for training or "
@@ -69,14 +86,52 @@ def check_not_held_out(index: int, held_out_ok: bool = False) -> None:
         raise ValueError(f"random_urdfs index must lie in [0, 999], got {index}")
 
 
-def _clean(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
-    """Merged duplicate vertices, no degenerate triangles, centred on the bounding-box centre."""
-    mesh.merge_close_vertices(1e-7)
-    mesh.remove_degenerate_triangles()
-    mesh.remove_duplicated_triangles()
-    mesh.remove_unreferenced_vertices()
-    mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
-    mesh.compute_triangle_normals()
+def urdf_folder(index: int, held_out_ok: bool = False) -> Path:
+    """The folder of random_urdfs/<index>, after the held-out guard: every random_urdfs loader starts here."""
+    check_not_held_out(index, held_out_ok)
+    return pybullet_data_dir() / "random_urdfs" / f"{index:03d}"
+
+
+def urdf_path(index: int, held_out_ok: bool = False) -> Path:
+    """The URDF file of random_urdfs/<index> (guarded), as pybullet.loadURDF takes it."""
+    return urdf_folder(index, held_out_ok) / f"{index:03d}.urdf"
+
+
+def mesh_extents(index: int, held_out_ok: bool = False) -> tuple[float, float, float]:
+    """Sorted extents (m, smallest first) of random_urdfs/<index>'s mesh at its URDF scale."""
+    return _mesh_extents(urdf_folder(index, held_out_ok), index)
+
+
+@cache
+def _mesh_extents(folder: Path, index: int) -> tuple[float, float, float]:
+    path = folder / f"{index:03d}.obj"
+    verts = np.array(
+        [ln.split()[1:4] for ln in path.read_text().splitlines() if ln.startswith("v ")], np.float64
+    )
+    ext = np.sort(np.ptp(verts, axis=0)) * URDF_MESH_SCALE
+    return float(ext[0]), float(ext[1]), float(ext[2])
+
+
+def graspable_scale(index: int, hand: HandGeometry, fill: float = 0.7, held_out_ok: bool = False) -> float:
+    """pybullet globalScaling (<= 1) so random_urdfs/<index>'s middle extent is at most fill * the hand's max
+    aperture: every object then has a way to fit between the open fingers, as the paper chose its test set."""
+    middle = mesh_extents(index, held_out_ok)[1]
+    return float(min(1.0, fill * hand.max_aperture / middle))
+
+
+def sized_urdf_mesh(index: int, size: float, yaw: float = 0.0, xy: tuple[float, float] = (0.0, 0.0),
+                    held_out_ok: bool = False) -> o3d.geometry.TriangleMesh:
+    """random_urdfs/<index>'s mesh scaled so its largest extent is size (m), turned by yaw (rad) about z
+    and set on the table plane z = 0 at xy (scripted scenes: template tests and benchmarks)."""
+    path = urdf_folder(index, held_out_ok) / f"{index:03d}.obj"
+    mesh = o3d.io.read_triangle_mesh(path)
+    if len(mesh.vertices) == 0:
+        raise FileNotFoundError(f"object_id {index}: no mesh at {path}")
+    verts = np.asarray(mesh.vertices)
+    mesh.translate(-(verts.min(axis=0) + verts.max(axis=0)) / 2)
+    mesh.scale(size / float(np.ptp(verts, axis=0).max()), center=np.zeros(3))
+    mesh.rotate(rot_z(yaw), center=np.zeros(3))
+    mesh.translate(np.array([xy[0], xy[1], -float(np.asarray(mesh.vertices)[:, 2].min())]))
     return mesh
 
 
@@ -96,8 +151,7 @@ def fit_to_hand(mesh: o3d.geometry.TriangleMesh, hand: HandGeometry, fit: float 
 
 def random_urdf_mesh(index: int, hand: HandGeometry | None = None, held_out_ok: bool = False) -> GraspObject:
     """The mesh of pybullet_data random_urdfs/<index>, with the URDF's scale, fitted to the hand."""
-    check_not_held_out(index, held_out_ok)
-    folder = pybullet_data_dir() / "random_urdfs" / f"{index:03d}"
+    folder = urdf_folder(index, held_out_ok)
     urdf = (folder / f"{index:03d}.urdf").read_text()
     match = re.search(r'<mesh\s+filename="([^"]+)"(?:\s+scale="([^"]+)")?', urdf)
     if match is None:
@@ -108,64 +162,11 @@ def random_urdf_mesh(index: int, hand: HandGeometry | None = None, held_out_ok: 
     if len(mesh.triangles) == 0 or not np.isfinite(verts).all():
         raise ValueError(f"{folder / match.group(1)}: no triangles or non-finite vertices (a broken mesh)")
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), mesh.triangles)
-    mesh = _clean(mesh)
+    mesh = clean_mesh(mesh)
     factor = fit_to_hand(mesh, hand or HandGeometry())
     mesh.compute_triangle_normals()
     return GraspObject(name=f"urdf_{index:03d}", source=f"pybullet_data:random_urdfs/{index:03d}/{index:03d}.urdf",
                        category="other", mesh=mesh, scale=float(scale_xyz[0] * factor))
-
-
-# ---- procedural shapes (sizes in metres, graspable by a hand with a 10 cm aperture) ----
-
-
-def box_mesh(x: float, y: float, z: float) -> o3d.geometry.TriangleMesh:
-    return _clean(o3d.geometry.TriangleMesh.create_box(x, y, z))
-
-
-def cylinder_mesh(radius: float, height: float, resolution: int = 40) -> o3d.geometry.TriangleMesh:
-    return _clean(o3d.geometry.TriangleMesh.create_cylinder(radius, height, resolution=resolution, split=4))
-
-
-def sphere_mesh(radius: float, resolution: int = 24) -> o3d.geometry.TriangleMesh:
-    return _clean(o3d.geometry.TriangleMesh.create_sphere(radius, resolution=resolution))
-
-
-def cone_mesh(radius: float, height: float, resolution: int = 40) -> o3d.geometry.TriangleMesh:
-    return _clean(o3d.geometry.TriangleMesh.create_cone(radius, height, resolution=resolution, split=4))
-
-
-def capsule_mesh(radius: float, length: float, resolution: int = 24) -> o3d.geometry.TriangleMesh:
-    """A closed capsule along z: a sphere whose upper and lower halves are pulled length/2 apart."""
-    sphere = o3d.geometry.TriangleMesh.create_sphere(radius, resolution=resolution)
-    v = np.asarray(sphere.vertices).copy()
-    v[:, 2] += np.where(v[:, 2] >= 0.0, 0.5 * length, -0.5 * length)
-    return _clean(o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), sphere.triangles))
-
-
-def composite_mesh(rng: np.random.Generator) -> o3d.geometry.TriangleMesh:
-    """Two parts that touch without overlapping (so every ray starting inside hits a back face first):
-    an L of two boxes, a box on a cylinder, or a mallet (cylinder handle with a box head)."""
-    kind = int(rng.integers(3))
-    if kind == 0:
-        a = o3d.geometry.TriangleMesh.create_box(*rng.uniform([0.03, 0.02, 0.02], [0.12, 0.06, 0.05]))
-        ea = a.get_axis_aligned_bounding_box().get_extent()
-        b = o3d.geometry.TriangleMesh.create_box(float(rng.uniform(0.02, 0.05)), ea[1], float(rng.uniform(0.03, 0.1)))
-        b.translate([0.0, 0.0, ea[2]])
-    elif kind == 1:
-        r, h = rng.uniform([0.015, 0.03], [0.04, 0.1])
-        a = o3d.geometry.TriangleMesh.create_cylinder(float(r), float(h), resolution=40, split=4)
-        a.translate([0.0, 0.0, h / 2])
-        bx, by, bz = rng.uniform([0.03, 0.03, 0.02], [0.08, 0.08, 0.05])
-        b = o3d.geometry.TriangleMesh.create_box(bx, by, bz)
-        b.translate([-bx / 2, -by / 2, h])
-    else:
-        r, h = rng.uniform([0.008, 0.06], [0.02, 0.15])
-        a = o3d.geometry.TriangleMesh.create_cylinder(float(r), float(h), resolution=32, split=4)
-        a.translate([0.0, 0.0, h / 2])
-        bx, by, bz = rng.uniform([0.06, 0.025, 0.025], [0.12, 0.05, 0.05])
-        b = o3d.geometry.TriangleMesh.create_box(bx, by, bz)
-        b.translate([-bx / 2, -by / 2, h])
-    return _clean(a + b)
 
 
 def procedural_object(kind: str, index: int, seed: int = 0, hand: HandGeometry | None = None) -> GraspObject:
