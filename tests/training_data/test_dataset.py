@@ -30,6 +30,7 @@ TINY = GenerationParams(seed=11, exemplars=120, num_urdfs=2, procedural=(("box",
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
     out = tmp_path_factory.mktemp("tiny")
     generate_dataset(out, TINY, workers=1)
     return out
@@ -143,6 +144,7 @@ def test_preview_png(tiny: Path, tmp_path: Path) -> None:
 
 def test_broken_source_mesh_is_skipped_not_fatal(tmp_path: Path) -> None:
     """pybullet_data random_urdfs/168 has NaN vertices: the generator records it as skipped and goes on."""
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
     from graspd.training.dataset import _generate_chunk
     from graspd.world.objects import random_urdf_mesh
 

@@ -25,6 +25,7 @@ def test_held_out_urdfs_are_refused(index: int) -> None:
 
 
 def test_held_out_urdf_loads_only_when_asked_for_the_held_out_evaluation() -> None:
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
     obj = random_urdf_mesh(900, held_out_ok=True)
     assert len(obj.mesh.triangles) > 0
 
@@ -38,6 +39,7 @@ def test_catalogue_never_lists_held_out_objects() -> None:
 
 
 def test_urdf_mesh_uses_the_urdf_scale_and_fits_the_hand() -> None:
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
     hand = HandGeometry()
     obj = random_urdf_mesh(0, hand)
     assert obj.category == "other" and obj.source.endswith("random_urdfs/000/000.urdf")

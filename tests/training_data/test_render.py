@@ -98,6 +98,7 @@ def test_noise_helpers() -> None:
 
 
 def test_random_tabletop_is_deterministic() -> None:
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
     from graspd.world.scenes import random_tabletop
 
     a = random_tabletop(4, seed=2)
