@@ -56,7 +56,7 @@ class DetectionParams:
     min_aperture: float | None = None
     max_aperture: float | None = None
     use_selection: bool = True
-    use_clustering: bool = True
+    use_clustering: bool = False
     use_classifier: bool = True
     gravity: Vec3 | None = None
     reference_position: Vec3 | None = None

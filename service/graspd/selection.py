@@ -32,7 +32,7 @@ class SelectionParams:
     approach_direction: Vec3 | None = None
     approach_max_angle_deg: float | None = None
     min_score: float | None = None
-    use_clustering: bool = True
+    use_clustering: bool = False
     cluster_axis_angle_deg: float = 12.0
     cluster_axis_distance: float = 0.005
     cluster_max_distance: float = 0.07

@@ -40,11 +40,18 @@ def test_clustering_merges_aligned_neighbours_and_sums_scores() -> None:
     assert np.allclose(reps.scores, [0.9, 0.7])  # each representative keeps its own probability
 
 
-def test_a_well_supported_cluster_outranks_a_lone_slightly_better_grasp() -> None:
+def test_with_gpd_clustering_a_well_supported_cluster_outranks_a_lone_slightly_better_grasp() -> None:
+    g = _grasps([[0.3, 0, 0], [0, 0, 0], [0, 0, 0.003], [0, 0, 0.006]], [[0, 0, -1]] * 4,
+                scores=[0.95, 0.9, 0.85, 0.8])
+    out = select(g, SelectionParams(use_clustering=True))
+    assert np.allclose(out.scores[:2], [0.9, 0.95])
+
+
+def test_by_default_the_best_scoring_grasp_ranks_first_however_many_neighbours_the_others_have() -> None:
     g = _grasps([[0.3, 0, 0], [0, 0, 0], [0, 0, 0.003], [0, 0, 0.006]], [[0, 0, -1]] * 4,
                 scores=[0.95, 0.9, 0.85, 0.8])
     out = select(g, SelectionParams())
-    assert np.allclose(out.scores[:2], [0.9, 0.95])
+    assert np.allclose(out.scores, [0.95, 0.9, 0.85, 0.8])
 
 
 def test_utility_prefers_top_grasps_and_high_ones() -> None:
