@@ -34,12 +34,13 @@ from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
 #: How /detect orders its grasps (selection.select); the OpenAPI descriptions and the README say the same.
 RANKING = (
     "best first.  Filters: workspace, width in [min_aperture, max_aperture], approach cone, min_score.  With "
-    "selection and clustering (the defaults): the 1000 best-scoring candidates are clustered (GPD: hand axes "
-    "within 12 deg, positions within 5 mm of each other's axis line and 7 cm of each other), each cluster "
-    "returns its best-scoring member, and clusters are ranked by the sum of their members' scores (their "
-    "member count when unscored), times the utility J(h) in [0, 1] when gravity is given.  Without "
-    "clustering: by score (input order when unscored) times J(h).  So a grasp's own score need not decrease "
-    "down the list.  With selection false: random order (seeded)"
+    "selection (the default): by score (input order when unscored) times the utility J(h) in [0, 1] when up is "
+    "known (gravity, else the support's normal) times a width preference.  With clustering true (GPD's "
+    "selection): the 1000 best-scoring candidates are clustered (hand axes within 12 deg, positions within 5 mm "
+    "of each other's axis line and 7 cm of each other), each cluster returns its best-scoring member, and "
+    "clusters are ranked by the sum of their members' scores (their member count when unscored) times the same "
+    "factors.  So a grasp's own score need not decrease down the list.  With selection false: random order "
+    "(seeded)"
 )
 
 MAX_POINTS = 5_000_000
@@ -308,8 +309,9 @@ class DetectRequest(BaseModel):
     selection: bool = Field(True, description="true: filter, cluster and rank best first (see `grasps` of the "
                             "response for the exact key); false: the paper's no-selection ablation, the grasps "
                             "passing the filters in random order (seeded)")
-    clustering: bool = Field(True, description="GPD clustering of aligned hands: each cluster returns its "
-                             "best-scoring member, ranked by the sum of its members' scores")
+    clustering: bool = Field(False, description="GPD clustering of aligned hands: each cluster returns its "
+                             "best-scoring member, ranked by the sum of its members' scores (off by default: "
+                             "it favours large flat surfaces over the best grasp)")
     use_classifier: bool = Field(True, description="false: the paper's no-classification ablation (no CNN runs; "
                                  "scores null, scored false)")
     gravity: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
