@@ -13,9 +13,9 @@ import pytest
 import sqlalchemy as sa
 
 from graspd.cloud import CloudError, ViewpointCloud
+from graspd.database import SCHEMA_VERSION, make_engine, migrate
 from graspd.hand import HandGeometry
 from graspd.templates import TemplateDetector, TemplateError, TemplateLibrary
-from graspd.templates.store import SCHEMA_VERSION, make_engine, migrate
 from graspd.templates.synthetic import box_top_grasp
 
 REPO = Path(__file__).resolve().parents[2]

@@ -43,14 +43,17 @@ Shell: `graspd templates {demonstrate,detect,feedback,library}` (graspd.template
 demonstrations, the paper's generalisation and improvement-over-time runs) live in graspd.sim.experiments
 (python bench/templates.py experiment {a,b,retry,pool}).
 
-Modules: geometry (templates, table, hull axes, occlusion), matching (eq. 1, eq. 2), store (SQLAlchemy
-library, migrations), demonstration (template of a demonstrated grasp; grasp images), detector, cli,
-synthetic (ray-cast table scenes for tests and benchmarks).
+Modules: geometry (templates, table, hull axes, occlusion), matching (eq. 1, eq. 2), library (entries,
+failure sets, detections; its database is graspd.database, its outcomes graspd.outcomes), demonstration
+(template of a demonstrated grasp; grasp images), collision (the open hand against the scene; closing
+widths), detector, cli, synthetic (ray-cast table scenes for tests and benchmarks); store only re-exports
+the names that lived there before the split.
 """
 
+from ..outcomes import Feedback
 from .detector import TemplateDetection, TemplateDetector, TemplateParams
 from .geometry import REGION_NAMES, TemplateError, TemplateGeometry
-from .store import DEFAULT_URL, Feedback, TemplateLibrary, UnknownGrasp
+from .library import DEFAULT_URL, TemplateLibrary, UnknownGrasp
 
 __all__ = [
     "DEFAULT_URL",

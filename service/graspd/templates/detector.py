@@ -5,7 +5,7 @@ candidate's template frame and returned in the common grasp convention (DESIGN.m
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -15,10 +15,10 @@ from ..cloud import CloudError, ViewpointCloud
 from ..grasp import GraspSet
 from ..hand import HandGeometry
 from ..preprocess import voxelize
-from ..scene import ball_pairs, closing_region_points
-from .geometry import TemplateError, TemplateScene, candidate_templates, prepare_scene
+from .collision import closing_widths, hand_collisions
+from .geometry import TemplateError, candidate_templates, prepare_scene
+from .library import TemplateLibrary
 from .matching import match
-from .store import TemplateLibrary
 
 F64 = NDArray[np.float64]
 Workspace = tuple[float, float, float, float, float, float]
@@ -63,7 +63,6 @@ class TemplateDetection:
     num_points: int
     num_entries: int
     detection_id: str | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: {"method": "templates", "grasps": [GRASP + id, template_entry, mismatch], ...}."""
@@ -75,50 +74,6 @@ class TemplateDetection:
         return {"method": "templates", "grasps": grasps, "timings": dict(self.timings),
                 "num_candidates": self.num_candidates, "num_points": self.num_points,
                 "num_entries": self.num_entries, "detection_id": self.detection_id}
-
-
-def hand_collisions(scene: TemplateScene, positions: F64, rotations: F64, hand: HandGeometry) -> NDArray[np.bool_]:
-    """Whether each open hand (M) holds an object point inside a finger or the palm (palm: hand_height
-    thick behind the base), or has a finger or palm corner more than 2 mm below the table."""
-    m = len(positions)
-    hit = np.zeros(m, bool)
-    if m == 0:
-        return hit
-    od, fw, hd, hh = hand.hand_outer_diameter, hand.finger_width, hand.hand_depth, hand.hand_height
-    x_lo, x_hi = -hh, hd
-    xs, ys, zs = np.array([x_lo, x_hi]), np.array([-od / 2, od / 2]), np.array([-hh / 2, hh / 2])
-    if scene.table is not None:
-        corners = np.stack(np.meshgrid(xs, ys, zs, indexing="ij"), axis=-1).reshape(-1, 3)
-        world = positions[:, None, :] + np.einsum("mij,cj->mci", rotations, corners)
-        hit |= (scene.table.height(world) < -0.002).any(axis=1)
-    centre = positions + rotations[:, :, 0] * (x_lo + x_hi) / 2
-    radius = float(np.linalg.norm([(x_hi - x_lo) / 2, od / 2, hh / 2]))
-    gid, idx = ball_pairs(scene.tree, centre, radius)
-    d = scene.object_points[idx] - positions[gid]
-    loc = np.einsum("tj,tjk->tk", d, rotations[gid])
-    in_z = np.abs(loc[:, 2]) < hh / 2
-    ay = np.abs(loc[:, 1])
-    finger = in_z & (loc[:, 0] >= 0) & (loc[:, 0] < hd) & (ay > od / 2 - fw) & (ay < od / 2)
-    palm = in_z & (loc[:, 0] < 0) & (loc[:, 0] > -hh) & (ay < od / 2)
-    hit[np.unique(gid[finger | palm])] = True
-    return hit
-
-
-def closing_widths(scene: TemplateScene, positions: F64, rotations: F64, hand: HandGeometry,
-                   fallback: F64) -> F64:
-    """Extent (m) along the binormal of the object points between the fingers of each hand (fallback
-    where none are)."""
-    reg = closing_region_points(scene.tree, scene.object_points.astype(np.float32), positions, rotations, hand)
-    out = np.asarray(fallback, np.float64).copy()
-    if len(reg.grasp):
-        y = reg.local[:, 1].astype(np.float64)
-        lo = np.full(len(positions), np.inf)
-        hi = np.full(len(positions), -np.inf)
-        np.minimum.at(lo, reg.grasp, y)
-        np.maximum.at(hi, reg.grasp, y)
-        has = np.isfinite(lo)
-        out[has] = hi[has] - lo[has]
-    return out
 
 
 def cloud_arrays(cloud: ViewpointCloud, voxel: float = 0.003) -> dict[str, NDArray[Any]]:
@@ -139,6 +94,7 @@ class TemplateDetector:
 
     @property
     def hand(self) -> HandGeometry:
+        """The library's hand."""
         return self.library.hand
 
     def detect(self, cloud: ViewpointCloud, max_grasps: int = 100, workspace: Workspace | None = None,
