@@ -22,9 +22,10 @@ from graspd.candidates import SamplingParams, search_hands
 from graspd.cloud import ViewpointCloud
 from graspd.cloud_io import read_cloud
 from graspd.detector import Detection, DetectionParams, GraspDetector
+from graspd.environment import Environment, EnvironmentParams, model_environment
 from graspd.hand import HandGeometry
 from graspd.images import encode_images
-from graspd.preprocess import PreprocessParams, preprocess, support_plane_mask
+from graspd.preprocess import PreprocessParams, preprocess
 from graspd.scene import Scene
 from graspd.scenes import cluttered_tabletop, subsample
 
@@ -59,17 +60,20 @@ def measure(cloud: ViewpointCloud, num_samples: int, repeats: int, scorers: dict
     t_pre, pre = _median_time(lambda: preprocess(cloud, PreprocessParams(voxel_size=0.003)), repeats)
     assert isinstance(pre, ViewpointCloud)
     row["voxelized"] = len(pre)
+    t_env, env = _median_time(lambda: model_environment(pre, HAND, EnvironmentParams(), seed=0), repeats)
+    row["support_found"] = float(getattr(env, "support", None) is not None)
     t_scene, scene = _median_time(lambda: Scene.build(pre, HAND), repeats)
     assert isinstance(scene, Scene)
     t_unobs, _ = _median_time(lambda: Scene.build(pre, HAND).unobserved, repeats)
-    pool = ~support_plane_mask(pre.points) if exclude_table else None
+    pool = env.object_mask if exclude_table and isinstance(env, Environment) else None  # as the service samples
     params = SamplingParams(num_samples=num_samples, sample_pool=pool)
     t_sample, res = _median_time(lambda: search_hands(scene, HAND, params), repeats)
     grasps, region = res  # type: ignore[misc]
     m = max(len(grasps), 1)
     t15, images = _median_time(lambda: encode_images(scene, grasps, HAND, "15", region=region), repeats)
     t3, _ = _median_time(lambda: encode_images(scene, grasps, HAND, "3", region=region), repeats)
-    row.update(preprocess=t_pre, scene=t_scene, unobserved=t_unobs, candidates=len(grasps), sample=t_sample,
+    row.update(preprocess=t_pre, environment=t_env, scene=t_scene, unobserved=t_unobs, candidates=len(grasps),
+               sample=t_sample,
                sample_per_1k=t_sample / m * 1000, encode15_per_1k=t15 / m * 1000, encode3_per_1k=t3 / m * 1000)
     for name, scorer in (scorers or {}).items():
         imgs = encode_images(scene, grasps, HAND, scorer.representation, region=region)
@@ -122,9 +126,10 @@ def main() -> None:
         r = measure(subsample(big, n), num_samples=600, repeats=repeats, scorers=scorers)
         rows.append(r)
     cols = ["points", "voxelized", "candidates", "sample_per_1k", "encode15_per_1k", "encode3_per_1k", *score_cols,
-            "preprocess", "scene", "unobserved"]
+            "preprocess", "environment", "scene", "unobserved"]
     emit(table(rows, cols))
-    emit("\nTargets (2 cores): sample 1k <= 0.3 s, encode 1k 15-channel <= 0.3 s at 66k points. "
+    emit("\nTargets (2 cores): sample 1k <= 0.3 s, encode 1k 15-channel <= 0.3 s at 66k points; the environment "
+         "stage (support plane, walls: graspd.environment.model_environment) <= 0.05 s at 66k points. "
          "Paper (4-core desktop + GPU): sample 1k 0.8 s / 1.7 s, classify 1k (15 ch) 4.3 s / 6.2 s at 39k / 66k.\n")
 
     if SHARED_MUG.exists():
@@ -145,7 +150,8 @@ def main() -> None:
     sizes = [10_000, 30_000, 100_000] if args.quick else [10_000, 30_000, 66_000, 100_000, 200_000, 300_000]
     emit("## Growth with cloud size (600 samples)\n")
     size_rows = [measure(subsample(big, n), 600, repeats) for n in sizes if n <= len(big)]
-    emit(table(size_rows, ["points", "voxelized", "candidates", "preprocess", "scene", "sample", "sample_per_1k",
+    emit(table(size_rows, ["points", "voxelized", "candidates", "preprocess", "environment", "scene", "sample",
+                           "sample_per_1k",
                            "encode15_per_1k"]))
     samples = [200, 800] if args.quick else [200, 400, 800, 1600, 3200]
     emit("\n## Growth with the number of samples (66k points)\n")
@@ -168,7 +174,8 @@ def main() -> None:
 
     fig, ax = plt.subplots(1, 2, figsize=(11, 4.2), dpi=110)
     pts = [r["points"] / 1000 for r in size_rows]
-    for key, label in (("preprocess", "preprocess"), ("scene", "scene index"), ("sample", "sample 600 pts")):
+    for key, label in (("preprocess", "preprocess"), ("environment", "environment"), ("scene", "scene index"),
+                       ("sample", "sample 600 pts")):
         ax[0].plot(pts, [r[key] for r in size_rows], "o-", label=label)
     ax[0].set_xlabel("cloud size (k points)")
     ax[0].set_ylabel("s")
