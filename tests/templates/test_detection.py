@@ -3,8 +3,11 @@ failure feedback lowers the rank of the candidate that failed."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from graspd.templates import TemplateDetector, TemplateLibrary, TemplateParams
 from graspd.templates.synthetic import box_side_grasp, box_top_grasp, grasp_angle_deg, pose_from, rot_z
@@ -13,8 +16,6 @@ BOX = (0.05, 0.10, 0.08)
 
 
 def _rot(axis_angle: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_rotvec(axis_angle).as_matrix()
 
 
@@ -93,8 +94,6 @@ def test_empty_library_gives_no_grasps(render_box, box_pose, library_url) -> Non
 
 
 def test_result_is_json_ready_with_ids(render_box, box_pose, library_url) -> None:
-    import json
-
     pose = box_pose()
     lib = TemplateLibrary(library_url())
     entry = lib.add_demonstration(render_box(pose), box_top_grasp(pose, BOX))

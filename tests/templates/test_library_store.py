@@ -3,8 +3,12 @@ and rejects bad input with errors that name the field."""
 
 from __future__ import annotations
 
+import os
+import pwd
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 from pathlib import Path
 
@@ -173,11 +177,6 @@ def test_bad_input_names_the_field(render_box, box_pose, library_url) -> None:
 @pytest.fixture(scope="module")
 def postgres_url():
     """A throwaway PostgreSQL server (the system's initdb/pg_ctl, run as the postgres user when root)."""
-    import os
-    import pwd
-    import shutil
-    import tempfile
-
     pytest.importorskip("psycopg")
     if not (shutil.which("initdb") and shutil.which("pg_ctl")):
         pytest.skip("PostgreSQL server binaries (initdb, pg_ctl) not installed")

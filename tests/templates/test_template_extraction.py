@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from graspd.cloud import ViewpointCloud
 from graspd.hand import HandGeometry
 from graspd.templates.demonstration import demonstration_template
 from graspd.templates.geometry import (
@@ -16,7 +17,7 @@ from graspd.templates.geometry import (
     height_axes,
     prepare_scene,
 )
-from graspd.templates.synthetic import box_top_grasp
+from graspd.templates.synthetic import box_mesh, box_top_grasp, render_cloud, table_mesh
 
 GEOM = TemplateGeometry.for_hand(HandGeometry())
 BOX = (0.05, 0.10, 0.08)
@@ -104,9 +105,6 @@ def test_candidates_cover_every_axis_and_rotation(render_box, box_pose) -> None:
 
 
 def test_separate_pieces_get_their_own_axes_and_outliers_are_dropped(render_box, box_pose) -> None:
-    from graspd.cloud import ViewpointCloud
-    from graspd.templates.synthetic import box_mesh, render_cloud, table_mesh
-
     cams = np.array([[0.5, 0.1, 0.5]])
     left, right = box_pose(xy=(-0.06, 0.0)), box_pose(yaw=1.0, xy=(0.07, 0.02))
     cloud = render_cloud([table_mesh(), box_mesh(BOX, left), box_mesh(BOX, right)], cams, (0.0, 0.0, 0.04),

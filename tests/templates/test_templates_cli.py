@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 
+from graspd.server.settings import Settings
 from graspd.templates.cli import register
 from graspd.templates.synthetic import box_top_grasp
 
@@ -45,3 +46,17 @@ def test_cli_round_trip(tmp_path, render_box, box_pose, capsys) -> None:
     assert "hand_pose" in capsys.readouterr().err
     assert _run(["templates", "feedback", "nope", "--success", *lib]) == 2
     assert "grasp_id" in capsys.readouterr().err
+
+
+def test_cli_opens_the_servers_library_by_default(tmp_path, monkeypatch, capsys) -> None:
+    """No --library: the library the server opens (Settings: <data dir>/templates.db, or the URL setting)."""
+    monkeypatch.delenv("GRASPD_TEMPLATE_LIBRARY", raising=False)
+    monkeypatch.delenv("GRASPD_TEMPLATE_HAND", raising=False)
+    monkeypatch.setenv("GRASPD_DATA_DIR", str(tmp_path / "data"))
+    assert Settings().resolved_template_library() == f"sqlite:///{tmp_path / 'data' / 'templates.db'}"
+    assert _run(["templates", "library"]) == 0
+    assert json.loads(capsys.readouterr().out)["num_entries"] == 0
+    assert (tmp_path / "data" / "templates.db").exists()
+    monkeypatch.setenv("GRASPD_TEMPLATE_LIBRARY", f"sqlite:///{tmp_path}/other.db")
+    assert _run(["templates", "library"]) == 0
+    assert (tmp_path / "other.db").exists()

@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 import pybullet as pb
-import pybullet_data
 from matplotlib.figure import Figure
 
 from ..classifier import default_model_name, load_model
@@ -35,6 +34,7 @@ from ..cloud import ViewpointCloud
 from ..grasp import GraspSet
 from ..hand import HandGeometry
 from ..templates import TemplateDetector, TemplateError, TemplateLibrary, TemplateParams
+from ..world import objects as catalogue
 from .detectors import InProcessGPD, TopDownBaseline
 from .gripper import Gripper
 from .objects import graspable_scale
@@ -44,23 +44,14 @@ from .world import SimWorld, random_quat
 
 NDArrayInt = np.ndarray
 REGION = (-0.15, 0.15, -0.15, 0.15, -0.005, 0.4)
-MESH_SCALE = 0.015  # random_urdfs URDF mesh scale (mesh units -> m), as graspd.sim.objects
-TRAINING_IDS = tuple(range(0, 900))
+TRAINING_IDS = tuple(catalogue.TRAINING_URDFS)
 
 
 def training_urdf(object_id: int) -> str:
     """A training object's URDF; ValueError for the held-out ids 900-999."""
     if object_id not in TRAINING_IDS:
         raise ValueError(f"object_id must be a training object in 0..899, got {object_id}")
-    return str(Path(pybullet_data.getDataPath()) / "random_urdfs" / f"{object_id:03d}" / f"{object_id:03d}.urdf")
-
-
-def fit_scale(object_id: int, hand: HandGeometry, fill: float = 0.7) -> float:
-    """globalScaling (<= 1) so the middle extent is at most fill * the hand's aperture (as graspd.sim)."""
-    path = Path(pybullet_data.getDataPath()) / "random_urdfs" / f"{object_id:03d}" / f"{object_id:03d}.obj"
-    verts = np.array([ln.split()[1:4] for ln in path.read_text().splitlines() if ln.startswith("v ")], float)
-    middle = float(np.sort(np.ptp(verts, axis=0))[1]) * MESH_SCALE
-    return float(min(1.0, fill * hand.max_aperture / middle))
+    return str(catalogue.urdf_path(object_id))
 
 
 @dataclass
@@ -84,7 +75,7 @@ def make_trial(object_id: int, seed: int, hand: HandGeometry, noise: bool = True
     pos = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), 0.12])
     if object_id in TRAINING_IDS:
         body = pb.loadURDF(training_urdf(object_id), pos.tolist(), random_quat(rng).tolist(),
-                           globalScaling=fit_scale(object_id, hand), physicsClientId=world.client)
+                           globalScaling=catalogue.graspable_scale(object_id, hand), physicsClientId=world.client)
         pb.changeDynamics(body, -1, lateralFriction=1.0, spinningFriction=0.002, rollingFriction=0.0005,
                           physicsClientId=world.client)
         world.objects[body] = object_id

@@ -5,31 +5,47 @@
     graspd templates feedback GRASP_ID (--success | --failure) [--library URL]
     graspd templates library [--library URL]
 
-The library URL defaults to $GRASPD_TEMPLATE_LIBRARY, else sqlite:///graspd-templates.db.
+The library is the server's (graspd.server.settings.Settings, so both open the same one by default):
+--library, else $GRASPD_TEMPLATE_LIBRARY, else sqlite:///<data dir>/templates.db ($GRASPD_DATA_DIR, else
+$XDG_DATA_HOME/graspd, else ~/.local/share/graspd).  A new library is made for $GRASPD_TEMPLATE_HAND (a hand
+preset) as the server's is.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .store import DEFAULT_URL
+from ..cloud import CloudError, ViewpointCloud
+from ..cloud_io import read_cloud
+from ..hand import hand_preset
+from ..server.settings import Settings
+from .detector import TemplateDetector
+from .geometry import TemplateError
+from .library import TemplateLibrary
 
 
-def _library(args: argparse.Namespace) -> Any:
-    from .store import TemplateLibrary
+def library_url(args: argparse.Namespace, settings: Settings | None = None) -> str:
+    """--library, else the server's template library (Settings.resolved_template_library)."""
+    return str(args.library or (settings or Settings()).resolved_template_library())
 
-    return TemplateLibrary(args.library or os.environ.get("GRASPD_TEMPLATE_LIBRARY", DEFAULT_URL))
+
+def _library(args: argparse.Namespace) -> TemplateLibrary:
+    """The library the server would open (its folder created for an SQLite file, as the server does)."""
+    settings = Settings()
+    url = library_url(args, settings)
+    if url.startswith("sqlite:///") and url != "sqlite:///:memory:":
+        Path(url.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+    hand = None if settings.template_hand is None else hand_preset(settings.template_hand)
+    return TemplateLibrary(url, hand=hand)
 
 
-def _cloud(args: argparse.Namespace) -> Any:
-    from ..cloud_io import read_cloud
-
+def _cloud(args: argparse.Namespace) -> ViewpointCloud:
     vps = None if args.viewpoint is None else np.asarray(args.viewpoint, np.float32).reshape(-1, 3)
     return read_cloud(args.cloud, vps)
 
@@ -40,9 +56,6 @@ def _fail(exc: Exception) -> int:
 
 
 def _demonstrate(args: argparse.Namespace) -> int:
-    from ..cloud import CloudError
-    from .geometry import TemplateError
-
     try:
         pose = np.asarray(args.pose, np.float64).reshape(4, 4)
         entry = _library(args).add_demonstration(_cloud(args), pose, label=args.label)
@@ -53,10 +66,6 @@ def _demonstrate(args: argparse.Namespace) -> int:
 
 
 def _detect(args: argparse.Namespace) -> int:
-    from ..cloud import CloudError
-    from .detector import TemplateDetector
-    from .geometry import TemplateError
-
     workspace = None if args.workspace is None else tuple(args.workspace)
     try:
         det = TemplateDetector(_library(args)).detect(_cloud(args), max_grasps=args.max_grasps, workspace=workspace)
@@ -74,8 +83,6 @@ def _detect(args: argparse.Namespace) -> int:
 
 
 def _feedback(args: argparse.Namespace) -> int:
-    from .geometry import TemplateError
-
     try:
         fb = _library(args).add_feedback(args.grasp_id, success=bool(args.success))
     except TemplateError as exc:
@@ -96,7 +103,8 @@ def register(subparsers: Any) -> None:
     sub = p.add_subparsers(dest="templates_command", required=True)
 
     def common(q: argparse.ArgumentParser, cloud: bool) -> None:
-        q.add_argument("--library", help="SQLAlchemy URL (default $GRASPD_TEMPLATE_LIBRARY or " + DEFAULT_URL + ")")
+        q.add_argument("--library", help="SQLAlchemy URL (default: the server's, $GRASPD_TEMPLATE_LIBRARY or "
+                                         "sqlite:///<data dir>/templates.db)")
         if cloud:
             q.add_argument("cloud", help="point cloud file (.pcd, .ply, .npz) of the table and one object")
             q.add_argument("--viewpoint", type=float, nargs=3, action="extend", metavar=("X", "Y", "Z"),

@@ -18,6 +18,9 @@ from numpy.typing import NDArray
 from ..cloud import ViewpointCloud
 from ..grasp import GraspSet
 from ..hand import HandGeometry
+from ..images import encode_images
+from ..preprocess import PreprocessParams, preprocess
+from ..scene import Scene
 from .geometry import (
     TemplateError,
     TemplateScene,
@@ -87,10 +90,6 @@ def demonstration_template(scene: TemplateScene, hand_pose: F64, hand: HandGeome
 def grasp_image(cloud: ViewpointCloud, pose: F64, width: float, hand: HandGeometry,
                 representation: str = "15") -> NDArray[np.uint8]:
     """The GPD grasp image (C, 60, 60) uint8 of one grasp pose (4,4) in cloud (graspd.images)."""
-    from ..images import encode_images
-    from ..preprocess import PreprocessParams, preprocess
-    from ..scene import Scene
-
     pc = preprocess(cloud, PreprocessParams())
     scene = Scene.build(pc, hand)
     one = GraspSet(positions=pose[None, :3, 3], rotations=pose[None, :3, :3], widths=np.array([width]),

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import minimum_filter
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from ..cloud import ViewpointCloud
@@ -244,9 +246,6 @@ def connected_pieces(points: F64, link: float, min_points: int = 20, min_fractio
                      ) -> tuple[F64, NDArray[np.int64]]:
     """Points linked within link (m) grouped into pieces; pieces smaller than min_points or min_fraction of
     all points (sensor outliers) dropped.  The kept points and their piece labels 0..S-1."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     if len(points) < 4:
         return points, np.zeros(len(points), np.int64)
     pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
