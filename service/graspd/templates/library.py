@@ -235,12 +235,6 @@ class TemplateLibrary:
         _check_success(success)
         return self.outcomes.add_outcome(grasp_id, bool(success), pose, width, image, representation)
 
-    def remove_entry(self, entry_id: int) -> bool:
-        """Delete a library entry and its failure set; whether it existed."""
-        with self.db.begin() as conn:
-            conn.execute(failures.delete().where(failures.c.entry_id == entry_id))
-            return bool(conn.execute(entries.delete().where(entries.c.id == entry_id)).rowcount)
-
     # -- reading --------------------------------------------------------------------------------------
 
     def _key(self, conn: Connection) -> tuple[int, ...]:
