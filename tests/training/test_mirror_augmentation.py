@@ -9,8 +9,8 @@ from graspd.hand import HandGeometry
 from graspd.images import channel_layout, encode_images
 from graspd.preprocess import PreprocessParams, preprocess
 from graspd.scene import Scene
+from graspd.training.augment import augment, mirror_images
 from graspd.training.dataset import derive_images
-from graspd.training.train import augment, mirror_images
 
 HAND = HandGeometry()
 

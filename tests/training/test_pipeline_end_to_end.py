@@ -11,19 +11,13 @@ import torch
 from graspd.classifier import GraspClassifier, load_model
 from graspd.templates.store import TemplateLibrary
 from graspd.training import cli
+from graspd.training.config import TrainConfig
 from graspd.training.dataset import read_manifest
 from graspd.training.evaluate import classification_metrics
 from graspd.training.export import check_parity
-from graspd.training.train import (
-    TrainConfig,
-    grasp_probability,
-    load_checkpoint,
-    load_rows,
-    predict_logits,
-    prefix_dataset,
-    train,
-    train_tiny_model,
-)
+from graspd.training.loop import grasp_probability, load_checkpoint, predict_logits, train
+from graspd.training.plans import prefix_dataset, train_tiny_model
+from graspd.training.rows import load_rows
 
 
 @pytest.fixture(scope="module")

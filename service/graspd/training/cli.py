@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
 import sys
+from pathlib import Path
 from typing import Any
+
+from ..classifier import default_models_dir
 
 
 def _categories(text: str) -> list[str]:
@@ -18,7 +22,7 @@ def register(subparsers: Any) -> None:
         "train", help="train + evaluate + export a grasp classifier from a graspd dataset",
         description="Train a CNN on a graspd dataset (graspd.training.dataset format), evaluate the exported "
                     "ONNX model on the test part of the split, and write models-dir/NAME.onnx with its card.")
-    p.add_argument("--config", help="JSON training config (graspd.training.train.TrainConfig); flags override it")
+    p.add_argument("--config", help="JSON training config (graspd.training.config.TrainConfig); flags override it")
     p.add_argument("--plan", help="JSON plan of several models ({defaults, models: [...]}, e.g. models/plan.json); "
                                   "trains them all in one process, reading the dataset once")
     p.add_argument("--only", type=_categories, help="with --plan: comma-separated model names to make")
@@ -51,12 +55,8 @@ _CONFIG_FLAGS = ("dataset", "name", "representation", "architecture", "split", "
 
 
 def _run(args: argparse.Namespace) -> int:
-    import json
-    from pathlib import Path
-
-    from graspd.classifier import default_models_dir
-
-    from .train import TrainConfig, train_and_export, train_plan
+    from .config import TrainConfig  # training pulls in torch: loaded only when `graspd train` runs
+    from .plans import train_and_export, train_plan
 
     models_dir = Path(args.models_dir) if args.models_dir else default_models_dir()
     command = "graspd " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else None
@@ -90,8 +90,6 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _print_card(path: Any) -> None:
-    import json
-
     card = json.loads(path.with_suffix(".json").read_text())
     print(f"{card['name']}:")
     for key, m in card["metrics"].items():

@@ -4,13 +4,10 @@ precision (RA99P), on the test part of the view split and of the object split, o
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-
-from graspd.classifier import GraspClassifier
 
 #: The precision at which the paper reports recall.
 TARGET_PRECISION = 0.99
@@ -76,17 +73,3 @@ def classification_metrics(scores: NDArray[np.floating[Any]], labels: NDArray[An
         "threshold_99p": thr99,
         "average_precision": average_precision(scores, truth),
     }
-
-
-def evaluate_classifier(classifier: GraspClassifier, dataset: str | Path, kind: str, part: str = "test",
-                        categories: list[str] | None = None, limit: int | None = None, seed: int = 0
-                        ) -> tuple[dict[str, Any], NDArray[np.float32], NDArray[np.uint8]]:
-    """(metrics, scores, labels) of a classifier on one part of a dataset split, images derived to the
-    classifier's representation."""
-    from .train import load_rows
-
-    images, labels, _ = load_rows(dataset, kind, part, classifier.representation, categories, limit, seed)
-    scores = classifier.score(images)
-    metrics: dict[str, Any] = {"split": kind, "part": part, "categories": categories or "all",
-                               **classification_metrics(scores, labels)}
-    return metrics, scores, labels
