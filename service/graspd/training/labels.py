@@ -44,8 +44,10 @@ class LabelParams:
     coefficient; approach_tolerance (m) how far the object may reach past the palm or fingertip plane
     (the hand then stops that much short: it was placed against a noisy cloud, about 2 sigma of the
     sensor noise); contact_patch (m, None = the hand's finger_width) sets the frictionless normal slack;
-    ray spacing (m) over finger faces and the palm; palm_depth (m) the palm's thickness behind the
-    hand base."""
+    ray spacing (m) over finger faces and the palm; palm_depth (m) how far behind the hand base the palm
+    rays start (None = the hand's own palm model, HandGeometry.palm_depth).  The default 0.01 is what the
+    shipped datasets and models were labelled with; HandGeometry's default palm is 0.02 m deep, so None
+    would change the labels of the default hand (issue 12: kept, not silently changed)."""
 
     tolerance: float = 0.001
     approach_tolerance: float = 0.003
@@ -54,7 +56,7 @@ class LabelParams:
     ray_spacing: float = 0.002
     palm_ray_spacing: float = 0.004
     rows: int = 5
-    palm_depth: float = 0.01
+    palm_depth: float | None = 0.01
     chunk: int = 1024
     nthreads: int = 0
 
@@ -141,11 +143,12 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
     gx, gz = (a.reshape(-1) for a in np.meshgrid(xs, zs, indexing="ij"))
     py, pz = (a.reshape(-1) for a in np.meshgrid(ys, zs, indexing="ij"))
     in_gap = np.abs(py) < gap
-    palm_limit = np.where(in_gap, p.palm_depth, p.palm_depth + hd)
+    palm_depth = hand.palm_depth if p.palm_depth is None else p.palm_depth
+    palm_limit = np.where(in_gap, palm_depth, palm_depth + hd)
 
     left_local = np.stack([gx, np.full_like(gx, -od / 2), gz], axis=1).astype(np.float32)
     right_local = left_local * np.array([1.0, -1.0, 1.0], np.float32)
-    palm_local = np.stack([np.full_like(py, -p.palm_depth), py, pz], axis=1).astype(np.float32)
+    palm_local = np.stack([np.full_like(py, -palm_depth), py, pz], axis=1).astype(np.float32)
     g = len(gx)
 
     m = len(grasps)
