@@ -58,18 +58,26 @@ def _detect(args: argparse.Namespace) -> int:
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text)
-    if args.plot:
-        from .plot import plot_grasps
+    if args.plot or args.view:
         from .preprocess import PreprocessParams, preprocess
 
+        # the cloud the environment labelled: the detector's preprocessing of the input
         shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
         title = f"{Path(args.cloud).name}: top {min(args.top, len(detection.grasps))} of " \
                 f"{detection.num_candidates} candidates, model {detection.model or 'none (unscored)'}"
-        env = detection.environment
-        labels = env.labels if env is not None and len(env.labels) == len(shown) else None
-        up = None if env is None or env.up is None else tuple(float(v) for v in -env.up)
-        plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title,
-                    gravity=params.gravity or up, labels=labels)  # type: ignore[arg-type]
+        if args.plot:
+            from .plot import plot_grasps
+
+            plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title,
+                        gravity=params.gravity, environment=detection.environment)
+        if args.view:
+            from .viewer import viewer_html
+
+            Path(args.view).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.view).write_text(viewer_html(shown, detection, hand, top=args.view_top,
+                                                   title=f"{Path(args.cloud).name}: {len(detection.grasps)} grasps, "
+                                                         f"model {detection.model or 'none (unscored)'}"),
+                                       encoding="utf-8")
     t = detection.timings
     print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates on {detection.num_points} points "
           f"in {t['total']:.2f} s (" + ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k != "total") + ")",
@@ -100,7 +108,7 @@ def _demo(args: argparse.Namespace) -> int:
     title = (f"demo tabletop ({args.objects} objects, {len(cloud)} points, 2 cameras): top {args.top} of "
              f"{detection.num_candidates} candidates, model {detection.model or 'none (unscored)'}")
     plot_grasps(shown, detection.grasps, detection.hand, out / "grasps.png", top=args.top, title=title,
-                gravity=GRAVITY)
+                gravity=GRAVITY, environment=detection.environment)
     t = detection.timings
     print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates in {t['total']:.2f} s "
           f"(model: {detection.model or 'none'}); wrote {out / 'grasps.png'} and {out / 'grasps.json'}")
@@ -143,7 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--out", help="write the grasps as JSON here (else print them)")
     d.add_argument("--plot", help="write a PNG of the cloud with the top grasps")
-    d.add_argument("--top", type=int, default=10, help="grasps to draw")
+    d.add_argument("--top", type=int, default=10, help="grasps to draw in the --plot picture")
+    d.add_argument("--view", help="write a self-contained interactive 3D view (HTML, works offline) here")
+    d.add_argument("--view-top", type=int, default=50, help="grasps to draw in the --view page")
     d.set_defaults(func=_detect)
     demo = sub.add_parser("demo", help="detect grasps on a bundled rendered tabletop scene and draw them")
     demo.add_argument("--out", default="out/demo", help="folder for grasps.png and grasps.json")

@@ -1,19 +1,49 @@
-"""Pictures a person can judge: the cloud with the top grasps drawn as two-finger grippers (PNG)."""
+"""Pictures a person can judge (PNG): what each point is, where the environment is, and the top grasps.
+
+Three real projections of the cloud frame (metres): the view from camera 0 (perspective, degrees off its
+optical axis), the top view looking down "up", and the side view looking along the table (horizontal line
+of sight, height above the support).  Points are coloured by environment.Label (object, support, wall,
+declared box); the support's outline and the wall / declared boxes are drawn, so a region without grasps
+can be read (it is environment, or a hand there would enter it).  The top-k grippers are thin outlines,
+numbered by rank and coloured by score on a colour bar.  The geometry helpers here (view_frames,
+gripper_segments, box_edges, support_outline) are shared with the interactive viewer (graspd.viewer).
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .cloud import ViewpointCloud
+from .environment import Box, Environment, Label
 from .grasp import GraspSet
 from .hand import HandGeometry
 
+F64 = NDArray[np.float64]
 
-def gripper_segments(grasps: GraspSet, hand: HandGeometry, stem: float = 0.04) -> NDArray[np.float64]:
-    """Line segments (M, 4, 2, 3) drawing each hand: palm, two fingers, and a stem back along the approach."""
+#: Display name and colour of each point label (light colours for the environment, a strong one for objects).
+LABEL_STYLE: dict[Label, tuple[str, str]] = {
+    Label.OBJECT: ("object", "#1f4e9c"),
+    Label.SUPPORT: ("support", "#d9cbb0"),
+    Label.WALL: ("wall", "#8c8c8c"),
+    Label.DECLARED: ("declared box", "#c39bd3"),
+}
+#: Outline colours of the environment's geometry.
+SUPPORT_OUTLINE = "#8a6d3b"
+WALL_EDGE = "#5a4a3a"
+DECLARED_EDGE = "#7d3c98"
+#: Score colour map of the grippers: red (lowest shown) to yellow (best); no point label uses these hues.
+SCORE_CMAP = "autumn"
+
+
+def gripper_segments(grasps: GraspSet, hand: HandGeometry, stem: float = 0.04) -> F64:
+    """Line segments (M, 4, 2, 3) drawing each open hand in the cloud frame (m): the palm bar across the finger
+    roots, the two fingers (x in [0, hand_depth] of the hand frame, at the fingers' centre lines) and a stem
+    of length stem (m) back along -approach."""
     half = hand.hand_outer_diameter / 2.0 - hand.finger_width / 2.0
     local = np.array([
         [[0.0, -half, 0.0], [0.0, half, 0.0]],
@@ -24,88 +54,287 @@ def gripper_segments(grasps: GraspSet, hand: HandGeometry, stem: float = 0.04) -
     return grasps.positions[:, None, None, :] + np.einsum("mij,abj->mabi", grasps.rotations, local)
 
 
-def _camera_basis(cloud: ViewpointCloud) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(origin, rows right/up/forward) of a view from the first camera toward the cloud's centroid."""
-    centre = np.median(cloud.points, axis=0).astype(np.float64)
+def box_edges(box: Box) -> F64:
+    """The 12 edges (12, 2, 3) of an oriented box in the cloud frame (m)."""
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
+    corners = box.centre + (signs * box.half_extents) @ box.rotation.T
+    pairs = [(a, b) for a in range(8) for b in range(a + 1, 8) if np.sum(signs[a] != signs[b]) == 1]
+    return np.stack([corners[[a, b]] for a, b in pairs])
+
+
+@dataclass(frozen=True)
+class ViewFrames:
+    """The directions the pictures are drawn in, all unit vectors in the cloud frame.
+
+    eye: camera 0's position (m); camera: rows [right, image up, forward] of camera 0 looking at the cloud's
+    median point; up: which way is up (from gravity, the support's normal, or camera 0's image up when nothing
+    says, see up_source); across, away: horizontal (perpendicular to up) directions to camera 0's right and
+    away from it; base (m): height(p) = p . up + base, zero on the support plane when there is one."""
+
+    eye: F64
+    camera: F64
+    up: F64
+    up_source: str
+    across: F64
+    away: F64
+    base: float
+
+    def height(self, points: NDArray[np.floating]) -> F64:
+        """Height (m) along up, zero on the support when one was found."""
+        return np.asarray(np.asarray(points, np.float64) @ self.up + self.base)
+
+
+def _unit(v: F64) -> F64:
+    return np.asarray(v / max(float(np.linalg.norm(v)), 1e-12))
+
+
+def view_frames(cloud: ViewpointCloud, environment: Environment | None = None,
+                gravity: tuple[float, float, float] | None = None) -> ViewFrames:
+    """Camera, top and side view directions for a cloud (see ViewFrames); up comes from the environment's up,
+    else against gravity, else camera 0's image up (an optical frame's -y, or z when the camera is above)."""
+    centre = np.median(cloud.points, axis=0).astype(np.float64) if len(cloud) else np.zeros(3)
     eye = cloud.viewpoints[0].astype(np.float64)
     forward = centre - eye
-    forward /= max(float(np.linalg.norm(forward)), 1e-9)
-    up_guess = np.array([0.0, -1.0, 0.0]) if abs(forward[1]) < 0.9 else np.array([0.0, 0.0, 1.0])
-    if abs(forward[2]) < 0.95 and cloud.viewpoints[0, 2] > centre[2] + 0.1:
-        up_guess = np.array([0.0, 0.0, 1.0])  # a camera above a table: world z up
-    right = np.cross(forward, up_guess)
-    right /= max(float(np.linalg.norm(right)), 1e-9)
-    return eye, np.stack([right, np.cross(right, forward), forward])
+    if float(np.linalg.norm(forward)) < 1e-9:
+        forward = np.array([0.0, 0.0, 1.0])
+    forward = _unit(forward)
+    up: F64 | None = None
+    source = "camera"
+    if environment is not None and environment.up is not None:
+        up, source = _unit(np.asarray(environment.up, np.float64)), "support" if gravity is None else "gravity"
+    elif gravity is not None:
+        up, source = _unit(-np.asarray(gravity, np.float64)), "gravity"
+    if up is not None and abs(float(forward @ up)) < 0.98:
+        up_guess = up
+    else:  # no up, or a camera looking straight along it
+        up_guess = np.array([0.0, -1.0, 0.0]) if abs(forward[1]) < 0.9 else np.array([0.0, 0.0, 1.0])
+        if abs(forward[2]) < 0.95 and eye[2] > centre[2] + 0.1:
+            up_guess = np.array([0.0, 0.0, 1.0])  # a camera above a table: world z up
+        if up is not None:  # looking straight down (or up): the image up is the horizontal away direction
+            up_guess = _unit(np.cross(np.cross(up, np.array([1.0, 0.0, 0.0])) if abs(up[0]) < 0.9
+                                      else np.array([0.0, 1.0, 0.0]), up))
+    right = _unit(np.cross(forward, up_guess))
+    camera = np.stack([right, np.cross(right, forward), forward])
+    if up is None:
+        up = camera[1]
+    across = right - (right @ up) * up
+    if float(np.linalg.norm(across)) < 1e-6:
+        across = np.cross(up, np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+    across = _unit(across)
+    away = np.cross(up, across)
+    base = 0.0
+    support = None if environment is None else environment.support
+    if support is not None and abs(float(support.normal @ up)) > 0.5:
+        base = float(support.offset * (support.normal @ up))  # the support's point -offset * normal at height 0
+    return ViewFrames(eye, camera, up, source, across, away, base)
 
 
-def _project(xyz: NDArray[np.floating], eye: NDArray[np.float64], basis: NDArray[np.float64],
-             perspective: bool) -> NDArray[np.float64]:
-    """Image coordinates (...,2): pinhole (normalised) when perspective, else orthographic (m)."""
-    c = (np.asarray(xyz, np.float64) - eye) @ basis.T
-    if not perspective:
-        return c[..., :2]
-    return c[..., :2] / np.maximum(c[..., 2:3], 1e-6)
+def support_outline(cloud: ViewpointCloud, environment: Environment | None, frames: ViewFrames) -> F64 | None:
+    """The support's visible extent as a closed polygon (K, 3) on the support plane (cloud frame, m): the convex
+    hull of the support points seen from above.  None without a support or its points."""
+    if environment is None or environment.support is None or len(environment.labels) != len(cloud):
+        return None
+    pts = cloud.points[environment.labels == Label.SUPPORT].astype(np.float64)
+    if len(pts) < 3:
+        return None
+    from scipy.spatial import ConvexHull, QhullError
+
+    flat = np.stack([pts @ frames.across, pts @ frames.away], axis=1)
+    try:
+        hull = flat[ConvexHull(flat).vertices]
+    except (QhullError, ValueError):
+        return None
+    hull = np.concatenate([hull, hull[:1]])
+    plane = environment.support
+    lateral = hull[:, :1] * frames.across + hull[:, 1:] * frames.away
+    denom = float(plane.normal @ frames.up)
+    if abs(denom) < 1e-6:
+        return None
+    t = -(plane.offset + lateral @ plane.normal) / denom
+    return np.asarray(lateral + t[:, None] * frames.up)
+
+
+def subsample_index(labels: NDArray[np.integer], max_points: int, seed: int = 0) -> NDArray[np.intp]:
+    """At most max_points indices, sorted: object points first (all of them if they fit), then the environment's,
+    each drawn uniformly; keeps a 100k-point cloud fast to draw without losing the object."""
+    n = len(labels)
+    if n <= max_points:
+        return np.arange(n)
+    rng = np.random.default_rng(seed)
+    obj = np.flatnonzero(labels == Label.OBJECT)
+    env = np.flatnonzero(labels != Label.OBJECT)
+    take_obj = min(len(obj), max(max_points - len(env), max_points * 2 // 3))
+    take_env = min(len(env), max_points - take_obj)
+    pick = np.concatenate([rng.choice(obj, take_obj, replace=False), rng.choice(env, take_env, replace=False)])
+    return np.sort(pick)
+
+
+def score_colours(scores: F64) -> tuple[F64, float, float, str]:
+    """(values, vmin, vmax, colour-bar label) to colour grippers by: the scores, or for unscored grasps
+    (NaN) the rank reversed, so best is always the top of the colour map."""
+    s = np.asarray(scores, np.float64)
+    if len(s) and np.isfinite(s).all():
+        lo, hi = float(s.min()), float(s.max())
+        if hi - lo < 1e-6:
+            lo, hi = lo - 0.5, hi + 0.5
+        return s, lo, hi, "classifier score"
+    values = -np.arange(1, len(s) + 1, dtype=np.float64)
+    return values, -float(max(len(s), 2)), -1.0, "rank (unscored: -rank)"
+
+
+def _project_camera(xyz: NDArray[np.floating], frames: ViewFrames) -> tuple[F64, NDArray[np.bool_]]:
+    """Degrees right of / up from camera 0's optical axis (...,2), and whether each point is in front of it."""
+    c = (np.asarray(xyz, np.float64) - frames.eye) @ frames.camera.T
+    front = c[..., 2] > 1e-3
+    z = np.maximum(c[..., 2], 1e-3)
+    return np.degrees(np.arctan2(c[..., :2], z[..., None])), front
+
+
+def _fmt_dir(v: F64) -> str:
+    return "(" + ", ".join(f"{x:+.2f}" for x in v) + ")"
 
 
 def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, path: str | Path,
                 top: int = 10, title: str = "", gravity: tuple[float, float, float] | None = None,
-                labels: NDArray[np.integer] | None = None) -> Path:
-    """Write a PNG: the cloud seen from its first camera and from above (along gravity when given,
-    else along the camera's up axis), top grasps drawn as grippers (best thick green, then yellow to red).
-    With labels (environment.Label per point), environment points are drawn light grey, objects by height."""
+                labels: NDArray[np.integer] | None = None, environment: Environment | None = None,
+                max_points: int = 40_000) -> Path:
+    """Write a PNG of cloud (the preprocessed cloud the environment labelled, cloud frame, m) with the top
+    grasps of grasps (ranked best first).  labels (one environment.Label per point) default to environment's;
+    up comes from the environment, else against gravity.  At most max_points points are drawn."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from matplotlib.colors import Normalize
+    from matplotlib.lines import Line2D
 
     path = Path(path)
+    env = environment if environment is not None and len(environment.labels) == len(cloud) else None
+    if labels is None or len(labels) != len(cloud):
+        labels = env.labels if env is not None else np.zeros(len(cloud), np.int8)
+    labels = np.asarray(labels)
+    frames = view_frames(cloud, env if env is not None else environment, gravity)
     g = grasps[: max(top, 0)]
-    segs = gripper_segments(g, hand)
-    eye, cam = _camera_basis(cloud)
-    if gravity is not None:
-        down = np.asarray(gravity, np.float64) / max(float(np.linalg.norm(gravity)), 1e-9)
-        right = cam[0] - (cam[0] @ down) * down
-        right /= max(float(np.linalg.norm(right)), 1e-9)
-        above = np.stack([right, np.cross(right, down), down])  # image up = away from the camera
-        height = -(cloud.points @ down)
-    else:
-        above = np.stack([cam[0], cam[2], -cam[1]])
-        height = cloud.points @ cam[1]
-    rng = np.random.default_rng(0)
-    keep = np.arange(len(cloud.points))
-    if len(keep) > 60_000:
-        keep = np.sort(rng.choice(len(keep), 60_000, replace=False))
-    pts, colour_by = cloud.points[keep], height[keep]
-    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2), dpi=110)
-    colours = plt.get_cmap("autumn")(np.linspace(0.0, 0.9, max(len(g), 1)))
-    views = ((axes[0], cam, True, "seen from camera 0"),
-             (axes[1], above, False, "seen from above" if gravity is not None else "seen from the side"))
-    for ax, basis, persp, name in views:
-        origin = eye if persp else np.zeros(3)
-        uv = _project(pts, origin, basis, persp)
-        order = np.argsort(colour_by)
-        if labels is not None:
-            env = np.asarray(labels)[keep][order] != 0
-            ax.scatter(uv[order][env, 0], uv[order][env, 1], s=1.0, c="#c8c8c8", linewidths=0,
-                       label="environment (support, walls, boxes)")
-            order = order[~env]
-        ax.scatter(uv[order, 0], uv[order, 1], s=1.2, c=colour_by[order], cmap="viridis", linewidths=0)
-        for k in range(len(g) - 1, -1, -1):
-            colour = "limegreen" if k == 0 else colours[k]
-            for seg in segs[k]:
-                s2 = _project(seg, origin, basis, persp)
-                ax.plot(s2[:, 0], s2[:, 1], color="black", lw=(5.0 if k == 0 else 3.2), solid_capstyle="round")
-                ax.plot(s2[:, 0], s2[:, 1], color=colour, lw=(3.0 if k == 0 else 1.8), solid_capstyle="round")
-            ax.annotate(str(k + 1), _project(g.positions[k], origin, basis, persp), fontsize=8, weight="bold")
-        ax.set_aspect("equal")
-        if persp:
-            ax.set_xticks([])
-            ax.set_yticks([])
-        else:
-            ax.set_xlabel("m")
-        ax.set_title(name, fontsize=10)
-    fig.suptitle(title or f"top {len(g)} grasps (green = best)", fontsize=10)
-    fig.tight_layout()
+    stem = max(hand.palm_depth, 0.02)
+    segs = gripper_segments(g, hand, stem=stem)
+    tags = g.positions - stem * g.approach if len(g) else np.zeros((0, 3))  # rank numbers at the stem ends
+    values, vmin, vmax, bar_label = score_colours(g.scores)
+    cmap = plt.get_cmap(SCORE_CMAP)
+    norm = Normalize(vmin, vmax)
+    keep = subsample_index(labels, max_points)
+    pts, lab = cloud.points[keep].astype(np.float64), labels[keep]
+    outline = support_outline(cloud, env, frames)
+    walls = () if env is None else env.walls
+    declared = () if env is None else env.boxes
+
+    def cam(x: NDArray[np.floating]) -> tuple[F64, NDArray[np.bool_]]:
+        return _project_camera(x, frames)
+
+    def topv(x: NDArray[np.floating]) -> tuple[F64, NDArray[np.bool_]]:
+        x = np.asarray(x, np.float64)
+        return np.stack([x @ frames.across, x @ frames.away], -1), np.ones(x.shape[:-1], bool)
+
+    def side(x: NDArray[np.floating]) -> tuple[F64, NDArray[np.bool_]]:
+        x = np.asarray(x, np.float64)
+        return np.stack([x @ frames.away, frames.height(x)], -1), np.ones(x.shape[:-1], bool)
+
+    height_name = "height above the support (m)" if env is not None and env.support is not None else \
+        f"height along up {_fmt_dir(frames.up)} (m)"
+    up_note = {"support": "up = support normal", "gravity": "up = -gravity", "camera": "up = camera 0 image up"}
+    views = (
+        (cam, lambda x: (np.asarray(x, np.float64) - frames.eye) @ frames.camera[2],
+         f"camera 0 at {_fmt_dir(frames.eye)} m (perspective)",
+         "deg right of the optical axis", "deg up from the optical axis"),
+        (topv, lambda x: -frames.height(x),
+         f"top view, looking down ({up_note[frames.up_source]})",
+         f"across: m along {_fmt_dir(frames.across)}", f"away from camera 0: m along {_fmt_dir(frames.away)}"),
+        (side, lambda x: -(np.asarray(x, np.float64) @ frames.across),
+         "side view along the table (from camera 0's right)",
+         f"away from camera 0: m along {_fmt_dir(frames.away)}", height_name),
+    )
+    fig = plt.figure(figsize=(18, 7.4), dpi=100)
+    grid = fig.add_gridspec(2, 4, width_ratios=[1.25, 1.0, 1.0, 0.035], height_ratios=[1.0, 0.17],
+                            left=0.04, right=0.96, top=0.9, bottom=0.04, wspace=0.28, hspace=0.3)
+    handles: list[Any] = []
+    for col, (proj, depth, name, xlabel, ylabel) in enumerate(views):
+        ax = fig.add_subplot(grid[0, col])
+        uv, ok = proj(pts)
+        order = np.argsort(-depth(pts))  # far first, so near points are drawn over them
+        for label in (Label.SUPPORT, Label.WALL, Label.DECLARED, Label.OBJECT):
+            m = order[(lab[order] == label) & ok[order]]
+            if not len(m):
+                continue
+            text, colour = LABEL_STYLE[label]
+            size = 2.2 if label == Label.OBJECT else 1.0
+            h = ax.scatter(uv[m, 0], uv[m, 1], s=size, c=colour, linewidths=0, rasterized=True,
+                           label=f"{text} points ({int(np.sum(labels == label)):,})")
+            if col == 0:
+                handles.append(h)
+        if len(uv[ok]):
+            lo, hi = np.percentile(uv[ok], [0.5, 99.5], axis=0)
+            if len(g):  # the grippers stay in the picture
+                s_uv, s_ok = proj(segs.reshape(-1, 3))
+                if s_ok.any():
+                    lo, hi = np.minimum(lo, s_uv[s_ok].min(axis=0)), np.maximum(hi, s_uv[s_ok].max(axis=0))
+            pad = 0.06 * np.maximum(hi - lo, 1e-3)
+            ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
+            ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
+        ax.autoscale(False)
+        if outline is not None:
+            o, ok_o = proj(outline)
+            ax.plot(np.where(ok_o, o[:, 0], np.nan), o[:, 1], color=SUPPORT_OUTLINE, lw=1.0, ls="--")
+        for boxes, colour in ((walls, WALL_EDGE), (declared, DECLARED_EDGE)):
+            for box in boxes:
+                e, ok_e = proj(box_edges(box))
+                keep_e = ok_e.all(axis=1)
+                ax.add_collection(LineCollection(list(e[keep_e]), colors=colour, linewidths=1.0, linestyles="-"))
+        if len(g):
+            s2, ok_s = proj(segs.reshape(-1, 2, 3))
+            s2 = s2.reshape(len(g), 4, 2, 2)
+            ok_g = np.asarray(np.asarray(ok_s).reshape(len(g), 8).all(axis=1))
+            rank_order = [k for k in range(len(g) - 1, -1, -1) if ok_g[k]]  # best drawn last, on top
+            lines = [seg for k in rank_order for seg in s2[k]]
+            colours = [cmap(norm(values[k])) for k in rank_order for _ in range(4)]
+            ax.add_collection(LineCollection(lines, colors="black", linewidths=2.1, capstyle="round"))
+            ax.add_collection(LineCollection(lines, colors=colours, linewidths=1.1, capstyle="round"))
+            t2, ok_t = proj(tags)
+            for k in rank_order:
+                if ok_t[k]:
+                    ax.annotate(str(k + 1), t2[k], fontsize=7, weight="bold", ha="center", va="center",
+                                color="black", bbox={"boxstyle": "round,pad=0.12", "fc": cmap(norm(values[k])),
+                                                     "ec": "black", "lw": 0.4, "alpha": 0.85})
+        ax.set_aspect("equal", adjustable="datalim" if col else "box")
+        ax.set_xlabel(xlabel, fontsize=8)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.set_title(name, fontsize=9)
+    if len(g):
+        bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), cax=fig.add_subplot(grid[0, 3]))
+        bar.set_label(bar_label, fontsize=8)
+        bar.ax.tick_params(labelsize=7)
+    if outline is not None:
+        handles.append(Line2D([], [], color=SUPPORT_OUTLINE, lw=1.0, ls="--", label="support outline"))
+    if walls:
+        handles.append(Line2D([], [], color=WALL_EDGE, lw=1.0, label=f"wall boxes ({len(walls)})"))
+    if declared:
+        handles.append(Line2D([], [], color=DECLARED_EDGE, lw=1.0, label=f"declared boxes ({len(declared)})"))
+    handles.append(Line2D([], [], color=cmap(1.0), lw=1.1, label="gripper (number = rank, colour = score)"))
+    legend_ax = fig.add_subplot(grid[1, :2])
+    legend_ax.axis("off")
+    legend_ax.legend(handles=handles, loc="upper left", ncol=3, fontsize=8, markerscale=6, frameon=False)
+    legend_ax.text(0.0, 0.05, "Grasps are sampled on object points only; a hand, and its approach path, may not enter "
+                   "the support or a wall / declared box:\nregions of environment points, or too close to them, get "
+                   "no grasps.", fontsize=7.5, transform=legend_ax.transAxes, va="bottom", color="#333333")
+    table_ax = fig.add_subplot(grid[1, 2:])
+    table_ax.axis("off")
+    rows = [f"#{k + 1}: score {'-' if np.isnan(g.scores[k]) else f'{g.scores[k]:.3f}'}, "
+            f"width {1000 * g.widths[k]:.0f} mm" for k in range(min(len(g), 12))]
+    cols = [rows[i : i + 4] for i in range(0, len(rows), 4)]
+    for c, chunk in enumerate(cols):
+        table_ax.text(c / 3.0, 1.0, "\n".join(chunk), fontsize=7.5, va="top", family="monospace",
+                      transform=table_ax.transAxes)
+    fig.suptitle(title or f"top {len(g)} grasps", fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
