@@ -28,6 +28,8 @@ MAX_SAMPLES = 20_000
 #: Most PointField entries, and longest frame_id / field name (bytes).
 MAX_FIELDS = 64
 MAX_STRING = 4096
+#: Largest |coordinate| (m) of a view point or sample: beyond it float32 would overflow, and nothing is that far.
+MAX_COORD = 1e6
 #: sensor_msgs/PointField datatype codes -> numpy type characters.
 POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 
@@ -177,8 +179,9 @@ def _read_pointcloud2(r: _Reader, prefix: str) -> _RawCloud:
 
     def stack(keys: list[str]) -> NDArray[np.float32]:
         out = np.empty((n, 3), np.float32)
-        for k, key in enumerate(keys):
-            out[:, k] = rec[key]
+        with np.errstate(over="ignore", invalid="ignore"):  # float64 beyond float32 -> inf, dropped as non-finite
+            for k, key in enumerate(keys):
+                out[:, k] = rec[key]
         return out
 
     points = stack(names[:3])
@@ -208,8 +211,8 @@ def _viewpoint_cloud(raw: _RawCloud, camera_source: NDArray[np.int64] | None, vi
     k = len(view_points)
     if k == 0:
         raise RosDecodeError(f"{prefix}view_points", "needs at least one camera position")
-    if not np.isfinite(view_points).all():
-        raise RosDecodeError(f"{prefix}view_points", "must be finite")
+    if not (np.abs(view_points) <= MAX_COORD).all():
+        raise RosDecodeError(f"{prefix}view_points", f"must be finite, within {MAX_COORD:g} m")
     if camera_source is None or len(camera_source) == 0:
         src = np.zeros(n, np.int32)
     else:
@@ -279,8 +282,8 @@ def decode_cloud_samples(payload: bytes | bytearray | memoryview) -> CloudMessag
     raw, src, vps = _read_cloud_sources(r, "cloud_sources.")
     nsamples = r.count("samples", MAX_SAMPLES, 24)
     samples = r.array("f8", nsamples, "samples", 3).astype(np.float64).reshape(-1, 3)
-    if not np.isfinite(samples).all():
-        raise RosDecodeError("samples", "must be finite")
+    if not (np.abs(samples) <= MAX_COORD).all():
+        raise RosDecodeError("samples", f"must be finite, within {MAX_COORD:g} m")
     cloud = _viewpoint_cloud(raw, src, vps, _finite_rows(raw), "cloud_sources.")
     return CloudMessage(cloud, raw.header, samples=samples, msg_type=CLOUD_SAMPLES)
 
