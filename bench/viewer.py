@@ -1,0 +1,102 @@
+"""How long headless Chromium takes to load the --view page of a 100k-point cloud with 50 grasps (target <= 2 s).
+
+The cloud is ../shared/data/real/table_mug.pcd subsampled to 100,000 points, detected unscored without voxel
+downsampling (so the environment labels every one of the 100k points, all drawn), top 50 grasps.  Measured per
+run: "drawn", the page's own performance.now() when Plotly has drawn the scene (ms from navigation start: reading
+the ~5 MB page, compiling plotly.js, decoding the data, the first WebGL frame in SwiftShader), "plotly.js", the
+same clock on a page holding only plotly.js (its share), and "process", the whole headless Chromium run (start,
+load, exit).  Needs Debian's chromium.  Usage: .venv/bin/python bench/viewer.py [--runs 3] [--points 100000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "service"))
+
+from graspd.cloud import ViewpointCloud  # noqa: E402
+from graspd.cloud_io import read_cloud  # noqa: E402
+from graspd.detector import DetectionParams, GraspDetector  # noqa: E402
+from graspd.viewer import PLOT_ID, viewer_html  # noqa: E402
+
+CLOUD = REPO.parent / "shared" / "data" / "real" / "table_mug.pcd"
+
+
+def chromium_command(browser: str, profile: Path) -> list[str]:
+    """Headless Chromium with software WebGL (no GPU), as tests/viewer runs it."""
+    return [browser, "--headless", "--no-sandbox", "--disable-dev-shm-usage", "--enable-unsafe-swiftshader",
+            "--use-angle=swiftshader", f"--user-data-dir={profile}", "--no-first-run"]
+
+
+def load_ms(browser: str, page: Path, profile: Path, attribute: str) -> tuple[float, float]:
+    """(the page's own ms at which attribute was set, the Chromium process's wall seconds)."""
+    t = time.perf_counter()
+    dom = subprocess.run(chromium_command(browser, profile) + ["--dump-dom", page.resolve().as_uri()],
+                         capture_output=True, text=True, timeout=300).stdout
+    wall = time.perf_counter() - t
+    found = re.search(rf'{attribute}="([0-9.]+)"', dom)
+    if found is None:
+        raise RuntimeError(f"{page.name}: the page never set {attribute} (not drawn)")
+    return float(found.group(1)), wall
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--points", type=int, default=100_000)
+    ap.add_argument("--grasps", type=int, default=50)
+    ap.add_argument("--max-points", type=int, default=None,
+                    help="points drawn (viewer_html's max_points; default: all of them)")
+    args = ap.parse_args()
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    if browser is None:
+        print("bench/viewer.py: chromium is not installed (Debian: apt-get install chromium)", file=sys.stderr)
+        return 2
+    raw = read_cloud(CLOUD, viewpoints=np.zeros((1, 3), np.float32))
+    rng = np.random.default_rng(0)
+    pick = np.sort(rng.choice(len(raw), min(args.points, len(raw)), replace=False))
+    cloud = ViewpointCloud(points=raw.points[pick], viewpoints=raw.viewpoints)
+    detection = GraspDetector(None).detect(cloud, DetectionParams(num_samples=300, use_classifier=False,
+                                                                  max_grasps=args.grasps, voxel_size=0.0))
+    assert detection.environment is not None and len(detection.environment.labels) == len(cloud)
+    t = time.perf_counter()
+    page = viewer_html(cloud, detection, top=args.grasps, max_points=args.max_points or len(cloud))
+    build = time.perf_counter() - t
+    with tempfile.TemporaryDirectory() as tmp:
+        view, bare = Path(tmp) / "view.html", Path(tmp) / "plotly_only.html"
+        view.write_text(page, encoding="utf-8")
+        plotly_js = max(re.findall(r"<script[^>]*>(.*?)</script>", page, flags=re.S), key=len)  # the inlined library
+        bare.write_text("<html><body><script>" + plotly_js + "</script><script>"
+                        "document.body.setAttribute('data-parsed', String(performance.now()));</script></body></html>",
+                        encoding="utf-8")
+        print(f"{len(cloud):,} points ({detection.environment.counts()}), {args.max_points or len(cloud):,} drawn, "
+              f"{len(detection.grasps[: args.grasps])} "
+              f"grasps; page {len(page) / 1e6:.1f} MB built in {build:.2f} s; id {PLOT_ID}")
+        drawn, parsed, process = [], [], []
+        for run in range(args.runs):
+            ms, wall = load_ms(browser, view, Path(tmp) / "profile", "data-drawn")
+            js_ms, _ = load_ms(browser, bare, Path(tmp) / "profile", "data-parsed")
+            drawn.append(ms)
+            parsed.append(js_ms)
+            process.append(wall)
+            print(f"run {run + 1}: drawn {ms / 1000:.2f} s (plotly.js alone {js_ms / 1000:.2f} s), "
+                  f"chromium process {wall:.2f} s")
+    d = statistics.median(drawn) / 1000
+    print(f"median: drawn {d:.2f} s after navigation (plotly.js alone {statistics.median(parsed) / 1000:.2f} s), "
+          f"chromium process {statistics.median(process):.2f} s; target <= 2 s: {'met' if d <= 2.0 else 'NOT met'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
