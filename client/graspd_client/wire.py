@@ -36,13 +36,6 @@ GRASP_FIELDS: tuple[str, ...] = (
     "id", "position", "approach", "binormal", "axis", "width", "score", "sample", "pose", "quat_xyzw",
 )
 
-#: Query parameters accepted with a raw PCD/PLY upload to POST /detect.
-UPLOAD_QUERY_PARAMS: tuple[str, ...] = (
-    "viewpoint", "model", "hand", "num_samples", "max_grasps", "min_score", "workspace", "selection", "seed",
-    "method", "clustering", "use_classifier", "gravity", "exclude_support_plane", "min_aperture", "max_aperture",
-    "environment", "approach_distance",
-)
-
 #: Detectors a detect request may ask for ("method"): GPD, or grasp templates from demonstrations.
 DETECT_METHODS: tuple[str, ...] = ("gpd", "templates")
 

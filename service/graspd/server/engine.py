@@ -20,9 +20,7 @@ import numpy as np
 import orjson
 from pydantic import BaseModel, ValidationError
 
-from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
-from graspd.environment import EnvironmentParams
 from graspd.templates import TemplateDetection
 from graspd_client.codec import WireError
 
@@ -33,7 +31,7 @@ from .metrics import Metrics
 from .pngio import encode_png_b64
 from .problems import Problem, from_validation, from_wire
 from .registry import ModelRegistry
-from .schemas import CropsRequest, DetectRequest
+from .schemas import CropsRequest, DetectRequest, DetectResponse
 from .settings import Settings
 from .templates_service import TemplateService
 
@@ -119,26 +117,8 @@ def parse_model(model: type[M], payload: bytes | str | dict[str, Any]) -> M:
 
 
 def detection_params(req: DetectRequest) -> DetectionParams:
-    """The detector's knobs from a validated request (metres, degrees, cloud frame)."""
-    ws = req.workspace
-    return DetectionParams(
-        num_samples=req.num_samples,
-        workspace=None if ws is None else (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]),
-        max_grasps=req.max_grasps,
-        min_score=req.min_score,
-        approach_direction=None if req.approach is None else tuple(req.approach.direction),  # type: ignore[arg-type]
-        approach_max_angle_deg=None if req.approach is None else req.approach.max_angle_deg,
-        min_aperture=req.min_aperture,
-        max_aperture=req.max_aperture,
-        use_selection=req.selection,
-        use_clustering=req.clustering,
-        use_classifier=req.use_classifier,
-        gravity=None if req.gravity is None else (req.gravity[0], req.gravity[1], req.gravity[2]),
-        exclude_support_plane=req.exclude_support_plane,
-        environment=EnvironmentParams() if req.environment is None else req.environment.params(),
-        approach_distance=req.approach_distance,
-        seed=req.seed,
-    )
+    """The detector's knobs from a validated request: req.to_params() (kept for bench/load.py)."""
+    return req.to_params()
 
 
 def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
@@ -151,15 +131,9 @@ def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
     pixels, _ = proposals.project(centres, crops.camera_pose, proposals.Pinhole(intr.fx, intr.fy, intr.cx, intr.cy))
     inside = proposals.inside_image(pixels, image.shape[0], image.shape[1])
     windows = proposals.crop_windows(image, np.where(inside[:, None], pixels, np.nan), crops.size)
-    out = []
-    for i in range(len(g)):
-        finite = bool(np.isfinite(pixels[i]).all())
-        out.append({
-            "png": encode_png_b64(windows[i]) if inside[i] else None,
-            "pixel": pixels[i].tolist() if finite else None,
-            "in_image": bool(inside[i]),
-        })
-    return out
+    return [{"png": encode_png_b64(windows[i]) if inside[i] else None,
+             "pixel": pixels[i].tolist() if np.isfinite(pixels[i]).all() else None,
+             "in_image": bool(inside[i])} for i in range(len(g))]
 
 
 class DetectionEngine:
@@ -227,8 +201,9 @@ class DetectionEngine:
 
     # ---- the work --------------------------------------------------------------------------
     def _job(self, parse: Callable[[], DetectRequest], enqueued: float, deadline: float,
-             timings: dict[str, float]) -> bytes:
-        """Parse (on this worker, not the event loop) and detect; the response JSON bytes, or Problem."""
+             timings: dict[str, float], header: dict[str, Any] | None) -> bytes:
+        """Parse (on this worker, not the event loop) and detect; the response JSON bytes, or Problem.  header:
+        the ROS header of a CDR payload, which parse() may fill in (Zenoh); it goes into the response."""
         start = time.perf_counter()
         with self._lock:
             self._running += 1
@@ -244,45 +219,37 @@ class DetectionEngine:
             model = self.registry.resolve(req.model, req.use_classifier and req.method == "gpd")
             try:
                 hand = req.hand_geometry()
-                cloud = ViewpointCloud(points=req.cloud.points, viewpoints=np.asarray(req.cloud.viewpoints, np.float32),
-                                       camera_source=(np.zeros(0, np.int32) if req.cloud.camera_source is None
-                                                      else req.cloud.camera_source))
-                params = detection_params(req)
+                cloud = req.to_cloud()
+                params = req.to_params()
             except WireError as exc:
                 raise from_wire(exc) from None
-            except (CloudError, ValueError) as exc:
-                text = str(exc)
-                field = text.split(" ", 1)[0] if text.startswith(("cloud.", "hand.")) else "body"
-                raise Problem(422, text, field) from None
             det: Detection | TemplateDetection
             ctx = current_request()
             if req.method == "templates":
-                det, body = self.templates.detect(req, cloud, hand)
-                request_id = body.pop("request_id")
+                det = self.templates.detect(req, cloud, hand)
+                request_id = det.detection_id or uuid.uuid4().hex
                 if ctx is not None:
                     ctx.id = request_id  # the request's later log lines and X-Request-ID carry the returned id
+                used_hand = self.templates.library.hand
             else:
                 det = self.registry.detector(model).detect(cloud, params, hand)
-                body = det.to_dict()
                 request_id = ctx.id if ctx is not None else uuid.uuid4().hex[:16]
                 self.templates.remember(request_id, cloud, det)
-                for i, g in enumerate(body["grasps"]):
-                    g["id"] = f"{request_id}-{i}"
+                used_hand = det.hand
             timings.update(det.timings)
             timings["detect"] = timings.get("total", 0.0)  # the detector's own wall time, before the engine's total
+            crops = None
             if req.crops is not None and isinstance(det, Detection):  # method "templates" refuses crops
                 t = time.perf_counter()
                 crops = crops_json(det, req.crops)
-                for g, c in zip(body["grasps"], crops, strict=True):
-                    g["crop"] = c
                 timings["crops"] = time.perf_counter() - t
             self.metrics.candidates.observe(det.num_candidates)
             self.metrics.grasps.observe(len(det.grasps))
             self.metrics.points.observe(det.num_points)
             timings["total"] = time.perf_counter() - enqueued + before
             self.metrics.observe_timings(timings)
-            body = {"request_id": request_id, "method": req.method, **body, "timings": timings}
-            return dumps(body)
+            return DetectResponse.from_detection(det, request_id=request_id, timings=timings, hand=used_hand,
+                                                 crops=crops, header=header or None).to_json()
         finally:
             elapsed = time.perf_counter() - start
             with self._lock:
@@ -291,28 +258,32 @@ class DetectionEngine:
                 if elapsed > 0.01 or self._avg_seconds < 0.01:  # refusals in microseconds say nothing of the load
                     self._avg_seconds = 0.8 * self._avg_seconds + 0.2 * elapsed
 
-    def submit(self, req: DetectRequest, timings: dict[str, float]) -> tuple[Future[bytes], float]:
+    def submit(self, req: DetectRequest, timings: dict[str, float], header: dict[str, Any] | None = None
+               ) -> tuple[Future[bytes], float]:
         """Admit a request (Problem 503 when full) and queue it; returns the future and its deadline."""
         self._admit()
-        return self.enqueue(lambda: req, timings)
+        return self.enqueue(lambda: req, timings, header)
 
-    def enqueue(self, parse: Callable[[], DetectRequest], timings: dict[str, float]) -> tuple[Future[bytes], float]:
+    def enqueue(self, parse: Callable[[], DetectRequest], timings: dict[str, float],
+                header: dict[str, Any] | None = None) -> tuple[Future[bytes], float]:
         """Queue an admitted request (admit() first): parse() runs on a worker, then the detection.  Returns
-        the future and its deadline; the place is given back when the future is done."""
+        the future and its deadline; the place is given back when the future is done.  header: a ROS header
+        for the response (Zenoh, CDR input), read after parse() ran."""
         now = time.perf_counter()
         deadline = now + self.settings.deadline_s
         context = contextvars.copy_context()  # the request id follows the work onto the worker thread
         try:
-            fut = self.executor.submit(context.run, self._job, parse, now, deadline, timings)
+            fut = self.executor.submit(context.run, self._job, parse, now, deadline, timings, header)
         except RuntimeError:  # executor shut down
             self._release()
             raise Problem(503, "server is shutting down", retry_after=1.0) from None
         fut.add_done_callback(self._release)
         return fut, deadline
 
-    def run_sync(self, req: DetectRequest, timings: dict[str, float] | None = None) -> bytes:
+    def run_sync(self, req: DetectRequest, timings: dict[str, float] | None = None,
+                 header: dict[str, Any] | None = None) -> bytes:
         """Blocking detect (Zenoh callbacks, CLI): response JSON bytes, or Problem."""
-        fut, deadline = self.submit(req, timings if timings is not None else {})
+        fut, deadline = self.submit(req, timings if timings is not None else {}, header)
         self.trim_after(fut)
         try:
             return fut.result(timeout=max(0.0, deadline - time.perf_counter()))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import base64
 import binascii
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import (
@@ -26,10 +26,16 @@ from pydantic import (
     model_validator,
 )
 
+from graspd.cloud import CloudError, ViewpointCloud
+from graspd.detector import Detection, DetectionParams
 from graspd.environment import Box, EnvironmentParams, Plane
 from graspd.hand import HAND_PRESETS, HandGeometry
+from graspd.templates import TemplateDetection
+from graspd.templates.demonstration import check_hand_pose
 from graspd_client import wire
 from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
+
+from .pngio import check_image_size, decode_png_rgb
 
 #: How /detect orders its grasps (selection.select); the OpenAPI descriptions and the README say the same.
 RANKING = (
@@ -66,16 +72,14 @@ ENCODED_ARRAY_SCHEMA: dict[str, Any] = {
 
 
 def _array(shape: tuple[int | None, ...], kind: str, dtype: str, finite: bool, description: str) -> Any:
-    """An Annotated numpy field decoded by the client codec; errors carry pydantic's field path."""
+    """An Annotated numpy field decoded by the client codec.  Its WireError names the sub-field relative to
+    this one ("" or ".data", ".dtype", ...); problems.from_validation appends it to pydantic's path."""
 
     def validate(value: Any) -> np.ndarray:
         if isinstance(value, list) and not value and shape == (None, 3):
             raise ValueError("empty (0 rows); send at least one point")
-        try:
-            return decode_array(value, shape=shape, kind=kind, dtype=None if kind == "i" else dtype,
-                                finite=finite, max_bytes=MAX_POINTS * 3 * 8)
-        except WireError as exc:
-            raise ValueError(f"{exc.field}: {exc.message}" if exc.field else exc.message) from None
+        return decode_array(value, shape=shape, kind=kind, dtype=None if kind == "i" else dtype,
+                            finite=finite, max_bytes=MAX_POINTS * 3 * 8)
 
     return Annotated[np.ndarray, PlainValidator(validate),
                      WithJsonSchema({**ENCODED_ARRAY_SCHEMA, "description": description})]
@@ -130,6 +134,15 @@ class Cloud(BaseModel):
                              f"got values in [{v.min()}, {v.max()}]")
         return v.astype(np.int32)
 
+    def to_cloud(self) -> ViewpointCloud:
+        """The detector's ViewpointCloud (points float32, viewpoints, one camera index per point)."""
+        try:
+            return ViewpointCloud(points=self.points, viewpoints=np.asarray(self.viewpoints, np.float32),
+                                  camera_source=(np.zeros(0, np.int32) if self.camera_source is None
+                                                 else self.camera_source))
+        except CloudError as exc:  # the validators above check what ViewpointCloud does; kept as a 422
+            raise WireError("cloud", str(exc)) from None
+
 
 Length = Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)]
 
@@ -138,6 +151,8 @@ class Hand(BaseModel):
     """Two-finger hand geometry (GPD names, metres): a named preset, optionally with overrides."""
 
     model_config = ConfigDict(extra="forbid")
+    #: The field a plain string fills ("panda" is {"preset": "panda"}): in JSON and as an upload query parameter.
+    STRING_FORM: ClassVar[str] = "preset"
     preset: str | None = Field(None, description=f"one of {sorted(HAND_PRESETS)}; default 'gpd'")
     finger_width: Length | None = Field(None, description="finger thickness along the closing direction (m)")
     hand_outer_diameter: Length | None = Field(None, description="outer span of the open fingers (m)")
@@ -156,7 +171,13 @@ class Hand(BaseModel):
             raise ValueError(f"unknown hand preset {v!r}; known: {sorted(HAND_PRESETS)}")
         return v
 
+    @model_validator(mode="after")
+    def _consistent(self) -> Hand:
+        self.geometry()  # HandGeometry checks the combination (outer diameter > 2 finger widths, ...): field hand
+        return self
+
     def geometry(self) -> HandGeometry:
+        """The preset with the overrides applied (consistent: checked when the request was validated)."""
         base = HAND_PRESETS[self.preset or "gpd"]
         overrides = {k: v for k, v in self.model_dump(exclude={"preset"}).items() if v is not None}
         return base.with_overrides(**overrides) if overrides else base
@@ -209,8 +230,6 @@ class CropsRequest(BaseModel):
             return None
         if v.size and (v.min() < 0 or v.max() > 255):
             raise ValueError("values must lie in [0, 255] (uint8)")
-        from .pngio import check_image_size
-
         check_image_size(v.shape[1], v.shape[0])  # at least 2x2, at most 8 MP (as a PNG)
         return v.astype(np.uint8)
 
@@ -232,17 +251,15 @@ class CropsRequest(BaseModel):
         if (self.image is None) == (self.image_png is None):
             raise ValueError("give exactly one of image (array) or image_png (base64 PNG)")
         if self.image_png is not None:
-            from .pngio import decode_png_rgb
-
             try:
                 self.image = decode_png_rgb(self.image_png)  # type: ignore[assignment]
             except ValueError as exc:
-                raise ValueError(f".image_png: {exc}") from None  # "." + name: from_validation names crops.image_png
+                raise WireError(".image_png", str(exc)) from None  # relative to crops (problems.from_validation)
         assert self.image is not None
         h, w = self.image.shape[:2]
         if not (0 <= self.intrinsics.cx <= w and 0 <= self.intrinsics.cy <= h):
-            raise ValueError(f".intrinsics: principal point ({self.intrinsics.cx:g}, {self.intrinsics.cy:g}) lies "
-                             f"outside the {w}x{h} image; intrinsics and image do not match")
+            raise WireError(".intrinsics", f"principal point ({self.intrinsics.cx:g}, {self.intrinsics.cy:g}) "
+                            f"lies outside the {w}x{h} image; intrinsics and image do not match")
         return self
 
     @field_validator("camera_pose")
@@ -259,6 +276,8 @@ class EnvironmentSpec(BaseModel):
     what is declared here) or "none" (no environment model: every point is an object point)."""
 
     model_config = ConfigDict(extra="forbid")
+    #: The field a plain string fills ("none" is {"mode": "none"}): in JSON and as an upload query parameter.
+    STRING_FORM: ClassVar[str] = "mode"
     mode: Literal["auto", "declared", "none"] = "auto"
     support_plane: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
         None, min_length=4, max_length=4,
@@ -351,12 +370,12 @@ class DetectRequest(BaseModel):
     @field_validator("hand", mode="before")
     @classmethod
     def _hand(cls, v: Any) -> Any:
-        return {"preset": v} if isinstance(v, str) else v
+        return {Hand.STRING_FORM: v} if isinstance(v, str) else v
 
     @field_validator("environment", mode="before")
     @classmethod
     def _environment(cls, v: Any) -> Any:
-        return {"mode": v} if isinstance(v, str) else v
+        return {EnvironmentSpec.STRING_FORM: v} if isinstance(v, str) else v
 
     @field_validator("gravity")
     @classmethod
@@ -377,13 +396,43 @@ class DetectRequest(BaseModel):
         return v
 
     def hand_geometry(self) -> HandGeometry | None:
-        if self.hand is None:
-            return None
-        assert isinstance(self.hand, Hand)
+        """The requested hand, None for the detector's own."""
+        return None if self.hand is None else self.hand.geometry()
+
+    def to_cloud(self) -> ViewpointCloud:
+        """The detector's ViewpointCloud of the request's cloud."""
+        return self.cloud.to_cloud()
+
+    def workspace_bounds(self) -> tuple[float, float, float, float, float, float] | None:
+        ws = self.workspace
+        return None if ws is None else (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5])
+
+    def to_params(self) -> DetectionParams:
+        """The detector's knobs (metres, degrees, cloud frame).  Every limit was checked by validation (the
+        bounds in graspd_client.wire); WireError naming the body if DetectionParams still refuses."""
+        approach, gravity = self.approach, self.gravity
         try:
-            return self.hand.geometry()
+            return DetectionParams(
+                num_samples=self.num_samples,
+                workspace=self.workspace_bounds(),
+                max_grasps=self.max_grasps,
+                min_score=self.min_score,
+                approach_direction=None if approach is None else (approach.direction[0], approach.direction[1],
+                                                                  approach.direction[2]),
+                approach_max_angle_deg=None if approach is None else approach.max_angle_deg,
+                min_aperture=self.min_aperture,
+                max_aperture=self.max_aperture,
+                use_selection=self.selection,
+                use_clustering=self.clustering,
+                use_classifier=self.use_classifier,
+                gravity=None if gravity is None else (gravity[0], gravity[1], gravity[2]),
+                exclude_support_plane=self.exclude_support_plane,
+                environment=EnvironmentParams() if self.environment is None else self.environment.params(),
+                approach_distance=self.approach_distance,
+                seed=self.seed,
+            )
         except ValueError as exc:
-            raise WireError("hand", str(exc).removeprefix("hand.")) from None
+            raise WireError("body", str(exc)) from None
 
 
 Vec3Out = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -416,20 +465,104 @@ class GraspOut(BaseModel):
                                    "better)")
 
 
+class PlaneOut(BaseModel):
+    normal: Vec3Out = Field(description="unit normal, pointing up from the support")
+    offset: float = Field(description="d of normal . p + d = 0 (m)")
+
+
+class BoxOut(BaseModel):
+    centre: Vec3Out = Field(description="box centre (m, cloud frame)")
+    rotation: list[list[float]] = Field(description="3x3 row-major; columns are the box axes")
+    half_extents: Vec3Out = Field(description="half sizes along the box axes (m)")
+
+
+class EnvironmentOut(BaseModel):
+    """What the environment stage found (method gpd)."""
+
+    mode: str = Field(description="auto, declared or none")
+    support: PlaneOut | None = Field(description="the support plane, null when none was found or declared")
+    walls: list[BoxOut] = Field(description="container walls found in the cloud")
+    boxes: list[BoxOut] = Field(description="boxes the request declared")
+    up: Vec3Out | None = Field(description="unit up direction (cloud frame), null when unknown")
+    counts: dict[str, int] = Field(description="points per label (object, support, wall, box, ...)")
+
+
+class RosStamp(BaseModel):
+    sec: int
+    nanosec: int
+
+
+class RosHeader(BaseModel):
+    """std_msgs/Header of a CDR sensor_msgs/PointCloud2 input (Zenoh only)."""
+
+    frame_id: str
+    stamp: RosStamp
+
+
+def gpd_grasp_id(request_id: str, k: int) -> str:
+    """The id of the k-th GPD grasp of a detection ("<request id>-<k>"; feedback parses it back)."""
+    return f"{request_id}-{k}"
+
+
 class DetectResponse(BaseModel):
+    """POST /detect answer and the Zenoh reply: built once, by from_detection, and serialised by to_json.  Keys
+    that do not apply to a method (environment, num_entries, header, a grasp's crop or template fields) are
+    left out of the JSON rather than sent as null."""
+
     request_id: str
     method: Literal["gpd", "templates"] = Field("gpd", description="the detector that answered")
     grasps: list[GraspOut] = Field(description=RANKING)
-    model: str | None = Field(description="classifier used; null when unscored or method templates")
-    scored: bool = Field(description="whether grasps carry scores: gpd, a classifier ran (else scores null); "
-                         "templates, always (match quality)")
     timings: dict[str, float] = Field(description="seconds per stage: decode, queue, preprocess, scene, sample, "
                                       "encode, score, select, crops; detect (the detector's wall time, stages "
                                       "included); total (decode to response, in the server)")
+    model: str | None = Field(description="classifier used; null when unscored or method templates")
+    scored: bool = Field(description="whether grasps carry scores: gpd, a classifier ran (else scores null); "
+                         "templates, always (match quality)")
     num_candidates: int
     num_points: int = Field(description="points after preprocessing")
     hand: dict[str, float] = Field(description="hand geometry used (m)")
+    environment: EnvironmentOut | None = Field(None, description="gpd: what the environment stage found")
     num_entries: int | None = Field(None, description="templates: library entries matched against")
+    header: RosHeader | None = Field(None, description="Zenoh, CDR PointCloud2 input only: its ROS header")
+
+    @classmethod
+    def from_detection(cls, det: Detection | TemplateDetection, *, request_id: str, timings: dict[str, float],
+                       hand: HandGeometry, crops: list[dict[str, Any]] | None = None,
+                       header: dict[str, Any] | None = None) -> DetectResponse:
+        """The response to a detection, validated against this model (so what is sent cannot drift from what
+        is documented).  Grasp ids are assigned here: gpd "<request id>-<k>", templates the ids the library
+        recorded.  crops: one CropOut-shaped dict per grasp; header: the ROS header of a CDR input (Zenoh).
+        Validating a 100-grasp answer costs ~0.3 ms (pydantic-core), about what building its dicts costs."""
+        g = det.grasps
+        templates = isinstance(det, TemplateDetection)
+        ids = det.grasp_ids if isinstance(det, TemplateDetection) else [gpd_grasp_id(request_id, k)
+                                                                        for k in range(len(g))]
+        cols = (ids, g.positions.tolist(), g.approach.tolist(), g.binormal.tolist(), g.axis.tolist(),
+                g.widths.tolist(), g.scores.tolist(), g.samples.tolist(), g.poses.tolist(), g.quat_xyzw.tolist())
+        grasps: list[dict[str, Any]] = [
+            {"id": gid, "position": pos, "approach": app, "binormal": bn, "axis": axis, "width": width,
+             "score": None if score != score else score, "sample": sample, "pose": pose, "quat_xyzw": quat}
+            for gid, pos, app, bn, axis, width, score, sample, pose, quat in zip(*cols, strict=True)]
+        if crops is not None:
+            for grasp, crop in zip(grasps, crops, strict=True):
+                grasp["crop"] = crop
+        out: dict[str, Any] = {"request_id": request_id, "method": "templates" if templates else "gpd",
+                               "grasps": grasps, "timings": timings, "num_candidates": det.num_candidates,
+                               "num_points": det.num_points, "hand": hand.to_dict()}
+        if isinstance(det, TemplateDetection):
+            for grasp, entry, m in zip(grasps, det.entry_ids.tolist(), det.mismatch.tolist(), strict=True):
+                grasp.update(template_entry=entry, mismatch=m if math.isfinite(m) else None)
+            out.update(model=None, scored=True, num_entries=det.num_entries)
+        else:
+            env = det.environment
+            out.update(model=det.model, scored=det.scored, environment=None if env is None else env.to_dict())
+        if header is not None:
+            out["header"] = header
+        return cls.model_validate(out)
+
+    def to_json(self) -> bytes:
+        """The JSON bytes sent: compact, with the keys from_detection set (the others are not sent)."""
+        return self.model_dump_json(exclude_unset=True).encode()
 
 
 class FieldProblem(BaseModel):
@@ -458,13 +591,8 @@ class ModelsResponse(BaseModel):
 
 
 def _check_hand_pose(v: np.ndarray) -> np.ndarray:
-    from graspd.templates.demonstration import check_hand_pose
-    from graspd.templates.geometry import TemplateError
-
-    try:
-        return check_hand_pose(v)
-    except TemplateError as exc:
-        raise ValueError(str(exc).removeprefix("hand_pose").lstrip(": ")) from None
+    """The templates' own check of a demonstrated pose (orthonormal, right-handed); field hand_pose."""
+    return check_hand_pose(v)  # a TemplateError is a ValueError: pydantic reports it under hand_pose
 
 
 class DemonstrationRequest(BaseModel):

@@ -21,7 +21,6 @@ from __future__ import annotations
 import logging
 import re
 import threading
-import uuid
 from collections import OrderedDict
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -38,8 +37,9 @@ from graspd.detector import Detection
 from graspd.hand import HandGeometry, hand_preset
 from graspd.templates import TemplateDetection, TemplateDetector, TemplateError, TemplateLibrary, UnknownGrasp
 from graspd.templates.store import redact_text, redact_url
+from graspd_client.codec import WireError
 
-from .problems import Problem
+from .problems import Problem, from_error, from_wire
 from .schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
 from .settings import Settings
 
@@ -48,19 +48,17 @@ log = logging.getLogger("graspd.server")
 #: DetectRequest fields method "templates" uses; any other field set in a request is refused (422).
 TEMPLATE_FIELDS = frozenset({"method", "cloud", "workspace", "max_grasps", "hand"})
 
+#: A GPD grasp id, schemas.gpd_grasp_id: "<request id>-<k>" (request ids are 16 hex digits).
 _GPD_ID = re.compile(r"^([0-9a-f]{16})-(\d+)$")
-_FIELD = re.compile(r"^[a-z_][a-z_.]*")
+
+#: The fields a template error may name: those of the requests this service handles.
+_REQUEST_FIELDS = frozenset(DetectRequest.model_fields) | frozenset(DemonstrationRequest.model_fields) | \
+    frozenset(FeedbackRequest.model_fields)
 
 
-def template_problem(exc: ValueError, status: int = 422) -> Problem:
-    """A Problem from a TemplateError/CloudError, whose message starts with the field it names."""
-    text = str(exc)
-    if isinstance(exc, UnknownGrasp):
-        status = 404
-    m = _FIELD.match(text)
-    if m is None:
-        return Problem(status, text, "body")
-    return Problem(status, text[m.end():].lstrip(": ") or text, m.group(0))
+def template_problem(exc: ValueError) -> Problem:
+    """A Problem from a TemplateError/CloudError (404 for a grasp id no detection returned)."""
+    return from_error(exc, _REQUEST_FIELDS, status=404 if isinstance(exc, UnknownGrasp) else 422)
 
 
 @dataclass(frozen=True)
@@ -188,32 +186,24 @@ class TemplateService:
             return self.library.summary()
 
     # ---- detection -----------------------------------------------------------------------------
-    def detect(self, req: DetectRequest, cloud: ViewpointCloud, hand: HandGeometry | None
-               ) -> tuple[TemplateDetection, dict[str, Any]]:
-        """Method "templates": the detection and its response body (with request_id; the engine adds
-        timings).  Grasp ids are "<detection id>.<k>", recorded in the library for feedback."""
+    def detect(self, req: DetectRequest, cloud: ViewpointCloud, hand: HandGeometry | None) -> TemplateDetection:
+        """Method "templates": the detection (the engine builds the response).  Grasp ids are
+        "<detection id>.<k>", recorded in the library for feedback."""
         unused = sorted(set(req.model_fields_set) - TEMPLATE_FIELDS)
         if unused:
             raise Problem(422, f"not used by method 'templates' (it uses {sorted(TEMPLATE_FIELDS)})", unused[0])
         with self.database():
             return self._detect(req, cloud, hand)
 
-    def _detect(self, req: DetectRequest, cloud: ViewpointCloud, hand: HandGeometry | None
-                ) -> tuple[TemplateDetection, dict[str, Any]]:
+    def _detect(self, req: DetectRequest, cloud: ViewpointCloud, hand: HandGeometry | None) -> TemplateDetection:
         self._check_hand(hand)
-        ws = req.workspace
         try:
-            det = self.detector.detect(cloud, max_grasps=req.max_grasps,
-                                       workspace=None if ws is None else (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]))
+            det = self.detector.detect(cloud, max_grasps=req.max_grasps, workspace=req.workspace_bounds())
         except (TemplateError, CloudError) as exc:
             raise template_problem(exc) from None
         if det.detection_id is not None:  # bound the store: keep the newest template_detections
             self.library.prune_detections(self.settings.template_detections)
-        body = det.to_dict()
-        body.update(request_id=det.detection_id or uuid.uuid4().hex, model=None, scored=True,
-                    hand=self.library.hand.to_dict())
-        body.pop("detection_id", None)
-        return det, body
+        return det
 
     def remember(self, request_id: str, cloud: ViewpointCloud, det: Detection) -> None:
         """Keep what feedback on this GPD detection's grasps needs (ids "<request_id>-<k>")."""
@@ -227,12 +217,11 @@ class TemplateService:
             return self._demonstrate(req)
 
     def _demonstrate(self, req: DemonstrationRequest) -> dict[str, Any]:
+        self._check_hand(None if req.hand is None else req.hand.geometry())
         try:
-            hand = None if req.hand is None else req.hand.geometry()
-        except ValueError as exc:
-            raise Problem(422, str(exc), "hand") from None
-        self._check_hand(hand)
-        cloud = cloud_of(req.cloud)
+            cloud = req.cloud.to_cloud()
+        except WireError as exc:
+            raise from_wire(exc) from None
         ws = req.workspace
         try:
             entry = self.library.add_demonstration(
@@ -276,13 +265,3 @@ class TemplateService:
             raise Problem(404, f"{grasp_id!r}: that detection returned {len(item.poses)} grasps", "grasp_id")
         image = grasp_image(item.cloud, item.poses[k], float(item.widths[k]), item.hand, "15")
         return self.library.add_outcome(grasp_id, success, item.poses[k], float(item.widths[k]), image, "15")
-
-
-def cloud_of(cloud: Any) -> ViewpointCloud:
-    """The ViewpointCloud of a validated request Cloud (schemas.Cloud)."""
-    try:
-        return ViewpointCloud(points=cloud.points, viewpoints=np.asarray(cloud.viewpoints, np.float32),
-                              camera_source=(np.zeros(0, np.int32) if cloud.camera_source is None
-                                             else cloud.camera_source))
-    except CloudError as exc:
-        raise template_problem(exc) from None

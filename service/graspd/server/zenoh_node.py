@@ -353,7 +353,8 @@ class ZenohNode:
             log.exception("zenoh detect failed", extra={"request_id": ctx.id})
             self._finish(query, t0, ctx, internal_error(ctx.id))
             return
-        header: dict[str, Any] = {}  # the ROS header of a CDR payload, filled in on the worker
+        header: dict[str, Any] = {}  # the ROS header of a CDR payload, filled in on the worker; the engine puts
+        # it into the response before serialising it
 
         def parse() -> DetectRequest:
             req, ros_header = self.request_from_payload(self.payload_of(query))
@@ -361,7 +362,7 @@ class ZenohNode:
             return req
 
         try:
-            fut, _deadline = self.engine.enqueue(parse, {"read": time.perf_counter() - t0})
+            fut, _deadline = self.engine.enqueue(parse, {"read": time.perf_counter() - t0}, header)
         except Problem as exc:  # shutting down (the place was given back)
             self._finish(query, t0, ctx, exc)
             return
@@ -370,7 +371,7 @@ class ZenohNode:
             log.exception("zenoh detect failed", extra={"request_id": ctx.id})
             self._finish(query, t0, ctx, internal_error(ctx.id))
             return
-        fut.add_done_callback(lambda f: self._reply(query, f, header, t0, key, ctx))
+        fut.add_done_callback(lambda f: self._reply(query, f, t0, key, ctx))
         self.engine.trim_after(fut)
         if self.settings.deadline_s:
             timer = threading.Timer(self.settings.deadline_s, self._expire, (query, fut, t0, ctx))
@@ -383,17 +384,13 @@ class ZenohNode:
             self._finish(query, t0, ctx, Problem(
                 504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline"))
 
-    def _reply(self, query: Any, fut: Future[bytes], header: dict[str, Any], t0: float, key: str,
-               ctx: RequestContext) -> None:
+    def _reply(self, query: Any, fut: Future[bytes], t0: float, key: str, ctx: RequestContext) -> None:
         if fut.cancelled():
             return
         try:
             exc = fut.exception()
             if exc is None:
-                body = fut.result()
-                if header:
-                    body = json.dumps({**json.loads(body), "header": header}).encode()
-                self._finish(query, t0, ctx, None, body, key=key)
+                self._finish(query, t0, ctx, None, fut.result(), key=key)
             elif isinstance(exc, Problem):
                 self._finish(query, t0, ctx, exc)
             else:
@@ -513,11 +510,7 @@ class ZenohNode:
         ctx = begin_request()
         try:
             req, header = self.request_from_payload(payload)
-            body = self.engine.run_sync(req, {"decode": time.perf_counter() - t0})
-            out = json.loads(body)
-            if header is not None:
-                out["header"] = header
-            self._publisher.put(json.dumps(out).encode())
+            self._publisher.put(self.engine.run_sync(req, {"decode": time.perf_counter() - t0}, header))
             outcome = "ok"
         except Problem as exc:
             self._publisher.put(error_payload(exc, ctx.id))

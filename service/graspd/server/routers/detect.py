@@ -16,48 +16,13 @@ from ..deps import Authorized, State
 from ..engine import parse_request
 from ..problems import Problem
 from ..schemas import DetectRequest, DetectResponse, ErrorBody
-from ..uploads import sniff, upload_request
+from ..uploads import openapi_parameters, sniff, upload_request
 
 router = APIRouter(tags=["detect"])
 log = logging.getLogger("graspd.server")
 
-UPLOAD_PARAMS: list[dict[str, Any]] = [
-    {"name": "viewpoint", "in": "query", "required": False, "schema": {"type": "string"},
-     "description": "camera position 'x,y,z' (m) for PCD/PLY uploads; may repeat; default: the PCD "
-                    "VIEWPOINT header, else the origin"},
-    {"name": "model", "in": "query", "required": False, "schema": {"type": "string"}},
-    {"name": "hand", "in": "query", "required": False, "schema": {"type": "string"},
-     "description": "hand preset name"},
-    {"name": "num_samples", "in": "query", "required": False, "schema": {"type": "integer"}},
-    {"name": "max_grasps", "in": "query", "required": False, "schema": {"type": "integer"}},
-    {"name": "min_score", "in": "query", "required": False, "schema": {"type": "number"}},
-    {"name": "workspace", "in": "query", "required": False, "schema": {"type": "string"},
-     "description": "'xmin,xmax,ymin,ymax,zmin,zmax' (m)"},
-    {"name": "selection", "in": "query", "required": False, "schema": {"type": "boolean"}},
-    {"name": "clustering", "in": "query", "required": False, "schema": {"type": "boolean"}},
-    {"name": "seed", "in": "query", "required": False, "schema": {"type": "integer"}},
-    {"name": "method", "in": "query", "required": False, "schema": {"type": "string", "enum": ["gpd", "templates"]},
-     "description": "detector (default gpd)"},
-    {"name": "use_classifier", "in": "query", "required": False, "schema": {"type": "boolean"},
-     "description": "false: no classifier runs (scores null)"},
-    {"name": "gravity", "in": "query", "required": False, "schema": {"type": "string"},
-     "description": "'x,y,z': direction gravity pulls (cloud frame); ranks by score x utility J(h)"},
-    {"name": "exclude_support_plane", "in": "query", "required": False, "schema": {"type": "boolean"},
-     "description": "override: true samples nothing on the support, false samples everywhere (default: object "
-                    "points only)"},
-    {"name": "environment", "in": "query", "required": False,
-     "schema": {"type": "string", "enum": ["auto", "declared", "none"]},
-     "description": "environment model (default auto: support plane and walls found in the cloud)"},
-    {"name": "approach_distance", "in": "query", "required": False, "schema": {"type": "number"},
-     "description": "pre-grasp distance (m) over which the approach path must be free (default 0.05)"},
-    {"name": "min_aperture", "in": "query", "required": False, "schema": {"type": "number"},
-     "description": "least grasp width (m)"},
-    {"name": "max_aperture", "in": "query", "required": False, "schema": {"type": "number"},
-     "description": "largest grasp width (m)"},
-]
-
 OPENAPI_EXTRA: dict[str, Any] = {
-    "parameters": UPLOAD_PARAMS,
+    "parameters": openapi_parameters(),  # generated from DetectRequest (uploads.QUERY_PARAMS)
     "requestBody": {
         "required": True,
         "description": "a DetectRequest (JSON), or a PCD/PLY file (binary; query parameters carry the options)",
@@ -113,6 +78,7 @@ def parse_body(data: bytes, content_type: str, query: Mapping[str, str], viewpoi
     summary="Ranked 6-DOF grasps for a point cloud",
     description="Grasps in the frame of the cloud (metres), best first.  Each grasp follows gpd_ros GraspConfig: "
                 "position is the centre of the hand base, rotation columns [approach, binormal, axis].",
+    response_model=DetectResponse,  # the engine builds and validates it (DetectResponse.from_detection)
     response_class=Response,
     responses={
         200: {"model": DetectResponse, "description": "grasps, timings, model used",
@@ -147,7 +113,7 @@ async def detect(request: Request, state: State) -> Response:
         timings = {"read": time.perf_counter() - t0}
         body = await state.engine.run_admitted(lambda: parse_body(data, content_type, query, viewpoints), timings)
         outcome, status = "ok", 200
-        return Response(body, media_type="application/json")
+        return Response(body, media_type="application/json")  # DetectResponse.to_json(), made on the worker
     except ClientDisconnect:  # the client went away while sending: nothing to answer (RequestGuard logs it)
         status, outcome = 499, "disconnected"
         raise

@@ -1,0 +1,86 @@
+"""The /detect answer is built once, by DetectResponse.from_detection: the same keys and values the detectors'
+own to_dict() reports (plus ids), validated against the model the route declares; upload query parameters
+are generated from DetectRequest."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+from fastapi.testclient import TestClient
+from scipy.spatial.transform import Rotation
+
+from graspd.detector import Detection
+from graspd.environment import Environment
+from graspd.grasp import GraspSet
+from graspd.hand import HandGeometry
+from graspd.server.schemas import DetectRequest, DetectResponse
+from graspd.server.uploads import QUERY_PARAMS, openapi_parameters
+from graspd.templates import TemplateDetection
+from graspd_client import wire
+
+GPD_KEYS = {"request_id", "method", "grasps", "timings", "model", "scored", "num_candidates", "num_points", "hand",
+            "environment"}
+TEMPLATE_KEYS = GPD_KEYS - {"environment"} | {"num_entries"}
+
+
+def _grasps(n: int, seed: int = 0) -> GraspSet:
+    rng = np.random.default_rng(seed)
+    scores = rng.random(n)
+    scores[::7] = np.nan  # unscored grasps answer null
+    return GraspSet(positions=rng.normal(size=(n, 3)), rotations=Rotation.random(n, random_state=seed).as_matrix(),
+                    widths=rng.random(n) * 0.08, scores=scores, samples=rng.normal(size=(n, 3)))
+
+
+def test_gpd_response_matches_the_detection() -> None:
+    det = Detection(grasps=_grasps(100), timings={"preprocess": 0.01, "total": 0.2}, model="m", scored=True,
+                    num_candidates=400, num_points=4000, hand=HandGeometry(), environment=Environment.empty(4000))
+    timings = {**det.timings, "queue": 0.001}
+    crops = [{"png": None, "pixel": None, "in_image": False}] * 100
+    out = json.loads(DetectResponse.from_detection(det, request_id="0123456789abcdef", timings=timings,
+                                                   hand=det.hand, crops=crops).to_json())
+    expected = det.to_dict()
+    for k, g in enumerate(expected["grasps"]):
+        g.update(id=f"0123456789abcdef-{k}", crop=crops[k])
+    assert out == {"request_id": "0123456789abcdef", "method": "gpd", **expected, "timings": timings}
+    assert set(out) == GPD_KEYS
+
+
+def test_template_response_matches_the_detection() -> None:
+    n = 5
+    mismatch = np.array([0.5, 1.0, np.inf, 2.0, 3.0])
+    det = TemplateDetection(grasps=_grasps(n, 1), grasp_ids=[f"d1.{k}" for k in range(n)],
+                            entry_ids=np.arange(n, dtype=np.int64) + 1, mismatch=mismatch,
+                            frames=np.tile(np.eye(4), (n, 1, 1)), timings={"total": 0.1}, num_candidates=9,
+                            num_points=300, num_entries=2, detection_id="d1")
+    hand = HandGeometry()
+    out = json.loads(DetectResponse.from_detection(det, request_id="d1", timings=dict(det.timings),
+                                                   hand=hand).to_json())
+    expected = det.to_dict()
+    expected.pop("detection_id")
+    assert out == {"request_id": "d1", **expected, "model": None, "scored": True, "hand": hand.to_dict()}
+    assert set(out) == TEMPLATE_KEYS and out["grasps"][2]["mismatch"] is None
+
+
+def test_zenoh_header_is_part_of_the_model() -> None:
+    det = Detection(grasps=_grasps(2), timings={}, model=None, scored=False, num_candidates=2, num_points=10)
+    header = {"frame_id": "cam", "stamp": {"sec": 1, "nanosec": 2}}
+    out = json.loads(DetectResponse.from_detection(det, request_id="r", timings={}, hand=det.hand,
+                                                   header=header).to_json())
+    assert out["header"] == header and "crop" not in out["grasps"][0] and out["environment"] is None
+
+
+def test_http_answers_validate_against_the_declared_model(client: TestClient, body: dict[str, Any]) -> None:
+    out = client.post("/detect", json=body).json()
+    assert set(out) == GPD_KEYS
+    assert DetectResponse.model_validate(out).model_dump(exclude_unset=True) == out
+
+
+def test_upload_query_parameters_come_from_detect_request(client: TestClient) -> None:
+    objects = {"cloud", "approach", "crops"}  # no query form: nested objects
+    assert set(QUERY_PARAMS) == {"viewpoint"} | set(DetectRequest.model_fields) - objects
+    documented = client.get("/openapi.json").json()["paths"]["/detect"]["post"]["parameters"]
+    assert documented == openapi_parameters()
+    limits = {p["name"]: p["schema"] for p in documented}
+    assert limits["num_samples"]["maximum"] == wire.MAX_NUM_SAMPLES and limits["hand"]["type"] == "string"
