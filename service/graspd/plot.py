@@ -304,7 +304,7 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
                     ax.annotate(str(k + 1), t2[k], fontsize=7, weight="bold", ha="center", va="center",
                                 color="black", bbox={"boxstyle": "round,pad=0.12", "fc": cmap(norm(values[k])),
                                                      "ec": "black", "lw": 0.4, "alpha": 0.85})
-        ax.set_aspect("equal", adjustable="datalim" if col else "box")
+        ax.set_aspect("equal", adjustable="box")
         ax.set_xlabel(xlabel, fontsize=8)
         ax.set_ylabel(ylabel, fontsize=8)
         ax.tick_params(labelsize=7)
