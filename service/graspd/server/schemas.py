@@ -532,7 +532,8 @@ class DetectResponse(BaseModel):
         """The response to a detection, validated against this model (so what is sent cannot drift from what
         is documented).  Grasp ids are assigned here: gpd "<request id>-<k>", templates the ids the library
         recorded.  crops: one CropOut-shaped dict per grasp; header: the ROS header of a CDR input (Zenoh).
-        Validating a 100-grasp answer costs ~0.3 ms (pydantic-core), about what building its dicts costs."""
+        Cost at 100 grasps: ~1.2 ms to build, validate (pydantic-core) and serialise (to_json), against ~0.9 ms
+        for the unvalidated dicts and orjson this replaced: a fraction of a percent of a detection."""
         g = det.grasps
         templates = isinstance(det, TemplateDetection)
         ids = det.grasp_ids if isinstance(det, TemplateDetection) else [gpd_grasp_id(request_id, k)

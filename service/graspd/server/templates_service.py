@@ -33,10 +33,11 @@ import sqlalchemy as sa
 from numpy.typing import NDArray
 
 from graspd.cloud import CloudError, ViewpointCloud
+from graspd.database import redact_text, redact_url
 from graspd.detector import Detection
 from graspd.hand import HandGeometry, hand_preset
 from graspd.templates import TemplateDetection, TemplateDetector, TemplateError, TemplateLibrary, UnknownGrasp
-from graspd.templates.store import redact_text, redact_url
+from graspd.templates.library import parse_grasp_id
 from graspd_client.codec import WireError
 
 from .problems import Problem, from_error, from_wire
@@ -240,6 +241,12 @@ class TemplateService:
     def _feedback(self, req: FeedbackRequest) -> dict[str, Any]:
         gid = req.grasp_id
         gpd = _GPD_ID.match(gid)
+        if gpd is None:
+            try:
+                parse_grasp_id(gid)  # the template id form; neither form: 422 naming grasp_id
+            except TemplateError:
+                raise Problem(422, f"must be an id from a detect response ('<request id>-<k>' for gpd, "
+                              f"'<detection id>.<k>' for templates), got {gid!r}", "grasp_id") from None
         try:
             if gpd is None:
                 fb = self.library.add_feedback(gid, req.success)
@@ -248,9 +255,6 @@ class TemplateService:
                 fb = self._gpd_feedback(gid, gpd.group(1), int(gpd.group(2)), req.success)
                 method = "gpd"
         except (TemplateError, CloudError) as exc:
-            if not isinstance(exc, UnknownGrasp) and str(exc).startswith("grasp_id must look like"):
-                raise Problem(422, f"must be an id from a detect response ('<request id>-<k>' for gpd, "
-                              f"'<detection id>.<k>' for templates), got {gid!r}", "grasp_id") from None
             raise template_problem(exc) from None
         return {**fb.to_dict(), "method": method}
 
