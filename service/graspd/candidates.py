@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from .grasp import GraspSet
 from .hand import HandGeometry
@@ -32,7 +33,10 @@ class SamplingParams:
     is True: the region of interest), or exactly sample_indices;
     |Phi| orientations in [-pi/2, pi/2) and |Y| finger placements; frame_radius r (m).  clear_behind (m):
     how far behind the finger roots the hand's body and approach path must be free of points (palm depth
-    plus approach distance); None checks only the points within the hand's own reach, as GPD does."""
+    plus approach distance); None checks only the points within the hand's own reach, as GPD does.
+    obstacles: the points the hands test against (default all); support (unit normal n, offset d: the plane
+    n.p + d = 0, n toward the free side) stops each hand support_clearance (m) short of the plane in closed
+    form, so the support's points need not be among the obstacles (most of a tabletop cloud is table)."""
 
     num_samples: int = 1000
     num_orientations: int = 8
@@ -42,6 +46,9 @@ class SamplingParams:
     sample_indices: tuple[int, ...] | None = None
     sample_pool: NDArray[np.bool_] | None = None
     clear_behind: float | None = None
+    obstacles: NDArray[np.bool_] | None = None
+    support: tuple[tuple[float, float, float], float] | None = None
+    support_clearance: float = 0.0
 
 
 def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float
@@ -126,8 +133,13 @@ def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None
     sample_idx, frames = sample_idx[ok], frames[ok]
     if len(sample_idx) == 0:
         return empty
+    if p.obstacles is None:
+        tree, obstacle_idx = scene.tree, None
+    else:
+        obstacle_idx = np.flatnonzero(p.obstacles)
+        tree = cKDTree(scene.points[obstacle_idx])
     # Chunks of samples keep the neighbour arrays small: time stays linear in the number of samples.
-    parts = [_search_chunk(scene, hand, p, sample_idx[a : a + CHUNK], frames[a : a + CHUNK])
+    parts = [_search_chunk(scene, hand, p, sample_idx[a : a + CHUNK], frames[a : a + CHUNK], tree, obstacle_idx)
              for a in range(0, len(sample_idx), CHUNK)]
     offsets = np.cumsum([0] + [len(g) for g, _ in parts])
     region = ClosingRegionPoints(
@@ -138,9 +150,35 @@ def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None
     return GraspSet.concatenate([g for g, _ in parts]), region
 
 
+def _support_limit(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.float32],
+                   frames: NDArray[np.float64], phis: NDArray[np.float64], s_grid: NDArray[np.float64],
+                   behind: float) -> NDArray[np.float64]:
+    """(samples, orientations, placements) furthest fingertip depth (m past the sample) that keeps the whole
+    hand, and its path back by `behind`, support_clearance above the support plane; -inf where no depth does."""
+    assert p.support is not None
+    n = np.asarray(p.support[0], np.float64)
+    height = samples.astype(np.float64) @ n + p.support[1] - p.support_clearance  # (S,)
+    nf = frames.transpose(0, 2, 1) @ n  # (S, 3): n in each sample frame
+    c, s_ = np.cos(phis)[None, :], np.sin(phis)[None, :]
+    na = c * nf[:, 0:1] + s_ * nf[:, 1:2]  # (S, Phi): n . approach
+    nb = -s_ * nf[:, 0:1] + c * nf[:, 1:2]  # n . binormal
+    od, hd, hh = hand.hand_outer_diameter, hand.hand_depth, hand.hand_height
+    y_lo, y_hi = s_grid - od / 2.0, s_grid + od / 2.0  # (Y,) the hand's extent across
+    low_y = np.minimum(y_lo[None, None, :] * nb[:, :, None], y_hi[None, None, :] * nb[:, :, None])
+    base = height[:, None, None] + low_y - (hh / 2.0) * np.abs(nf[:, 2])[:, None, None]  # lowest point at x = 0
+    na3 = na[:, :, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        toward = base / np.maximum(-na3, 1e-12)  # na < 0: the fingertips (x = tip) come down first
+    # na >= 0: the back of the hand and its path (x = tip - hd - behind) is lowest; deeper only lifts it
+    away_ok = base + (-(hd + behind)) * na3 >= 0.0
+    return np.where(na3 < 0.0, toward, np.where(away_ok, np.inf, -np.inf))
+
+
 def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_idx: NDArray[np.int64],
-                  frames: NDArray[np.float64]) -> tuple[GraspSet, ClosingRegionPoints]:
-    """Algorithm 2 steps 5-10 for a batch of samples with their frames."""
+                  frames: NDArray[np.float64], tree: cKDTree, obstacle_idx: NDArray[np.int64] | None
+                  ) -> tuple[GraspSet, ClosingRegionPoints]:
+    """Algorithm 2 steps 5-10 for a batch of samples with their frames; tree indexes the obstacle points
+    (scene indices obstacle_idx, or all scene points when None)."""
     s_grid = finger_offsets(hand, p.num_finger_placements)
     phis = orientations(p.num_orientations)
     od, fw, hd, hh = hand.hand_outer_diameter, hand.finger_width, hand.hand_depth, hand.hand_height
@@ -150,7 +188,9 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     # Neighbours that can touch any hand of this sample, in the sample frame, within the hand's height.
     behind = 0.0 if p.clear_behind is None else p.clear_behind
     reach = float(np.sqrt(y_max**2 + (hd + behind) ** 2 + (hh / 2) ** 2))
-    sid, idx = ball_pairs(scene.tree, samples, reach)
+    sid, idx = ball_pairs(tree, samples, reach)
+    if obstacle_idx is not None:
+        idx = obstacle_idx[idx]
     d = scene.points[idx] - samples[sid]
     fr = frames.astype(np.float32)
     z = np.einsum("tj,tj->t", d, fr[sid, :, 2])
@@ -185,6 +225,10 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
         right = depth_min[:, :, bin_range(s + od / 2 - fw, s + od / 2)].min(axis=2)
         palm = depth_min[:, :, bin_range(s - od / 2, s + od / 2)].min(axis=2) + hd
         tip[:, :, j] = np.minimum(np.minimum(left, right), palm)
+    # the palm never passes the sample (it is always an obstacle when the obstacles hold it)
+    np.minimum(tip, hd, out=tip)
+    if p.support is not None:
+        np.minimum(tip, _support_limit(p, hand, samples, frames, phis, s_grid, behind), out=tip)
     valid = tip >= hand.init_bite
 
     # Middle of the valid finger placements for each (sample, orientation).

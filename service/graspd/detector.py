@@ -178,10 +178,17 @@ class GraspDetector:
             pool = env.object_mask
         else:
             pool = ~support_plane_mask(prepared.points)
+        # the support is a plane the hands stop short of in closed form, not thousands of points to test
+        plane = env.support if modelled else None
         sampling = SamplingParams(num_samples=p.num_samples, num_orientations=p.num_orientations,
                                   num_finger_placements=p.num_finger_placements, frame_radius=p.frame_radius,
                                   seed=p.seed, sample_pool=pool,
-                                  clear_behind=h.palm_depth + p.approach_distance if modelled else None)
+                                  clear_behind=h.palm_depth + p.approach_distance if modelled else None,
+                                  obstacles=None if plane is None else env.labels != Label.SUPPORT,
+                                  support=None if plane is None else (
+                                      (float(plane.normal[0]), float(plane.normal[1]), float(plane.normal[2])),
+                                      float(plane.offset)),
+                                  support_clearance=env.clearance)
         candidates, region = search_hands(scene, h, sampling)
         lap("sample")
         sel = p.selection(h, env)
