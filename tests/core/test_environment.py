@@ -115,3 +115,30 @@ def test_wall_points_are_labelled_as_environment(tray: ViewpointCloud) -> None:
     counts = env.counts()
     assert counts["support"] > counts["object"] and counts["wall"] > 100
     assert int(Label.OBJECT) == 0
+
+
+def test_hands_stop_short_of_the_support_and_reach_down_to_it(tray: ViewpointCloud) -> None:
+    """The support is a plane the hand search stops at in closed form: no part of any candidate's hand or
+    approach path dips below the clearance, yet fingertips come down close to the floor beside objects."""
+    from graspd.candidates import SamplingParams, search_hands
+    from graspd.environment import model_environment
+    from graspd.preprocess import PreprocessParams, preprocess
+    from graspd.scene import Scene
+
+    pre = preprocess(tray, PreprocessParams(voxel_size=0.003))
+    env = model_environment(pre, HAND, EnvironmentParams())
+    assert env.support is not None
+    plane = env.support
+    params = SamplingParams(num_samples=200, seed=3, sample_pool=env.object_mask, clear_behind=0.05 + HAND.palm_depth,
+                            obstacles=env.labels != Label.SUPPORT, support_clearance=env.clearance,
+                            support=(tuple(float(v) for v in plane.normal), float(plane.offset)))  # type: ignore[arg-type]
+    grasps, _ = search_hands(Scene.build(pre, HAND), HAND, params)
+    assert len(grasps) > 50
+    corners = HAND.swept_boxes(0.05)  # (3 boxes, low/high, xyz) in the hand frame
+    pts = np.array([[x, y, z] for box in corners for x in box[:, 0] for y in box[:, 1] for z in box[:, 2]])
+    world = grasps.positions[:, None, :] + np.einsum("gij,kj->gki", grasps.rotations, pts)
+    lowest = plane.distance(world.reshape(-1, 3)).reshape(len(grasps), -1).min(axis=1)
+    assert lowest.min() >= env.clearance - 1e-6
+    down = grasps.approach @ plane.normal < -0.95
+    tips = plane.distance(grasps.positions[down] + HAND.hand_depth * grasps.approach[down])
+    assert down.sum() >= 5 and tips.min() < 0.01, "top-down fingertips reach within 1 cm of the floor"
