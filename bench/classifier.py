@@ -28,7 +28,7 @@ from numpy.typing import NDArray  # noqa: E402
 from graspd.classifier import OnnxGraspClassifier, available_models, load_model  # noqa: E402
 from graspd.training.dataset import CATEGORIES, derive_images  # noqa: E402
 from graspd.training.evaluate import classification_metrics, pr_curve  # noqa: E402
-from graspd.training.train import load_rows  # noqa: E402
+from graspd.training.rows import load_rows  # noqa: E402
 
 REPRESENTATIONS = ("15", "12", "3", "herzog")
 CATEGORY_MODELS = {"box": "box15", "cylinder": "cylinder15"}

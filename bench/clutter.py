@@ -146,7 +146,7 @@ def record_round(log: Path, spec: str, setting: Setting, result: RoundResult) ->
 def git_commit() -> str:
     try:
         out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True, check=True)
-        own = ["service/graspd/sim", "bench/clutter.py"]
+        own = ["service", "client", "models", "bench/clutter.py"]
         dirty = subprocess.run(["git", "status", "--porcelain", "--", *own], cwd=REPO,
                                capture_output=True, text=True).stdout.strip()
         return out.stdout.strip() + ("-dirty" if dirty else "")
@@ -253,16 +253,19 @@ def scene_pictures(path: Path, seed: int) -> None:
     import numpy as np
 
     from graspd.sim.protocol import cameras_for
-    from graspd.sim.sensing import Camera, DepthNoise, observe, render_rgb
+    from graspd.sim.sensing import observe, render_rgb
     from graspd.sim.world import build_scene
+    from graspd.world.cameras import Camera
+    from graspd.world.noise import DepthNoise
 
     fig, axes = plt.subplots(2, len(SCENES), figsize=(4.2 * len(SCENES), 7))
     for col, (name, setting) in enumerate(SCENES.items()):
         with build_scene(setting.scene, setting.num_objects, seed, setting.hand) as world:
-            view = Camera((-0.42, -0.3, 0.42), (0.0, 0.0, 0.02), width=480, height=360, fov_deg=45.0)
+            view = Camera((-0.42, -0.3, 0.42), (0.0, 0.0, 0.02), width=480, height=360, fov_deg=45.0,
+                          fov_axis="vertical")
             axes[0, col].imshow(render_rgb(world.client, view))
             cams = cameras_for(setting)
-            cloud = observe(world.client, cams, DepthNoise(), np.random.default_rng(seed),
+            cloud = observe(world.client, cams, DepthNoise.benchmark(), np.random.default_rng(seed),
                             (-0.2, 0.2, -0.17, 0.17, 0.002, 0.4))
         pts = cloud.points
         axes[1, col].scatter(pts[:, 0], pts[:, 1], c=pts[:, 2], s=0.2, cmap="viridis")

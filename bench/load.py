@@ -58,7 +58,7 @@ def detect_seconds(body: dict[str, Any]) -> float:
 
 def make_cloud(num_points: int, seed: int) -> Any:
     """A rendered cluttered tabletop (two cameras, depth noise) subsampled to num_points."""
-    from graspd.scenes import cluttered_tabletop, subsample
+    from graspd.world.scenes import cluttered_tabletop, subsample
 
     return subsample(cluttered_tabletop(num_objects=8, seed=seed), num_points, seed=seed)
 

@@ -1,7 +1,7 @@
 """Reproduce Table 2 of the IJRR paper on this machine: time to generate and to encode 1k candidates.
 
 Clouds: a cluttered tabletop of procedural objects rendered by the project's own depth-camera model
-(graspd.scenes.cluttered_tabletop: two cameras 53 degrees apart, Kinect-like noise), subsampled
+(graspd.world.scenes.cluttered_tabletop: two cameras 53 degrees apart, Kinect-like noise), subsampled
 uniformly to the paper's ~39k and ~66k points; 3 mm voxels, as GPD.  Also: the real table_mug.pcd
 (500 samples, as in the reference C++ run), growth with cloud size (10k -> 300k points) and with the
 number of samples, and peak memory.  Prints markdown tables, writes bench/results/perf.md and perf.png.
@@ -27,7 +27,7 @@ from graspd.hand import HandGeometry
 from graspd.images import encode_images
 from graspd.preprocess import PreprocessParams, preprocess
 from graspd.scene import Scene
-from graspd.scenes import cluttered_tabletop, subsample
+from graspd.world.scenes import cluttered_tabletop, subsample
 
 HAND = HandGeometry()
 RESULTS = Path(__file__).resolve().parent / "results"

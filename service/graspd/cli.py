@@ -91,7 +91,7 @@ def _demo(args: argparse.Namespace) -> int:
     from .detector import DetectionParams, GraspDetector
     from .plot import plot_grasps
     from .preprocess import PreprocessParams, preprocess
-    from .scenes import GRAVITY, cluttered_tabletop
+    from .world.scenes import GRAVITY, cluttered_tabletop
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -17,8 +17,9 @@ from graspd.cloud_io import read_cloud
 from graspd.detector import Detection, DetectionParams, GraspDetector
 from graspd.environment import Box, EnvironmentParams, Label, hand_hits_environment
 from graspd.hand import HandGeometry
-from graspd.training.noise import DepthNoise
-from graspd.training.render import render_scene, tabletop_cameras
+from graspd.world.cameras import tabletop_cameras
+from graspd.world.noise import DepthNoise
+from graspd.world.render import render_scene
 
 HAND = HandGeometry()
 MUG = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "table_mug.pcd"

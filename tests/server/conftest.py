@@ -59,7 +59,7 @@ def models_and_default(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, 
     shipped = classifier.default_models_dir()
     if classifier.default_model_name() in classifier.available_models(shipped):
         return shipped, classifier.default_model_name()
-    from graspd.training.train import train_tiny_model
+    from graspd.training.plans import train_tiny_model
 
     return train_tiny_model(tmp_path_factory.mktemp("tiny-model"), seed=0).parent, "tiny15"
 

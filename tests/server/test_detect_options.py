@@ -14,7 +14,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from graspd.cloud import ViewpointCloud
-from graspd.scenes import GRAVITY, cluttered_tabletop
+from graspd.world.scenes import GRAVITY, cluttered_tabletop
 
 DOWN = np.asarray(GRAVITY, np.float64)  # the rendered tabletop: table top at z = 0, gravity -z
 TABLE_BAND = 0.01  # m: samples closer to z = 0 lie on the table

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from ..cloud import ViewpointCloud
 from ..grasp import GraspSet
 from ..hand import HandGeometry
+from ..world.points import voxel_downsample
 
 F64 = NDArray[np.float64]
 Workspace = tuple[float, float, float, float, float, float]
@@ -32,15 +33,6 @@ class SimDetector(Protocol):
         ymax, zmin, zmax] is the box around the scene the robot looks at, table and tray walls included (what
         a user sends as the request's workspace)."""
         ...
-
-
-def voxel_downsample(points: F64, voxel: float) -> F64:
-    """One point (the mean) per occupied voxel of edge voxel (m)."""
-    keys = np.floor(points / voxel).astype(np.int64)
-    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    sums = np.stack([np.bincount(inv, points[:, k]) for k in range(3)], axis=1)
-    return np.asarray(sums / counts[:, None])
 
 
 def hand_frame_points(points: F64, position: F64, rotation: F64) -> F64:

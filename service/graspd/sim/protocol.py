@@ -16,9 +16,11 @@ import numpy as np
 
 from ..grasp import GraspSet
 from ..hand import HandGeometry
+from ..world.cameras import Camera, active_cameras, passive_cameras, side_camera
+from ..world.noise import DepthNoise
 from .detectors import SimDetector, Workspace
 from .gripper import Attempt, ExecutionParams, Gripper, Outcome
-from .sensing import NO_NOISE, Camera, DepthNoise, active_cameras, observe, passive_cameras, side_camera
+from .sensing import observe
 from .world import build_scene
 
 SENSINGS = ("passive", "active", "side")
@@ -117,7 +119,7 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
     # what the cameras keep and the workspace box the robot sends: the scene, tray walls and floor included
     region: Workspace = (x0 - margin, x1 + margin, y0 - margin, y1 + margin, -0.005, 0.4)
     workspace = region
-    noise = DepthNoise() if setting.noise else NO_NOISE
+    noise = DepthNoise.benchmark() if setting.noise else DepthNoise.none()
     cams = cameras_for(setting)
     try:
         gripper = Gripper(world, setting.hand, execution)
