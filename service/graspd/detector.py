@@ -45,7 +45,9 @@ class DetectionParams:
     in the cloud); "none" is the pipeline without an environment model.  approach_distance: the pre-grasp
     distance back along the approach over which the open hand's path must be free.  exclude_support_plane
     None follows the environment (samples on object points only); True/False override it.  width_margin
-    (m): grasps whose width leaves less than this inside the opening rank lower (0 = off)."""
+    (m): grasps whose width leaves less than this inside the opening rank lower (0 = off).  sample_points
+    (K, 3; cloud frame, m): sample hands at the preprocessed point nearest each (those within frame_radius;
+    gpd_ros CloudSamples / CloudIndexed) instead of num_samples random points."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -71,6 +73,7 @@ class DetectionParams:
     num_finger_placements: int = 10
     frame_radius: float = 0.01
     score_batch: int = 512
+    sample_points: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if not 1 <= self.num_samples <= MAX_NUM_SAMPLES:
@@ -182,7 +185,7 @@ class GraspDetector:
         plane = env.support if modelled else None
         sampling = SamplingParams(num_samples=p.num_samples, num_orientations=p.num_orientations,
                                   num_finger_placements=p.num_finger_placements, frame_radius=p.frame_radius,
-                                  seed=p.seed, sample_pool=pool,
+                                  seed=p.seed, sample_pool=pool, sample_indices=_nearest(scene, p),
                                   clear_behind=h.palm_depth + p.approach_distance if modelled else None,
                                   obstacles=None if plane is None else env.labels != Label.SUPPORT,
                                   support=None if plane is None else (
@@ -229,6 +232,17 @@ class GraspDetector:
             hand=h,
             environment=env,
         )
+
+
+def _nearest(scene: Scene, p: DetectionParams) -> tuple[int, ...] | None:
+    """Rows of the scene nearest p.sample_points (within p.frame_radius, each once), None without them."""
+    if p.sample_points is None:
+        return None
+    if len(p.sample_points) == 0 or len(scene.points) == 0:
+        return ()
+    dist, idx = scene.tree.query(np.asarray(p.sample_points, np.float64).reshape(-1, 3),
+                                 distance_upper_bound=p.frame_radius)
+    return tuple(np.unique(idx[np.isfinite(dist)]).tolist())
 
 
 def environment_conflicts(candidates: GraspSet, region: ClosingRegionPoints, env: Environment, hand: HandGeometry,
