@@ -20,7 +20,9 @@ import numpy as np
 import orjson
 from pydantic import BaseModel, ValidationError
 
+from graspd.cloud import ViewpointCloud
 from graspd.detector import Detection, DetectionParams
+from graspd.hand import HandGeometry
 from graspd.templates import TemplateDetection
 from graspd_client.codec import WireError
 
@@ -37,6 +39,8 @@ from .templates_service import TemplateService
 
 log = logging.getLogger("graspd.server")
 M = TypeVar("M", bound=BaseModel)
+#: Called on the worker with a finished detection, the cloud it ran on and the hand used (engine.enqueue).
+OnDetection = Callable[[Detection | TemplateDetection, ViewpointCloud, HandGeometry], None]
 
 
 #: Deepest JSON nesting a request may have: orjson's own limit (the deepest valid request has ~6 levels).
@@ -201,9 +205,11 @@ class DetectionEngine:
 
     # ---- the work --------------------------------------------------------------------------
     def _job(self, parse: Callable[[], DetectRequest], enqueued: float, deadline: float,
-             timings: dict[str, float], header: dict[str, Any] | None) -> bytes:
+             timings: dict[str, float], header: dict[str, Any] | None,
+             on_detection: OnDetection | None = None) -> bytes:
         """Parse (on this worker, not the event loop) and detect; the response JSON bytes, or Problem.  header:
-        the ROS header of a CDR payload, which parse() may fill in (Zenoh); it goes into the response."""
+        the ROS header of a CDR payload, which parse() may fill in (Zenoh); it goes into the response.
+        on_detection(det, cloud, hand) is called on the worker with the detection (ROS outputs, the viewer)."""
         start = time.perf_counter()
         with self._lock:
             self._running += 1
@@ -236,6 +242,8 @@ class DetectionEngine:
                 request_id = ctx.id if ctx is not None else uuid.uuid4().hex[:16]
                 self.templates.remember(request_id, cloud, det)
                 used_hand = det.hand
+            if on_detection is not None:
+                on_detection(det, cloud, used_hand)
             timings.update(det.timings)
             timings["detect"] = timings.get("total", 0.0)  # the detector's own wall time, before the engine's total
             crops = None
@@ -258,14 +266,15 @@ class DetectionEngine:
                 if elapsed > 0.01 or self._avg_seconds < 0.01:  # refusals in microseconds say nothing of the load
                     self._avg_seconds = 0.8 * self._avg_seconds + 0.2 * elapsed
 
-    def submit(self, req: DetectRequest, timings: dict[str, float], header: dict[str, Any] | None = None
-               ) -> tuple[Future[bytes], float]:
+    def submit(self, req: DetectRequest, timings: dict[str, float], header: dict[str, Any] | None = None,
+               on_detection: OnDetection | None = None) -> tuple[Future[bytes], float]:
         """Admit a request (Problem 503 when full) and queue it; returns the future and its deadline."""
         self._admit()
-        return self.enqueue(lambda: req, timings, header)
+        return self.enqueue(lambda: req, timings, header, on_detection)
 
     def enqueue(self, parse: Callable[[], DetectRequest], timings: dict[str, float],
-                header: dict[str, Any] | None = None) -> tuple[Future[bytes], float]:
+                header: dict[str, Any] | None = None, on_detection: OnDetection | None = None
+                ) -> tuple[Future[bytes], float]:
         """Queue an admitted request (admit() first): parse() runs on a worker, then the detection.  Returns
         the future and its deadline; the place is given back when the future is done.  header: a ROS header
         for the response (Zenoh, CDR input), read after parse() ran."""
@@ -273,7 +282,7 @@ class DetectionEngine:
         deadline = now + self.settings.deadline_s
         context = contextvars.copy_context()  # the request id follows the work onto the worker thread
         try:
-            fut = self.executor.submit(context.run, self._job, parse, now, deadline, timings, header)
+            fut = self.executor.submit(context.run, self._job, parse, now, deadline, timings, header, on_detection)
         except RuntimeError:  # executor shut down
             self._release()
             raise Problem(503, "server is shutting down", retry_after=1.0) from None
@@ -281,9 +290,9 @@ class DetectionEngine:
         return fut, deadline
 
     def run_sync(self, req: DetectRequest, timings: dict[str, float] | None = None,
-                 header: dict[str, Any] | None = None) -> bytes:
+                 header: dict[str, Any] | None = None, on_detection: OnDetection | None = None) -> bytes:
         """Blocking detect (Zenoh callbacks, CLI): response JSON bytes, or Problem."""
-        fut, deadline = self.submit(req, timings if timings is not None else {}, header)
+        fut, deadline = self.submit(req, timings if timings is not None else {}, header, on_detection)
         self.trim_after(fut)
         try:
             return fut.result(timeout=max(0.0, deadline - time.perf_counter()))
@@ -296,9 +305,10 @@ class DetectionEngine:
         fut, deadline = self.submit(req, timings)
         return await self._wait(fut, deadline)
 
-    async def run_admitted(self, parse: Callable[[], DetectRequest], timings: dict[str, float]) -> bytes:
+    async def run_admitted(self, parse: Callable[[], DetectRequest], timings: dict[str, float],
+                           on_detection: OnDetection | None = None) -> bytes:
         """Awaitable parse + detect of a request admitted with admit(): both run on a worker thread."""
-        fut, deadline = self.enqueue(parse, timings)
+        fut, deadline = self.enqueue(parse, timings, None, on_detection)
         return await self._wait(fut, deadline)
 
     async def _wait(self, fut: Future[bytes], deadline: float) -> bytes:
