@@ -8,6 +8,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .cloud import CloudError, ViewpointCloud
+from .open3d_import import defer_plotly_drawing
+
+defer_plotly_drawing()  # open3d's dash/plotly drawing loads when used, not with open3d (~0.5 s of start-up)
 
 Workspace = tuple[float, float, float, float, float, float]
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections.abc import AsyncIterator, Mapping
 from contextlib import asynccontextmanager
@@ -29,6 +30,7 @@ from .schemas import DetectRequest
 from .settings import Settings
 from .templates_api import REQUEST_MODELS
 from .templates_api import router as templates_router
+from .warmup import warm_up
 
 log = logging.getLogger("graspd.server")
 
@@ -123,6 +125,8 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         reg = registry or ModelRegistry.load(settings.resolved_models_dir(), settings.default_model,
                                              settings.model_threads, allow_unscored=settings.allow_unscored)
+        # before the first request can arrive (uvicorn answers nothing, /readyz included, until this returns)
+        warmup_s = await asyncio.to_thread(warm_up, reg) if settings.warmup else None
         mets = Metrics()
         engine = DetectionEngine(settings, reg, mets)
         state = ServiceState(settings, reg, mets, engine)
@@ -135,7 +139,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
         log.info("graspd ready", extra={"models": reg.names(), "default_model": reg.default,
                                         "model_errors": reg.errors, "not_ready": reg.load_error,
                                         "workers": engine.workers, "queue": settings.queue_size,
-                                        "zenoh": settings.zenoh_enabled})
+                                        "zenoh": settings.zenoh_enabled, "warmup_s": warmup_s})
         try:
             yield
         finally:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -34,6 +35,8 @@ class Settings(BaseSettings):
     default_model: str | None = Field(default=None, description="model used when a request names none")
     model_threads: int = Field(default=1, ge=0, description="onnxruntime intra-op threads per model")
     detect_workers: int = Field(default=0, ge=0, description="detections run at once; 0 = one per CPU core")
+    warmup: bool = Field(default=True, description="run one detection on a small bundled cloud at start-up, before "
+                         "the service answers, so that the first request is as fast as the rest (~1 s of start-up)")
     queue_size: int = Field(default=32, ge=0, description="requests that may wait for a worker before 503")
     deadline_s: float = Field(default=30.0, gt=0, description="per-request deadline, queueing included (s)")
     max_body_bytes: int = Field(default=64 << 20, gt=0, description="request size cap (bytes); larger gets 413")
@@ -60,6 +63,17 @@ class Settings(BaseSettings):
     stream_viewpoint: tuple[float, float, float] = Field(default=(0.0, 0.0, 0.0),
                                                          description="camera position for streamed clouds (m)")
     stream_num_samples: int = Field(default=500, ge=1)
+    stream_options: dict[str, Any] = Field(default_factory=dict, description="detection options of streamed "
+                                           "clouds and CDR queries: DetectRequest fields but cloud and crops, "
+                                           "plus viewpoints; changed at run time by a JSON put on "
+                                           "<prefix>/<stream_config_key>")
+    stream_config_key: str = Field(default="config", description="key under the prefix taking stream options")
+    stream_inputs: dict[str, str] = Field(default_factory=dict, description="input -> key under the prefix, "
+                                          "over the defaults pointcloud2: cloud, cloud_sources, cloud_indexed, "
+                                          "cloud_samples ('' turns one off, a leading / makes it absolute)")
+    stream_outputs: dict[str, str] = Field(default_factory=dict, description="output -> key under the prefix, "
+                                           "over the defaults json: grasps, grasp_config_list, pose_array: "
+                                           "grasp_poses, moveit_grasps, marker_array: grasp_markers, errors")
     data_dir: Path | None = Field(default=None, description="service data folder (the template library's default "
                                   "SQLite file); None: $XDG_DATA_HOME/graspd, else ~/.local/share/graspd")
     template_library: str | None = Field(default=None, description="SQLAlchemy URL of the grasp-template library "
