@@ -145,12 +145,12 @@ def test_request_id_header_matches_the_body(client: TestClient, body: dict[str, 
 
 def test_pointcloud2_declaring_more_than_its_data_is_refused() -> None:
     """CDR PointCloud2 (the Zenoh stream): width x height x point_step checked against the data and the cap."""
-    from graspd.server.pointcloud2 import PointCloud2Error, decode_pointcloud2, encode_pointcloud2
+    from graspd.ros import RosDecodeError, decode_pointcloud2, encode_pointcloud2
 
     good = encode_pointcloud2(P500)
-    assert len(decode_pointcloud2(good).points) == 500
+    assert len(decode_pointcloud2(good).cloud.points) == 500
     width_at = good.find(struct.pack("<I", 500))  # height 1 then width 500 (little-endian CDR)
     for width in (501, 10_000_000, 2**32 - 1):
         lying = good[:width_at] + struct.pack("<I", width) + good[width_at + 4:]
-        with pytest.raises(PointCloud2Error):
+        with pytest.raises(RosDecodeError):
             decode_pointcloud2(lying)

@@ -14,8 +14,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from graspd.cloud import ViewpointCloud
+from graspd.ros import Header, encode_pointcloud2
 from graspd.server.app import create_app
-from graspd.server.pointcloud2 import encode_pointcloud2
 from graspd.server.settings import Settings
 from graspd_client import RequestRejected
 from graspd_client.zenoh_client import ZenohGraspClient, zenoh_config
@@ -55,7 +55,7 @@ def test_query_matches_http(zenoh_server: tuple[TestClient, str], body: dict[str
         (b"{not json", "body"),
         (json.dumps({"cloud": {"points": [[0, 0]]}}).encode(), "cloud.points"),
         (json.dumps({"cloud": {"points": [[0, 0, 1]]}, "num_samples": 10**9}).encode(), "num_samples"),
-        (b"\x00\x01\x00\x00" + bytes(10), "payload"),  # CDR header, truncated PointCloud2
+        (b"\x00\x01\x00\x00" + bytes(10), "header.frame_id"),  # CDR header, truncated PointCloud2: the ROS field
         (b"", "payload"),
     ],
 )
@@ -71,7 +71,7 @@ def test_garbage_gets_an_error_reply(zenoh_server: tuple[TestClient, str], paylo
 
 def test_cdr_pointcloud2_query(zenoh_server: tuple[TestClient, str], krylon: ViewpointCloud) -> None:
     _, endpoint = zenoh_server
-    payload = encode_pointcloud2(krylon.points, frame_id="camera_depth_optical_frame", stamp=(12, 34))
+    payload = encode_pointcloud2(krylon.points, Header("camera_depth_optical_frame", (12, 34)))
     with ZenohGraspClient(connect=[endpoint], timeout=30) as zc:
         reply = zc.query(payload)
     assert reply["header"] == {"frame_id": "camera_depth_optical_frame", "stamp": {"sec": 12, "nanosec": 34}}
@@ -93,7 +93,7 @@ def test_streaming_cloud_to_grasps(zenoh_server: tuple[TestClient, str], krylon:
         sub = session.declare_subscriber("graspd/grasps", on_grasps)
         pub = session.declare_publisher("graspd/cloud")
         for _ in range(50):  # until the subscription has propagated
-            pub.put(encode_pointcloud2(krylon.points, frame_id="cam", stamp=(1, 2)))
+            pub.put(encode_pointcloud2(krylon.points, Header("cam", (1, 2))))
             if done.wait(0.2):
                 break
         assert done.wait(30)

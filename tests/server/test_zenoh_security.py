@@ -77,7 +77,7 @@ def _demo_body(render_box: Callable[..., ViewpointCloud], box_pose: Callable[...
     return json.dumps(body).encode()
 
 
-KEYS = ["detect", "instances/solo", "instances/solo/detect", "demonstrations", "feedback", "library"]
+KEYS = ["detect", "instances/solo", "instances/solo/detect", "demonstrations", "feedback", "library", "config"]
 
 
 @pytest.mark.parametrize("attachment", [None, b"Bearer wrong-token", b"s3cret-zenoh-token-0123456789",

@@ -53,6 +53,17 @@ class CloudMessage:
     samples: NDArray[np.float64] | None = None  # (K, 3) positions in header.frame_id, m (CloudSamples)
     msg_type: str = POINTCLOUD2
 
+    @property
+    def sample_points(self) -> NDArray[np.float64] | None:
+        """Where to sample hands (K, 3; header.frame_id, m): the samples of a CloudSamples, or the cloud points at
+        the indices of a CloudIndexed; None: the detector chooses (graspd.detector.DetectionParams.sample_points
+        samples at the preprocessed point nearest each)."""
+        if self.samples is not None:
+            return self.samples
+        if self.sample_indices is not None:
+            return np.asarray(self.cloud.points[self.sample_indices], np.float64).reshape(-1, 3)
+        return None
+
 
 class _Reader:
     """Sequential CDR reader over one payload; alignment is relative to the end of the 4-byte encapsulation."""

@@ -1,6 +1,10 @@
 """The Zenoh side of the service: a queryable on <prefix>/detect (same JSON request and response as
-POST /detect, or a CDR sensor_msgs/PointCloud2), a per-instance queryable for spreading load over
-several servers, and streaming: clouds on <prefix>/cloud in, grasps on <prefix>/grasps out.
+POST /detect, or a CDR ROS message: sensor_msgs/PointCloud2 by default, gpd_ros CloudSources / CloudIndexed /
+CloudSamples with the selector parameter type=cloud_sources|cloud_indexed|cloud_samples), a per-instance
+queryable for spreading load over several servers, and streaming: clouds in on <prefix>/cloud (JSON or
+PointCloud2) and the gpd_ros keys, grasps out as JSON on <prefix>/grasps and as ROS messages (ros_stream.py).
+The options of streamed clouds and CDR queries come from the settings and change at run time with a JSON put or
+query on <prefix>/config (guarded like every writer; errors go to <prefix>/errors and the log).
 
 Several servers: Zenoh sends a query to one matching queryable, it does not balance.  Each server
 therefore also declares <prefix>/instances/<id> (info) and <prefix>/instances/<id>/detect; clients
@@ -27,12 +31,11 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, TypeVar
 
+from graspd.ros import Header
 from graspd_client.wire import (
-    ZENOH_CLOUD_KEY,
     ZENOH_DEMONSTRATIONS_KEY,
     ZENOH_DETECT_KEY,
     ZENOH_FEEDBACK_KEY,
-    ZENOH_GRASPS_KEY,
     ZENOH_LIBRARY_KEY,
     zenoh_token_attachment,
 )
@@ -40,8 +43,21 @@ from graspd_client.wire import (
 from .engine import DetectionEngine, parse_model, parse_request
 from .logs import RequestContext, begin_request
 from .metrics import Metrics
-from .pointcloud2 import PointCloud2Error, decode_pointcloud2, looks_like_cdr
 from .problems import Problem
+from .ros_stream import (
+    DEFAULT_INPUT_KEYS,
+    DEFAULT_OUTPUT_KEYS,
+    INPUT_TYPES,
+    MAX_CONFIG_BYTES,
+    Captured,
+    StreamOptions,
+    decode_input,
+    parse_options,
+    resolve_keys,
+    ros_header,
+    ros_outputs,
+    stream_request,
+)
 from .schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
 from .settings import Settings
 
@@ -184,6 +200,28 @@ def _size(zbytes: Any) -> int:
     return 0 if zbytes is None else len(zbytes)
 
 
+def looks_like_cdr(payload: bytes) -> bool:
+    """CDR encapsulation header: 0x00 0x00 (big-endian CDR) or 0x00 0x01 (little-endian), then options."""
+    return len(payload) >= 4 and payload[0] == 0 and payload[1] in (0, 1)
+
+
+def input_name(parameters: str) -> str:
+    """The input of a CDR query from its selector parameters: type=pointcloud2 (default), cloud_sources,
+    cloud_indexed, cloud_samples, or the ROS type name (gpd_ros/msg/CloudSources, gpd_ros/CloudSources)."""
+    given = ""
+    for part in parameters.split(";"):
+        name, _, value = part.partition("=")
+        if name.strip() == "type":
+            given = value.strip()
+    if not given:
+        return "pointcloud2"
+    for name, ros_type in INPUT_TYPES.items():
+        if given in (name, ros_type, ros_type.replace("/msg/", "/")):
+            return name
+    raise Problem(400, f"unknown message type {given!r}; known: {sorted(INPUT_TYPES)} or their ROS names",
+                  "type")
+
+
 class ZenohNode:
     """Owns one Zenoh session and turns queries and streamed clouds into engine requests.
 
@@ -199,8 +237,8 @@ class ZenohNode:
         self.instance = settings.zenoh_instance or f"{socket.gethostname()}-{os.getpid()}-{id(self) % 10000}"
         self.session: Any = None
         self._declared: list[Any] = []
-        self._publisher: Any = None
-        self._latest: bytes | None = None
+        self._publishers: dict[str, Any] = {}
+        self._latest: tuple[bytes, str] | None = None
         self._wake = threading.Condition()
         self._stop = False
         self._stream_thread: threading.Thread | None = None
@@ -209,6 +247,27 @@ class ZenohNode:
         self._expected = None if token is None else zenoh_token_attachment(token.get_secret_value())
         self._refused_stream = 0
         self._refused_logged = 0.0
+        try:
+            self.input_keys = resolve_keys(self.prefix, settings.stream_inputs, DEFAULT_INPUT_KEYS,
+                                           "GRASPD_STREAM_INPUTS")
+            self.output_keys = resolve_keys(self.prefix, settings.stream_outputs, DEFAULT_OUTPUT_KEYS,
+                                            "GRASPD_STREAM_OUTPUTS")
+        except ValueError as exc:
+            raise ZenohSetupError(str(exc)) from None
+        self.config_key = f"{self.prefix}/{settings.stream_config_key.strip('/')}"
+        self._options_lock = threading.Lock()
+        base = {"num_samples": settings.stream_num_samples, **settings.stream_options}
+        try:
+            self._options = parse_options(base, {}, (settings.stream_viewpoint,))
+        except Problem as exc:
+            raise ZenohSetupError(f"GRASPD_STREAM_OPTIONS: {exc.field}: {exc.message}") from None
+        self._base_options = self._options.source
+
+    @property
+    def options(self) -> StreamOptions:
+        """The options streamed clouds and CDR queries are detected with now."""
+        with self._options_lock:
+            return self._options
 
     @property
     def ready(self) -> bool:
@@ -246,9 +305,13 @@ class ZenohNode:
         for name, work in handlers.items():
             self._declared.append(s.declare_queryable(
                 f"{self.prefix}/{name}", lambda q, n=name, w=work: on_templates(q, n, w), complete=True))
+        self._declared.append(s.declare_queryable(self.config_key, in_fresh_context(self._on_config_query),
+                                                  complete=True))
+        self._declared.append(s.declare_subscriber(self.config_key, self._on_config_put))
+        self._publishers = {name: s.declare_publisher(key) for name, key in self.output_keys.items()}
         if self.settings.zenoh_stream:
-            self._publisher = s.declare_publisher(f"{self.prefix}/{ZENOH_GRASPS_KEY}")
-            self._declared.append(s.declare_subscriber(f"{self.prefix}/{ZENOH_CLOUD_KEY}", self._on_cloud))
+            for name, key in self.input_keys.items():
+                self._declared.append(s.declare_subscriber(key, lambda sample, n=name: self._on_cloud(sample, n)))
             self._stream_thread = threading.Thread(target=self._stream_loop, name="graspd-zenoh-stream", daemon=True)
             self._stream_thread.start()
         log.info("zenoh node up", extra={"detect_key": self.detect_key, "instance": self.instance,
@@ -269,8 +332,12 @@ class ZenohNode:
             except Exception:  # already gone with the session
                 pass
         self._declared.clear()
-        if self._publisher is not None:
-            self._publisher.undeclare()
+        for pub in self._publishers.values():
+            try:
+                pub.undeclare()
+            except Exception:  # already gone with the session
+                pass
+        self._publishers.clear()
         self._templates_pool.shutdown(wait=True, cancel_futures=True)
         if self.session is not None:
             self.session.close()
@@ -307,21 +374,18 @@ class ZenohNode:
         return self.payload_of(query)
 
     # ---- requests --------------------------------------------------------------------------
-    def request_from_payload(self, payload: bytes) -> tuple[DetectRequest, dict[str, Any] | None]:
-        """A DetectRequest from JSON or CDR PointCloud2 bytes, plus the ROS header for CDR input."""
+    def request_from_payload(self, payload: bytes, name: str = "pointcloud2"
+                             ) -> tuple[DetectRequest, dict[str, Any] | None, Header | None]:
+        """A DetectRequest from JSON or CDR bytes (a ROS message of input name, detected with the stream
+        options), plus for CDR its header, as the JSON answer's "header" and as a graspd.ros Header."""
         if looks_like_cdr(payload):
-            try:
-                cloud = decode_pointcloud2(payload)
-            except PointCloud2Error as exc:
-                raise Problem(422, str(exc), "payload") from None
-            body = {"cloud": {"points": cloud.points, "viewpoints": [list(self.settings.stream_viewpoint)]},
-                    "num_samples": self.settings.stream_num_samples}
-            header = {"frame_id": cloud.frame_id, "stamp": {"sec": cloud.stamp[0], "nanosec": cloud.stamp[1]}}
-            return parse_request(body), header
-        if not payload.lstrip()[:1] == b"{":
-            raise Problem(400, "payload is neither a JSON DetectRequest nor a CDR sensor_msgs/PointCloud2",
-                          "payload")
-        return guarded_parse(parse_request, payload), None
+            options = self.options
+            msg = decode_input(payload, name, options)
+            return stream_request(msg, options), ros_header(msg.header), msg.header
+        if name != "pointcloud2" or not payload.lstrip()[:1] == b"{":
+            raise Problem(400, f"payload is not a CDR {INPUT_TYPES[name]}" + (
+                " nor a JSON DetectRequest" if name == "pointcloud2" else ""), "payload")
+        return guarded_parse(parse_request, payload), None, None
 
     def _on_info(self, query: Any) -> None:
         t0 = time.perf_counter()
@@ -345,6 +409,7 @@ class ZenohNode:
         ctx = begin_request()
         try:
             self.check(query, key)
+            name = input_name(str(query.parameters))
             self.engine.admit()
         except Problem as exc:
             self._finish(query, t0, ctx, exc)
@@ -357,8 +422,8 @@ class ZenohNode:
         # it into the response before serialising it
 
         def parse() -> DetectRequest:
-            req, ros_header = self.request_from_payload(self.payload_of(query))
-            header.update(ros_header or {})
+            req, json_header, _ = self.request_from_payload(self.payload_of(query), name)
+            header.update(json_header or {})
             return req
 
         try:
@@ -461,9 +526,21 @@ class ZenohNode:
         (log.warning if outcome == "unauthorized" else log.info)(name, extra=extra)
 
     # ---- streaming -------------------------------------------------------------------------
-    def _on_cloud(self, sample: Any) -> None:
+    def _put(self, output: str, payload: bytes) -> None:
+        pub = self._publishers.get(output)
+        if pub is not None:
+            pub.put(payload)
+
+    def _put_error(self, problem: Problem, request_id: str | None = None, also_json: bool = True) -> None:
+        """An error body on the errors key, and on the JSON grasps key (where stream errors always went)."""
+        body = error_payload(problem, request_id)
+        self._put("errors", body)
+        if also_json:
+            self._put("json", body)
+
+    def _on_cloud(self, sample: Any, name: str) -> None:
         """Keep only the newest cloud: a robot wants grasps for what it sees now.  A cloud without the token
-        is dropped (counted, logged at most every 10 s); one over the size cap gets a 413 on the grasps key."""
+        is dropped (counted, logged at most every 10 s); one over the size cap gets a 413 on the error keys."""
         try:
             if self.settings.zenoh_stream_token and not self.authorized(_attachment(sample)):
                 self._refuse_stream()
@@ -471,8 +548,8 @@ class ZenohNode:
             size = _size(sample.payload)
             if size > self.settings.max_body_bytes:
                 self.metrics.requests.labels("zenoh-stream", "too_large").inc()
-                self._publisher.put(error_payload(Problem(
-                    413, f"cloud of {size} bytes exceeds the limit of {self.settings.max_body_bytes}", "payload")))
+                self._put_error(Problem(
+                    413, f"cloud of {size} bytes exceeds the limit of {self.settings.max_body_bytes}", "payload"))
                 return
             payload = bytes(sample.payload.to_bytes())
         except Exception:
@@ -481,16 +558,16 @@ class ZenohNode:
         with self._wake:
             if self._latest is not None:
                 self.metrics.stream_dropped.inc()
-            self._latest = payload
+            self._latest = (payload, name)
             self._wake.notify()
 
-    def _refuse_stream(self) -> None:
+    def _refuse_stream(self, what: str = "stream cloud") -> None:
         self.metrics.requests.labels("zenoh-stream", "unauthorized").inc()
         self._refused_stream += 1
         now = time.monotonic()
         if now - self._refused_logged >= 10.0:
             self._refused_logged = now
-            log.warning("stream cloud without the token dropped",
+            log.warning(f"{what} without the token dropped",
                         extra={"transport": "zenoh", "outcome": "unauthorized", "dropped": self._refused_stream})
 
     def _stream_loop(self) -> None:
@@ -498,28 +575,84 @@ class ZenohNode:
             with self._wake:
                 while self._latest is None and not self._stop:
                     self._wake.wait()
-                if self._stop:
+                if self._stop or self._latest is None:
                     return
-                payload: bytes = self._latest or b""
+                payload, name = self._latest
                 self._latest = None
-            contextvars.Context().run(self._stream_frame, payload)
+            contextvars.Context().run(self._stream_frame, payload, name)
 
-    def _stream_frame(self, payload: bytes) -> None:
-        """Detect on one streamed cloud and publish the grasps, or the error (a 500 says nothing internal)."""
+    def _stream_frame(self, payload: bytes, name: str = "pointcloud2") -> None:
+        """Detect on one streamed cloud and publish: the JSON answer, then for a ROS input its ROS outputs with
+        its header (MarkerArray last); or the error (a 500 says nothing internal)."""
         t0 = time.perf_counter()
         ctx = begin_request()
         try:
-            req, header = self.request_from_payload(payload)
-            self._publisher.put(self.engine.run_sync(req, {"decode": time.perf_counter() - t0}, header))
+            req, json_header, header = self.request_from_payload(payload, name)
+            captured = Captured()
+            self._put("json", self.engine.run_sync(req, {"decode": time.perf_counter() - t0}, json_header,
+                                                   on_detection=captured))
+            if header is not None and captured.grasps is not None and captured.hand is not None:
+                for output, message in ros_outputs(captured.grasps, header, captured.hand, req.approach_distance,
+                                                   self._publishers):
+                    self._put(output, message)
             outcome = "ok"
         except Problem as exc:
-            self._publisher.put(error_payload(exc, ctx.id))
+            self._put_error(exc, ctx.id)
             outcome = "invalid" if exc.status < 500 else "error"
         except Exception:  # keep streaming whatever one frame did
             log.exception("stream detect failed", extra={"request_id": ctx.id})
-            self._publisher.put(error_payload(internal_error(ctx.id), ctx.id))
+            self._put_error(internal_error(ctx.id), ctx.id)
             outcome = "error"
         self.metrics.requests.labels("zenoh-stream", outcome).inc()
+
+    # ---- run-time options ------------------------------------------------------------------
+    def set_options(self, payload: bytes) -> StreamOptions:
+        """Validate a config payload (Problem naming the field) and make it the stream options."""
+        options = guarded_parse(lambda p: parse_options(p, self._base_options, self.options.viewpoints), payload)
+        with self._options_lock:
+            self._options = options
+        log.info("stream options set", extra={"transport": "zenoh", "options": options.source})
+        return options
+
+    def _on_config_put(self, sample: Any) -> None:
+        """A JSON put on <prefix>/config: with a token set it must carry it (whatever zenoh_stream_token says);
+        an invalid config is logged and its error put on <prefix>/errors; the options in force stay."""
+        try:
+            if not self.authorized(_attachment(sample)):
+                self._refuse_stream("config put")
+                return
+            size = _size(sample.payload)
+            if size > MAX_CONFIG_BYTES:
+                raise Problem(413, f"config of {size} bytes exceeds the limit of {MAX_CONFIG_BYTES}", "payload")
+            self.set_options(bytes(sample.payload.to_bytes()))
+        except Problem as exc:
+            log.warning("stream config refused", extra={"transport": "zenoh", "status": exc.status,
+                                                        "field": exc.field, "error": exc.message})
+            self._put_error(exc, also_json=False)
+        except Exception:  # never take the node down
+            log.exception("stream config failed")
+
+    def _on_config_query(self, query: Any) -> None:
+        """A query on <prefix>/config: empty, the options in force; with a JSON payload, set them first.  The
+        reply is the options in force, or an error reply naming the field (the options in force stay)."""
+        t0 = time.perf_counter()
+        ctx = begin_request()
+        try:
+            self.check(query, self.config_key)
+            size = _size(query.payload)
+            if size > MAX_CONFIG_BYTES:
+                raise Problem(413, f"config of {size} bytes exceeds the limit of {MAX_CONFIG_BYTES}", "payload")
+            payload = self.payload_of(query)
+            options = self.set_options(payload) if payload.strip() else self.options
+            self._finish(query, t0, ctx, None, options.to_json(), "config", self.config_key)
+        except Problem as exc:
+            if exc.status != 401:
+                log.warning("stream config refused", extra={"transport": "zenoh", "status": exc.status,
+                                                            "field": exc.field, "error": exc.message})
+            self._finish(query, t0, ctx, exc, name="config")
+        except Exception:
+            log.exception("zenoh config failed", extra={"request_id": ctx.id})
+            self._finish(query, t0, ctx, internal_error(ctx.id), name="config")
 
 
 T = TypeVar("T")

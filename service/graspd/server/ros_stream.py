@@ -1,0 +1,215 @@
+"""ROS 2 messages on the Zenoh stream (zenoh-bridge-ros2dds maps a ROS topic /graspd/cloud_sources to the key
+graspd/cloud_sources): which CDR message comes in on which key, the per-stream detection options (settings,
+changed at run time on <prefix>/config), and the ROS outputs of a detection.
+
+Inputs (settings.stream_inputs, name -> key under the prefix): pointcloud2 sensor_msgs/PointCloud2 (that key also
+takes a JSON DetectRequest), cloud_sources / cloud_indexed / cloud_samples gpd_ros CloudSources / CloudIndexed /
+CloudSamples.  Outputs (settings.stream_outputs): json (the /detect answer), grasp_config_list gpd_ros
+GraspConfigList, pose_array geometry_msgs PoseArray, moveit_grasps one moveit_msgs Grasp per grasp best first,
+marker_array visualization_msgs MarkerArray (last: the slowest), errors (JSON error bodies).  A key "" turns one
+off; a key starting with "/" is absolute (the prefix is not added).  Decoding is graspd.ros; only the mapping of
+messages to requests is here.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Collection, Iterator, Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import PrivateAttr
+
+from graspd.cloud import ViewpointCloud
+from graspd.detector import Detection, DetectionParams
+from graspd.grasp import GraspSet
+from graspd.hand import HandGeometry
+from graspd.ros import (
+    CloudMessage,
+    Header,
+    RosDecodeError,
+    decode_cloud_indexed,
+    decode_cloud_samples,
+    decode_cloud_sources,
+    decode_pointcloud2,
+    encode_grasp_config_list,
+    encode_marker_array,
+    encode_moveit_grasps,
+    encode_pose_array,
+)
+from graspd.templates import TemplateDetection
+
+from .engine import JsonTooDeep, loads, parse_model
+from .problems import Problem
+from .schemas import MAX_COORDINATE, Cloud, DetectRequest
+
+#: Input name -> default key under the prefix, and the ROS message type it carries.
+INPUT_TYPES: dict[str, str] = {"pointcloud2": "sensor_msgs/msg/PointCloud2",
+                               "cloud_sources": "gpd_ros/msg/CloudSources",
+                               "cloud_indexed": "gpd_ros/msg/CloudIndexed",
+                               "cloud_samples": "gpd_ros/msg/CloudSamples"}
+DEFAULT_INPUT_KEYS: dict[str, str] = {"pointcloud2": "cloud", "cloud_sources": "cloud_sources",
+                                      "cloud_indexed": "cloud_indexed", "cloud_samples": "cloud_samples"}
+#: Output name -> default key under the prefix (published in this order for each cloud).
+DEFAULT_OUTPUT_KEYS: dict[str, str] = {"json": "grasps", "grasp_config_list": "grasp_config_list",
+                                       "pose_array": "grasp_poses", "moveit_grasps": "moveit_grasps",
+                                       "marker_array": "grasp_markers", "errors": "errors"}
+#: Most bytes a config put or query may carry (a DetectRequest's options are a few hundred bytes).
+MAX_CONFIG_BYTES = 64 << 10
+#: DetectRequest fields that are not stream options: the cloud comes in the message, crops need an image.
+NOT_OPTIONS = ("cloud", "crops")
+_PLACEHOLDER_POINTS = [[0.0, 0.0, 1.0]]
+_DECODERS: dict[str, Callable[[bytes], CloudMessage]] = {
+    "cloud_sources": decode_cloud_sources, "cloud_indexed": decode_cloud_indexed,
+    "cloud_samples": decode_cloud_samples}
+#: Where each input message keeps its point data (the field an empty or out-of-range cloud is reported under).
+_DATA_FIELD = {"pointcloud2": "data", "cloud_sources": "cloud.data", "cloud_indexed": "cloud_sources.cloud.data",
+               "cloud_samples": "cloud_sources.cloud.data"}
+
+
+def resolve_keys(prefix: str, given: Mapping[str, str], defaults: Mapping[str, str], setting: str) -> dict[str, str]:
+    """Full Zenoh keys by name: the defaults overridden by given (unknown names and wildcards refused with
+    ValueError naming the setting); "" drops a name, a leading "/" makes a key absolute."""
+    unknown = sorted(set(given) - set(defaults))
+    if unknown:
+        raise ValueError(f"{setting}: unknown names {unknown}; known: {sorted(defaults)}")
+    out = {}
+    for name, key in {**defaults, **given}.items():
+        if not key:
+            continue
+        if any(c in key for c in "*$?#") or "//" in key or key.endswith("/"):
+            raise ValueError(f"{setting}.{name}: {key!r} is not a plain key expression (no wildcards)")
+        out[name] = key[1:] if key.startswith("/") else f"{prefix}/{key}"
+    return out
+
+
+class StreamRequest(DetectRequest):
+    """A DetectRequest whose cloud was decoded from a ROS message: the engine runs it like any other, on the
+    decoded ViewpointCloud (normals kept) and sampling at the message's sample points when it has them."""
+
+    _decoded: ViewpointCloud | None = PrivateAttr(default=None)
+    _sample_points: NDArray[np.float64] | None = PrivateAttr(default=None)
+
+    def to_cloud(self) -> ViewpointCloud:
+        return self._decoded if self._decoded is not None else super().to_cloud()
+
+    def to_params(self) -> DetectionParams:
+        params = super().to_params()
+        return params if self._sample_points is None else replace(params, sample_points=self._sample_points)
+
+
+@dataclass(frozen=True)
+class StreamOptions:
+    """The detection options of streamed clouds and CDR queries: a validated DetectRequest (its cloud a
+    placeholder), the camera positions a PointCloud2 is seen from, and the JSON they were set from."""
+
+    request: DetectRequest
+    viewpoints: NDArray[np.float64]
+    source: dict[str, Any]
+
+    def to_json(self) -> bytes:
+        """What GET <prefix>/config answers: the options in force (settings, then the last accepted put)."""
+        return json.dumps({**self.source, "viewpoints": self.viewpoints.tolist()}).encode()
+
+
+def parse_options(payload: bytes | str | dict[str, Any], base: Mapping[str, Any],
+                  viewpoints: NDArray[np.float64] | tuple[tuple[float, float, float], ...]) -> StreamOptions:
+    """Stream options from JSON: DetectRequest fields other than cloud and crops (validated exactly like a
+    DetectRequest's; Problem 400/422 naming the field), plus "viewpoints" [[x, y, z], ...] for PointCloud2
+    input.  They are laid over base (the settings' stream options): a put names what differs from the settings."""
+    if isinstance(payload, bytes | str):
+        size = len(payload)
+        if size > MAX_CONFIG_BYTES:
+            raise Problem(413, f"config of {size} bytes exceeds the limit of {MAX_CONFIG_BYTES}", "payload")
+    obj = payload if isinstance(payload, dict) else _json_object(payload)
+    for name in NOT_OPTIONS:
+        if name in obj:
+            raise Problem(422, f"{name!r} is not a stream option (the cloud comes in the message)", name)
+    merged = {**base, **obj}
+    vps = merged.pop("viewpoints", np.asarray(viewpoints, np.float64).tolist())
+    try:
+        req = parse_model(DetectRequest, {**merged, "cloud": {"points": _PLACEHOLDER_POINTS, "viewpoints": vps}})
+    except Problem as exc:
+        if exc.field is not None and exc.field.startswith("cloud.viewpoints"):
+            raise Problem(exc.status, exc.message, "viewpoints" + exc.field[len("cloud.viewpoints"):]) from None
+        raise
+    return StreamOptions(req, np.asarray(req.cloud.viewpoints, np.float64), {k: v for k, v in merged.items()})
+
+
+def _json_object(payload: bytes | str) -> dict[str, Any]:
+    """A JSON object, read and refused (400/422 naming the body) as parse_model reads a request."""
+    try:
+        obj = loads(payload)
+    except JsonTooDeep as exc:
+        raise Problem(422, str(exc), "body") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise Problem(400, f"invalid JSON ({exc})", "body") from None
+    if not isinstance(obj, dict):
+        raise Problem(422, f"a JSON object is expected, got {type(obj).__name__}", "body")
+    return obj
+
+
+def decode_input(payload: bytes, name: str, options: StreamOptions) -> CloudMessage:
+    """The CloudMessage of a CDR payload arriving as input name (INPUT_TYPES); Problem 422 naming the ROS field
+    of a malformed message (a PointCloud2 is seen from the options' viewpoints, all its points from the first)."""
+    try:
+        if name == "pointcloud2":
+            msg = decode_pointcloud2(payload, options.viewpoints[:1])
+        else:
+            msg = _DECODERS[name](payload)
+    except RosDecodeError as exc:
+        raise Problem(422, f"not a usable {INPUT_TYPES[name]}: {exc}", exc.field) from None
+    pts = msg.cloud.points
+    if len(pts) == 0:
+        raise Problem(422, "no finite point in the cloud; send at least one point", _DATA_FIELD[name])
+    if float(np.abs(pts).max()) > MAX_COORDINATE:
+        raise Problem(422, f"coordinates beyond +-{MAX_COORDINATE:g} m; send metres in a local frame",
+                      _DATA_FIELD[name])
+    return msg
+
+
+def stream_request(msg: CloudMessage, options: StreamOptions) -> StreamRequest:
+    """The engine request for a decoded message under the stream options (no revalidation of the points:
+    the decoder bounded them, decode_input checked them as the JSON cloud is checked)."""
+    cloud = msg.cloud
+    fields = {name: getattr(options.request, name) for name in DetectRequest.model_fields}
+    fields["cloud"] = Cloud.model_construct(points=cloud.points, viewpoints=cloud.viewpoints.astype(np.float64),
+                                            camera_source=cloud.camera_source)
+    req = StreamRequest.model_construct(_fields_set=options.request.model_fields_set, **fields)
+    req._decoded = cloud
+    req._sample_points = msg.sample_points
+    return req
+
+
+def ros_header(header: Header) -> dict[str, Any]:
+    """The JSON answer's "header" of a ROS input."""
+    return {"frame_id": header.frame_id, "stamp": {"sec": header.stamp[0], "nanosec": header.stamp[1]}}
+
+
+@dataclass
+class Captured:
+    """The detection of one request, caught on the worker (engine on_detection) for the ROS outputs."""
+
+    grasps: GraspSet | None = None
+    hand: HandGeometry | None = None
+
+    def __call__(self, det: Detection | TemplateDetection, cloud: ViewpointCloud, hand: HandGeometry) -> None:
+        self.grasps, self.hand = det.grasps, hand
+
+
+def ros_outputs(grasps: GraspSet, header: Header, hand: HandGeometry, approach_distance: float,
+                names: Collection[str]) -> Iterator[tuple[str, bytes]]:
+    """(output name, CDR), encoded one by one in publication order, for the outputs in names: GraspConfigList,
+    PoseArray, one moveit_msgs/Grasp per grasp (best first; pre-grasp approach of approach_distance m along
+    the approach), and last the MarkerArray (its encoding is the slowest)."""
+    if "grasp_config_list" in names:
+        yield "grasp_config_list", encode_grasp_config_list(grasps, header)
+    if "pose_array" in names:
+        yield "pose_array", encode_pose_array(grasps, header)
+    if "moveit_grasps" in names:
+        for message in encode_moveit_grasps(grasps, header, approach_distance=approach_distance):
+            yield "moveit_grasps", message
+    if "marker_array" in names:
+        yield "marker_array", encode_marker_array(grasps, header, hand)
