@@ -12,10 +12,10 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from graspd.database import redact_text, redact_url
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd.templates import TemplateError, TemplateLibrary
-from graspd.templates.store import redact_text, redact_url
 from graspd_client.zenoh_client import zenoh_config
 
 from .conftest import free_port

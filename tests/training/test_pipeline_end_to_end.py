@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from graspd.classifier import GraspClassifier, load_model
-from graspd.templates.store import TemplateLibrary
+from graspd.outcomes import OutcomeStore
 from graspd.training import cli
 from graspd.training.config import TrainConfig
 from graspd.training.dataset import read_manifest
@@ -106,7 +106,7 @@ def test_robot_feedback_joins_training_and_moves_scores_toward_the_outcomes(tiny
     images, labels, _ = load_rows(data, "view", "test", "15", limit=40, seed=3)
     outcomes = labels == 0  # what "the robot" reports: the opposite of the antipodal label
     url = f"sqlite:///{tmp_path / 'feedback.db'}"
-    with TemplateLibrary(url) as store:
+    with OutcomeStore(url) as store:
         for i, (image, held) in enumerate(zip(images, outcomes, strict=True)):
             store.add_outcome(f"gpd{i:04d}.0", bool(held), np.eye(4), 0.05, image, "15")
         store.add_outcome("gpd9999.0", True, np.eye(4), 0.05, images[0, :3], "3")  # other representation

@@ -3,7 +3,7 @@
 
 Where feedback finds a grasp by its id:
 - template grasps ("<detection id>.<k>") are recorded in the library store with their candidate
-  template and a voxelized copy of the cloud (graspd.templates.store, table detections): they survive
+  template and a voxelized copy of the cloud (graspd.templates.library, table detections): they survive
   restarts and are shared by every server using the same library URL; the newest
   `template_detections` are kept, older ones deleted after each detection;
 - GPD grasps ("<request id>-<k>") are remembered in this process's memory only: the last
@@ -13,7 +13,7 @@ Where feedback finds a grasp by its id:
 The library opens on first use (GRASPD_TEMPLATE_LIBRARY, else an SQLite file in the data folder); a
 library that cannot be opened answers 503 naming template_library, and GPD detection is unaffected.  The
 library URL's password never appears in an answer or a log line: errors quote the URL with it masked, and
-driver messages are scrubbed of it (graspd.templates.store.redact_text).
+driver messages are scrubbed of it (graspd.database.redact_text).
 """
 
 from __future__ import annotations
@@ -36,7 +36,9 @@ from graspd.cloud import CloudError, ViewpointCloud
 from graspd.database import redact_text, redact_url
 from graspd.detector import Detection
 from graspd.hand import HandGeometry, hand_preset
+from graspd.outcomes import Feedback
 from graspd.templates import TemplateDetection, TemplateDetector, TemplateError, TemplateLibrary, UnknownGrasp
+from graspd.templates.demonstration import grasp_image
 from graspd.templates.library import parse_grasp_id
 from graspd_client.codec import WireError
 
@@ -258,9 +260,7 @@ class TemplateService:
             raise template_problem(exc) from None
         return {**fb.to_dict(), "method": method}
 
-    def _gpd_feedback(self, grasp_id: str, request_id: str, k: int, success: bool) -> Any:
-        from graspd.templates.demonstration import grasp_image
-
+    def _gpd_feedback(self, grasp_id: str, request_id: str, k: int, success: bool) -> Feedback:
         item = self.recent.get(request_id)
         if item is None:
             raise Problem(404, f"{grasp_id!r}: unknown or forgotten detection (this server remembers its last "
@@ -268,4 +268,5 @@ class TemplateService:
         if k >= len(item.poses):
             raise Problem(404, f"{grasp_id!r}: that detection returned {len(item.poses)} grasps", "grasp_id")
         image = grasp_image(item.cloud, item.poses[k], float(item.widths[k]), item.hand, "15")
-        return self.library.add_outcome(grasp_id, success, item.poses[k], float(item.widths[k]), image, "15")
+        return self.library.outcomes.add_outcome(grasp_id, bool(success), item.poses[k], float(item.widths[k]),
+                                                 image, "15")

@@ -40,8 +40,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--threads", type=int, help="torch and onnxruntime threads (default 2)")
     p.add_argument("--max-train", type=int, dest="max_train", help="use at most this many training exemplars")
     p.add_argument("--max-minutes", type=float, dest="max_minutes", help="stop training after this wall time")
-    p.add_argument("--feedback", help="SQLAlchemy URL of a feedback store (the service's GRASPD_TEMPLATE_DB): the "
-                   "executed grasps stored with their images (POST /feedback) join the training rows")
+    p.add_argument("--feedback", help="SQLAlchemy URL of a feedback store (the service's GRASPD_TEMPLATE_LIBRARY): "
+                   "the executed grasps stored with their images (POST /feedback) join the training rows")
     p.add_argument("--feedback-repeat", type=int, dest="feedback_repeat",
                    help="draw each stored outcome this many times per epoch (default 4)")
     p.add_argument("--models-dir", default=None, help="where to write NAME.onnx and NAME.json (default models/)")

@@ -13,7 +13,9 @@ from numpy.typing import NDArray
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, SQLAlchemyError
 
+from ..database import StoreError
 from ..images import REPRESENTATIONS
+from ..outcomes import OutcomeStore
 from .dataset import CATEGORIES, derive_images, read_manifest, read_split, split_mask
 
 
@@ -105,14 +107,12 @@ def training_rows(dataset: str, kind: str, part: str, categories: list[str] | No
 def feedback_rows(url: str, representation: str, image_size: int
                   ) -> tuple[NDArray[np.uint8], NDArray[np.uint8], dict[str, Any]]:
     """(images (M,C,S,S) uint8 of a representation, labels (M,): 1 = the grasp held, summary) of the executed
-    grasps stored with their grasp image in a feedback store (graspd.templates.store, any SQLAlchemy URL).
+    grasps stored with their grasp image in a feedback store (graspd.outcomes, any SQLAlchemy URL).
 
     These are the robot's own outcomes (POST /feedback): real labels from the real sensor, added to the
     training rows.  15-channel images are derived to any representation; an image stored in another
     representation must match the one trained, and one of another size is skipped (counted in summary).
     """
-    from ..templates.store import TemplateError  # the outcome store is moving (graspd.outcomes)
-
     try:
         shown = make_url(url).render_as_string(hide_password=True)
     except ArgumentError as exc:
@@ -123,7 +123,7 @@ def feedback_rows(url: str, representation: str, image_size: int
     skipped = 0
     try:
         rows = list(_stored_outcomes(url))
-    except (SQLAlchemyError, TemplateError) as exc:
+    except (SQLAlchemyError, StoreError) as exc:
         raise ValueError(f"feedback: cannot read the store {shown}: {exc}") from exc
     for row in rows:
         img, rep = row["image"], row["representation"]
@@ -146,11 +146,9 @@ def feedback_rows(url: str, representation: str, image_size: int
 
 def _stored_outcomes(url: str) -> Iterator[dict[str, Any]]:
     """The outcomes with images of a feedback store (oldest first); the store must exist (no new file)."""
-    from ..templates.store import TemplateLibrary  # the outcome store is moving (graspd.outcomes)
-
     parsed = make_url(url)
     if parsed.get_backend_name() == "sqlite" and parsed.database not in (None, "", ":memory:") \
             and not Path(parsed.database).exists():
         raise ValueError(f"feedback: no such store {parsed.database}")
-    with TemplateLibrary(url) as store:
+    with OutcomeStore(url) as store:
         yield from store.iter_outcomes(with_images_only=True)
