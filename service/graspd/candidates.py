@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 
 from .grasp import GraspSet
 from .hand import HandGeometry
+from .parallel import THREADS
 from .scene import ClosingRegionPoints, Scene, ball_pairs
 
 MIN_FRAME_POINTS = 3
@@ -36,7 +37,9 @@ class SamplingParams:
     plus approach distance); None checks only the points within the hand's own reach, as GPD does.
     obstacles: the points the hands test against (default all); support (unit normal n, offset d: the plane
     n.p + d = 0, n toward the free side) stops each hand support_clearance (m) short of the plane in closed
-    form, so the support's points need not be among the obstacles (most of a tabletop cloud is table)."""
+    form, so the support's points need not be among the obstacles (most of a tabletop cloud is table).
+    palm_clearance (m): the palm stops this far short of the first point it would touch (sensor noise: a
+    palm pushed onto a seen surface presses on the real one)."""
 
     num_samples: int = 1000
     num_orientations: int = 8
@@ -49,6 +52,7 @@ class SamplingParams:
     obstacles: NDArray[np.bool_] | None = None
     support: tuple[tuple[float, float, float], float] | None = None
     support_clearance: float = 0.0
+    palm_clearance: float = 0.0
 
 
 def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float
@@ -138,9 +142,10 @@ def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None
     else:
         obstacle_idx = np.flatnonzero(p.obstacles)
         tree = cKDTree(scene.points[obstacle_idx])
-    # Chunks of samples keep the neighbour arrays small: time stays linear in the number of samples.
-    parts = [_search_chunk(scene, hand, p, sample_idx[a : a + CHUNK], frames[a : a + CHUNK], tree, obstacle_idx)
-             for a in range(0, len(sample_idx), CHUNK)]
+    # Chunks of samples keep the neighbour arrays small: time stays linear in the number of samples; they run
+    # on the process's thread budget (a lone request uses every core).
+    parts = THREADS.map(lambda a: _search_chunk(scene, hand, p, sample_idx[a : a + CHUNK], frames[a : a + CHUNK],
+                                                tree, obstacle_idx), range(0, len(sample_idx), CHUNK))
     offsets = np.cumsum([0] + [len(g) for g, _ in parts])
     region = ClosingRegionPoints(
         np.concatenate([r.grasp + off for (_, r), off in zip(parts, offsets, strict=False)]),
@@ -223,7 +228,7 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     for j, s in enumerate(s_grid):
         left = depth_min[:, :, bin_range(s - od / 2, s - od / 2 + fw)].min(axis=2)
         right = depth_min[:, :, bin_range(s + od / 2 - fw, s + od / 2)].min(axis=2)
-        palm = depth_min[:, :, bin_range(s - od / 2, s + od / 2)].min(axis=2) + hd
+        palm = depth_min[:, :, bin_range(s - od / 2, s + od / 2)].min(axis=2) + (hd - p.palm_clearance)
         tip[:, :, j] = np.minimum(np.minimum(left, right), palm)
     # the palm never passes the sample (it is always an obstacle when the obstacles hold it)
     np.minimum(tip, hd, out=tip)

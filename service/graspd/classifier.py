@@ -106,6 +106,7 @@ class OnnxGraspClassifier:
         self.scale = np.float32(self.card["input"]["scale"])
         self.offset = np.float32(self.card["input"]["offset"])
         self.batch_size = batch_size
+        self.threads = threads  # intra-op threads of one run (0: onnxruntime's choice, every core)
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = threads
         opts.inter_op_num_threads = 1

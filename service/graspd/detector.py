@@ -21,6 +21,7 @@ from .environment import Environment, EnvironmentParams, Label, hand_hits_enviro
 from .grasp import GraspSet
 from .hand import HandGeometry
 from .images import encode_batches
+from .parallel import THREADS
 from .preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
 from .scene import ClosingRegionPoints, Scene
 from .selection import SelectionParams, Vec3, feasible_mask, select
@@ -208,7 +209,7 @@ class GraspDetector:
             for a, images in encode_batches(scene, candidates, h, scorer.representation, region=region,
                                             batch=p.score_batch):
                 t_encoded = time.perf_counter()
-                scores[a : a + len(images)] = np.asarray(scorer.score(images), np.float64)
+                scores[a : a + len(images)] = score_parallel(scorer, images)
                 t_encode += t_encoded - t_batch
                 t_batch = time.perf_counter()
                 t_score += t_batch - t_encoded
@@ -243,6 +244,23 @@ def _nearest(scene: Scene, p: DetectionParams) -> tuple[int, ...] | None:
     dist, idx = scene.tree.query(np.asarray(p.sample_points, np.float64).reshape(-1, 3),
                                  distance_upper_bound=p.frame_radius)
     return tuple(np.unique(idx[np.isfinite(dist)]).tolist())
+
+
+MIN_SCORE_PIECE = 64  # images scored together at least: below this a second thread saves less than it costs
+
+
+def score_parallel(scorer: Scorer, images: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """scorer.score(images) in pieces on the process's thread budget: a lone request scores on every core,
+    concurrent ones on their share.  A scorer with intra-op threads of its own (its `threads`, 0 = all cores)
+    gets fewer pieces.  Scores do not depend on the pieces (each image is scored on its own)."""
+    own = int(getattr(scorer, "threads", 1))
+    own = THREADS.cores if own <= 0 else own
+    parts = min(max(1, THREADS.share() // own), max(1, len(images) // MIN_SCORE_PIECE))
+    if parts <= 1:
+        return np.asarray(scorer.score(images), np.float64)
+    step = -(-len(images) // parts)
+    pieces = THREADS.map(scorer.score, [images[a : a + step] for a in range(0, len(images), step)], threads=parts)
+    return np.concatenate([np.asarray(x, np.float64) for x in pieces])
 
 
 def environment_conflicts(candidates: GraspSet, region: ClosingRegionPoints, env: Environment, hand: HandGeometry,

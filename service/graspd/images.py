@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from .grasp import GraspSet
 from .hand import HandGeometry
+from .parallel import THREADS
 from .scene import ClosingRegionPoints, Scene, closing_region_points
 
 REPRESENTATIONS: dict[str, int] = {"15": 15, "12": 12, "3": 3, "herzog": 3}
@@ -137,8 +138,11 @@ def encode_images(scene: Scene, grasps: GraspSet, hand: HandGeometry, representa
     out = np.zeros((m, n_ch, size, size), np.uint8)
     if m == 0:
         return out
-    for a, b, part in _chunks(scene, grasps, hand, region, ENCODE_CHUNK):
+    def encode(job: tuple[int, int, ClosingRegionPoints]) -> None:
+        a, b, part = job
         _encode_chunk(out[a:b], scene, grasps[a:b], hand, representation, part)
+
+    THREADS.map(encode, list(_chunks(scene, grasps, hand, region, ENCODE_CHUNK)))  # on the thread budget
     return out
 
 
@@ -152,8 +156,38 @@ def encode_batches(scene: Scene, grasps: GraspSet, hand: HandGeometry, represent
         raise KeyError(f"unknown representation {representation!r}; known: {sorted(REPRESENTATIONS)}")
     for a, b, part in _chunks(scene, grasps, hand, region, batch):
         out = np.zeros((b - a, n_ch, size, size), np.uint8)
-        _encode_chunk(out, scene, grasps[a:b], hand, representation, part)
+        _encode_parallel(out, scene, grasps[a:b], hand, representation, part)
         yield a, out
+
+
+MIN_PARALLEL_CHUNK = 64  # grasps: smaller pieces cost more in overhead than a second thread saves
+
+
+def _encode_parallel(out: NDArray[np.uint8], scene: Scene, grasps: GraspSet, hand: HandGeometry,
+                     representation: str, occ: ClosingRegionPoints) -> None:
+    """_encode_chunk over pieces of the grasps on the process's thread budget (each grasp's images depend on
+    that grasp alone, so the pieces give the same images)."""
+    m = len(grasps)
+    share = THREADS.share()
+    piece = max(MIN_PARALLEL_CHUNK, -(-m // share))
+    if share <= 1 or m <= piece:
+        _encode_chunk(out, scene, grasps, hand, representation, occ)
+        return
+    pieces = list(_split(occ, m, piece))
+
+    def encode(job: tuple[int, int, ClosingRegionPoints]) -> None:
+        a, b, part = job
+        _encode_chunk(out[a:b], scene, grasps[a:b], hand, representation, part)
+
+    THREADS.map(encode, pieces)
+
+
+def _split(occ: ClosingRegionPoints, m: int, chunk: int) -> Iterator[tuple[int, int, ClosingRegionPoints]]:
+    """(a, b, the points of grasps [a, b) renumbered from 0) for consecutive chunks; occ sorted by grasp."""
+    for a in range(0, m, chunk):
+        b = min(m, a + chunk)
+        lo, hi = np.searchsorted(occ.grasp, [a, b])
+        yield a, b, ClosingRegionPoints(occ.grasp[lo:hi] - a, occ.local[lo:hi], occ.index[lo:hi])
 
 
 def _chunks(scene: Scene, grasps: GraspSet, hand: HandGeometry, region: ClosingRegionPoints | None, chunk: int
@@ -166,10 +200,7 @@ def _chunks(scene: Scene, grasps: GraspSet, hand: HandGeometry, region: ClosingR
     if len(occ.grasp) > 1 and not bool(np.all(occ.grasp[1:] >= occ.grasp[:-1])):
         order = np.argsort(occ.grasp, kind="stable")
         occ = ClosingRegionPoints(occ.grasp[order], occ.local[order], occ.index[order])
-    for a in range(0, m, chunk):
-        b = min(m, a + chunk)
-        lo, hi = np.searchsorted(occ.grasp, [a, b])
-        yield a, b, ClosingRegionPoints(occ.grasp[lo:hi] - a, occ.local[lo:hi], occ.index[lo:hi])
+    yield from _split(occ, m, chunk)
 
 
 def _encode_chunk(out: NDArray[np.uint8], scene: Scene, grasps: GraspSet, hand: HandGeometry,

@@ -23,6 +23,7 @@ from pydantic import BaseModel, ValidationError
 from graspd.cloud import ViewpointCloud
 from graspd.detector import Detection, DetectionParams
 from graspd.hand import HandGeometry
+from graspd.parallel import THREADS
 from graspd.templates import TemplateDetection
 from graspd_client.codec import WireError
 
@@ -231,14 +232,14 @@ class DetectionEngine:
                 raise from_wire(exc) from None
             det: Detection | TemplateDetection
             ctx = current_request()
-            if req.method == "templates":
-                det = self.templates.detect(req, cloud, hand)
+            with THREADS.request():  # concurrent requests share the cores (graspd.parallel)
+                det = self._detect(req, cloud, params, hand, model)
+            if isinstance(det, TemplateDetection):
                 request_id = det.detection_id or uuid.uuid4().hex
                 if ctx is not None:
                     ctx.id = request_id  # the request's later log lines and X-Request-ID carry the returned id
                 used_hand = self.templates.library.hand
             else:
-                det = self.registry.detector(model).detect(cloud, params, hand)
                 request_id = ctx.id if ctx is not None else uuid.uuid4().hex[:16]
                 self.templates.remember(request_id, cloud, det)
                 used_hand = det.hand
@@ -265,6 +266,13 @@ class DetectionEngine:
                 self.metrics.running.set(self._running)
                 if elapsed > 0.01 or self._avg_seconds < 0.01:  # refusals in microseconds say nothing of the load
                     self._avg_seconds = 0.8 * self._avg_seconds + 0.2 * elapsed
+
+    def _detect(self, req: DetectRequest, cloud: ViewpointCloud, params: DetectionParams, hand: HandGeometry | None,
+                model: str | None) -> Detection | TemplateDetection:
+        """The detection a request asks for: grasp templates, or GPD with the resolved model."""
+        if req.method == "templates":
+            return self.templates.detect(req, cloud, hand)
+        return self.registry.detector(model).detect(cloud, params, hand)
 
     def submit(self, req: DetectRequest, timings: dict[str, float], header: dict[str, Any] | None = None,
                on_detection: OnDetection | None = None) -> tuple[Future[bytes], float]:
