@@ -40,7 +40,9 @@ from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
 from graspd.templates import TemplateDetector, TemplateError, TemplateLibrary, TemplateParams
 from graspd.templates.geometry import candidate_templates, prepare_scene
-from graspd.templates.synthetic import random_urdf_mesh, render_cloud, table_mesh
+from graspd.world.meshes import table_mesh
+from graspd.world.objects import sized_urdf_mesh as random_urdf_mesh
+from graspd.world.render import render_cloud
 from graspd_client import GraspClient
 
 CAMERA = np.array([[0.45, 0.1, 0.45]])

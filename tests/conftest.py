@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from graspd.cloud import ViewpointCloud
+from graspd.world.meshes import pose_from, posed_box, rot_z, table_mesh
+from graspd.world.render import render_cloud
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_DATA = REPO.parent / "shared" / "data" / "real"
@@ -28,9 +30,7 @@ BOX = (0.05, 0.10, 0.08)
 
 def _render(pose: np.ndarray, extents: tuple[float, float, float] = BOX, cameras: np.ndarray = CAMERA,
             noise: float = 0.0, seed: int = 0) -> ViewpointCloud:
-    from graspd.templates.synthetic import box_mesh, render_cloud, table_mesh
-
-    return render_cloud([table_mesh(), box_mesh(extents, pose)], cameras, (0.0, 0.0, 0.04), width=320,
+    return render_cloud([table_mesh(), posed_box(extents, pose)], cameras, (0.0, 0.0, 0.04), width=320,
                         height=240, noise=noise, seed=seed)
 
 
@@ -46,8 +46,6 @@ def box_pose() -> Callable[..., np.ndarray]:
 
     def make(yaw: float = 0.3, xy: tuple[float, float] = (0.02, 0.01),
              extents: tuple[float, float, float] = BOX) -> np.ndarray:
-        from graspd.templates.synthetic import pose_from, rot_z
-
         return pose_from(rot_z(yaw), (xy[0], xy[1], extents[2] / 2))
 
     return make

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from fixtures import box_top_grasp
 from graspd.cloud import ViewpointCloud
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
@@ -27,7 +28,6 @@ from graspd.server.zenoh_node import (
     is_local_endpoint,
     zenoh_config,
 )
-from graspd.templates.synthetic import box_top_grasp
 from graspd_client import RequestRejected, build_demonstration_request, build_feedback_request
 from graspd_client.wire import zenoh_token_attachment
 from graspd_client.zenoh_client import ZenohGraspClient

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from fixtures import box_side_grasp, box_top_grasp, grasp_angle_deg
 from graspd.templates import TemplateDetector, TemplateLibrary, TemplateParams
-from graspd.templates.synthetic import box_side_grasp, box_top_grasp, grasp_angle_deg, pose_from, rot_z
+from graspd.world.meshes import pose_from, rot_z
 
 BOX = (0.05, 0.10, 0.08)
 

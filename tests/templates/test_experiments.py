@@ -5,10 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graspd.hand import HandGeometry
-from graspd.sim.experiments import TemplateSimDetector, attempt, last_ten, scripted_demonstrations, training_urdf
-from graspd.templates import TemplateDetector, TemplateLibrary, TemplateParams
-from graspd.templates.synthetic import box_top_grasp
+pytest.importorskip("pybullet")  # graspd.sim is the optional extra graspd[sim]
+
+from fixtures import box_top_grasp  # noqa: E402
+from graspd.hand import HandGeometry  # noqa: E402
+from graspd.sim.experiments import (  # noqa: E402
+    TemplateSimDetector,
+    attempt,
+    last_ten,
+    scripted_demonstrations,
+    training_urdf,
+)
+from graspd.templates import TemplateDetector, TemplateLibrary, TemplateParams  # noqa: E402
 
 
 def test_last_ten_is_the_success_rate_over_the_last_ten_trials() -> None:

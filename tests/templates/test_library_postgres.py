@@ -21,10 +21,10 @@ from urllib.parse import quote
 import pytest
 from fastapi.testclient import TestClient
 
+from fixtures import box_top_grasp
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd.templates import TemplateDetector, TemplateLibrary
-from graspd.templates.synthetic import box_top_grasp
 
 BOX = (0.05, 0.10, 0.08)
 PASSWORD = "pg-S3cret/with@chars"

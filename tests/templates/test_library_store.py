@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 import sqlalchemy as sa
 
+from fixtures import box_top_grasp
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.database import SCHEMA_VERSION, make_engine, migrate
 from graspd.hand import HandGeometry
 from graspd.templates import TemplateDetector, TemplateError, TemplateLibrary
-from graspd.templates.synthetic import box_top_grasp
 
 REPO = Path(__file__).resolve().parents[2]
 BOX = (0.05, 0.10, 0.08)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fixtures import box_top_grasp
 from graspd.cloud import ViewpointCloud
 from graspd.hand import HandGeometry
 from graspd.templates.demonstration import demonstration_template
@@ -17,7 +18,9 @@ from graspd.templates.geometry import (
     height_axes,
     prepare_scene,
 )
-from graspd.templates.synthetic import box_mesh, box_top_grasp, render_cloud, table_mesh
+from graspd.world.meshes import posed_box as box_mesh
+from graspd.world.meshes import table_mesh
+from graspd.world.render import render_cloud
 
 GEOM = TemplateGeometry.for_hand(HandGeometry())
 BOX = (0.05, 0.10, 0.08)

@@ -7,9 +7,9 @@ import json
 
 import numpy as np
 
+from fixtures import box_top_grasp
 from graspd.server.settings import Settings
 from graspd.templates.cli import register
-from graspd.templates.synthetic import box_top_grasp
 
 BOX = (0.05, 0.10, 0.08)
 

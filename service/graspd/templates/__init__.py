@@ -46,8 +46,7 @@ demonstrations, the paper's generalisation and improvement-over-time runs) live 
 Modules: geometry (templates, table, hull axes, occlusion), matching (eq. 1, eq. 2), library (entries,
 failure sets, detections; its database is graspd.database, its outcomes graspd.outcomes), demonstration
 (template of a demonstrated grasp; grasp images), collision (the open hand against the scene; closing
-widths), detector, cli, synthetic (ray-cast table scenes for tests and benchmarks); store only re-exports
-the names that lived there before the split.
+widths), detector, cli.  Synthetic table scenes are graspd.world (meshes, objects, render).
 """
 
 from ..outcomes import Feedback

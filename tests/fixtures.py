@@ -1,27 +1,17 @@
-"""Scripted grasps on synthetic scenes, for the template tests and benchmarks.
+"""Scripted hand poses on the synthetic box scenes of the template tests (tests/conftest.py renders them with
+graspd.world): a top-down and a side grasp on a box, and the angle between two hand orientations.
+Metres, world frame, z up; hand rotation columns [approach, binormal, axis] (DESIGN.md).
 
-The scene geometry moved to graspd.world (issue 12): meshes (posed_box, posed_cylinder, table_mesh,
-pose_from, rot_z), objects (sized_urdf_mesh, through the held-out guard) and render (render_cloud); the
-names below re-export it for importers not yet updated.  box_top_grasp, box_side_grasp and
-grasp_angle_deg are test fixtures: they move to tests/ once their importers (tests/templates,
-tests/server, tests/client, tests/conftest.py) import them from there.  Metres, world frame, z up.
-"""
+Importable as `fixtures` (pyproject.toml: [tool.pytest.ini_options] pythonpath = ["tests"])."""
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..world.meshes import pose_from, rot_z, table_mesh
-from ..world.meshes import posed_box as box_mesh
-from ..world.meshes import posed_cylinder as cylinder_mesh
-from ..world.objects import sized_urdf_mesh as random_urdf_mesh
-from ..world.render import render_cloud
+from graspd.world.meshes import pose_from
 
 F64 = NDArray[np.float64]
-
-__all__ = ["box_mesh", "box_side_grasp", "box_top_grasp", "cylinder_mesh", "grasp_angle_deg", "pose_from",
-           "random_urdf_mesh", "render_cloud", "rot_z", "table_mesh"]
 
 
 def box_top_grasp(box_pose: F64, extents: tuple[float, float, float], hand_depth: float = 0.06,
