@@ -308,7 +308,10 @@ class ZenohNode:
         self._declared.append(s.declare_queryable(self.config_key, in_fresh_context(self._on_config_query),
                                                   complete=True))
         self._declared.append(s.declare_subscriber(self.config_key, self._on_config_put))
-        self._publishers = {name: s.declare_publisher(key) for name, key in self.output_keys.items()}
+        # BLOCK: a burst of outputs (one moveit_msgs/Grasp per grasp) is never dropped by a full queue; the stream
+        # thread waits instead, and newer clouds replace the waiting one
+        self._publishers = {name: s.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+                            for name, key in self.output_keys.items()}
         if self.settings.zenoh_stream:
             for name, key in self.input_keys.items():
                 self._declared.append(s.declare_subscriber(key, lambda sample, n=name: self._on_cloud(sample, n)))
