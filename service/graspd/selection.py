@@ -73,25 +73,26 @@ def cluster(grasps: GraspSet, params: SelectionParams) -> tuple[GraspSet, NDArra
     scored = not np.isnan(grasps.scores).all()
     order = np.argsort(-np.nan_to_num(grasps.scores, nan=0.0), kind="stable")
     g = grasps[order]
-    axis = g.axis
-    cos_axis = np.abs(axis @ axis.T) >= np.cos(np.radians(params.cluster_axis_angle_deg))
-    delta = g.positions[None, :, :] - g.positions[:, None, :]  # [i, j] = p_j - p_i
-    along = np.einsum("ijk,ik->ij", delta, axis)
-    off_axis = np.linalg.norm(delta - along[:, :, None] * axis[:, None, :], axis=2)
-    near = (off_axis <= params.cluster_axis_distance) & (np.linalg.norm(delta, axis=2) <= params.cluster_max_distance)
-    agree = cos_axis & near
-    assigned = np.zeros(m, bool)
+    axis, pos = g.axis, g.positions
+    cos_min = np.cos(np.radians(params.cluster_axis_angle_deg))
+    free = np.arange(m)  # not yet in a cluster, best first: the next representative is free[0]
     reps: list[int] = []
     sizes: list[int] = []
     sums: list[float] = []
-    for i in range(m):
-        if assigned[i]:
-            continue
-        members = agree[i] & ~assigned
-        members[i] = True
-        assigned |= members
+    while len(free):
+        # one row of the agreement matrix, only for a representative and only against the free hands:
+        # O(representatives x m) work instead of m x m arrays
+        i, rest = int(free[0]), free[1:]
+        delta = pos[rest] - pos[i]
+        along = np.einsum("jk,k->j", delta, axis[i])
+        off_axis = np.linalg.norm(delta - along[:, None] * axis[i], axis=1)
+        agree = ((np.abs(np.einsum("jk,k->j", axis[rest], axis[i])) >= cos_min)
+                 & (off_axis <= params.cluster_axis_distance)
+                 & (np.linalg.norm(delta, axis=1) <= params.cluster_max_distance))
+        members = np.concatenate([[i], rest[agree]])
+        free = rest[~agree]
         reps.append(i)
-        sizes.append(int(members.sum()))
+        sizes.append(len(members))
         sums.append(float(np.nansum(g.scores[members])))
     sizes_a = np.array(sizes, np.int64)
     ok = sizes_a >= params.min_cluster_size
