@@ -37,9 +37,7 @@ class SamplingParams:
     plus approach distance); None checks only the points within the hand's own reach, as GPD does.
     obstacles: the points the hands test against (default all); support (unit normal n, offset d: the plane
     n.p + d = 0, n toward the free side) stops each hand support_clearance (m) short of the plane in closed
-    form, so the support's points need not be among the obstacles (most of a tabletop cloud is table).
-    palm_clearance (m): the palm stops this far short of the first point it would touch (sensor noise: a
-    palm pushed onto a seen surface presses on the real one)."""
+    form, so the support's points need not be among the obstacles (most of a tabletop cloud is table)."""
 
     num_samples: int = 1000
     num_orientations: int = 8
@@ -52,7 +50,6 @@ class SamplingParams:
     obstacles: NDArray[np.bool_] | None = None
     support: tuple[tuple[float, float, float], float] | None = None
     support_clearance: float = 0.0
-    palm_clearance: float = 0.0
 
 
 def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float
@@ -228,7 +225,7 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     for j, s in enumerate(s_grid):
         left = depth_min[:, :, bin_range(s - od / 2, s - od / 2 + fw)].min(axis=2)
         right = depth_min[:, :, bin_range(s + od / 2 - fw, s + od / 2)].min(axis=2)
-        palm = depth_min[:, :, bin_range(s - od / 2, s + od / 2)].min(axis=2) + (hd - p.palm_clearance)
+        palm = depth_min[:, :, bin_range(s - od / 2, s + od / 2)].min(axis=2) + hd
         tip[:, :, j] = np.minimum(np.minimum(left, right), palm)
     # the palm never passes the sample (it is always an obstacle when the obstacles hold it)
     np.minimum(tip, hd, out=tip)
