@@ -25,7 +25,7 @@ from .logs import begin_request
 from .metrics import Metrics
 from .problems import Problem, from_validation
 from .registry import ModelRegistry
-from .routers import detect, health, metrics, models
+from .routers import detect, health, metrics, models, viewer
 from .schemas import DetectRequest
 from .settings import Settings
 from .templates_api import REQUEST_MODELS
@@ -150,7 +150,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
 
     app = FastAPI(title="graspd", version=__version__, description=DESCRIPTION, lifespan=lifespan)
     app.add_middleware(RequestGuard)
-    for r in (detect.router, health.router, models.router, metrics.router, templates_router):
+    for r in (detect.router, health.router, models.router, metrics.router, templates_router, viewer.router):
         app.include_router(r)
 
     @app.exception_handler(Problem)
