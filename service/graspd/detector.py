@@ -9,6 +9,7 @@ runs as the paper's "no classification" ablation and says so (scored = False).
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
@@ -48,7 +49,10 @@ class DetectionParams:
     None follows the environment (samples on object points only); True/False override it.  width_margin
     (m): grasps whose width leaves less than this inside the opening rank lower (0 = off).  sample_points
     (K, 3; cloud frame, m): sample hands at the preprocessed point nearest each (those within frame_radius;
-    gpd_ros CloudSamples / CloudIndexed) instead of num_samples random points."""
+    gpd_ros CloudSamples / CloudIndexed) instead of num_samples random points.  early_stop (for requests that
+    want few grasps; changes which grasps come back, so off by default): search the same seeded samples in
+    rounds of early_stop_round and stop once 2 x max_grasps candidates in distinct 2 cm cells score at least
+    min_score (else 0.5); deterministic for a seed."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -74,6 +78,8 @@ class DetectionParams:
     num_finger_placements: int = 10
     frame_radius: float = 0.01
     score_batch: int = 512
+    early_stop: bool = False
+    early_stop_round: int = 100
     sample_points: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -87,6 +93,8 @@ class DetectionParams:
             raise ValueError("num_orientations and num_finger_placements must be in [1, 64]")
         if not 0.0 <= self.approach_distance <= 0.5:
             raise ValueError(f"approach_distance must be in [0, 0.5] m, got {self.approach_distance}")
+        if self.early_stop_round < 1:
+            raise ValueError(f"early_stop_round must be >= 1, got {self.early_stop_round}")
         if not 0.0 <= self.width_margin <= 0.1:
             raise ValueError(f"width_margin must be in [0, 0.1] m, got {self.width_margin}")
 
@@ -193,32 +201,42 @@ class GraspDetector:
                                       (float(plane.normal[0]), float(plane.normal[1]), float(plane.normal[2])),
                                       float(plane.offset)),
                                   support_clearance=env.clearance)
-        candidates, region = search_hands(scene, h, sampling)
-        lap("sample")
         sel = p.selection(h, env)
-        feasible = feasible_mask(candidates, replace(sel, min_score=None))
-        if modelled:
-            feasible &= ~environment_conflicts(candidates, region, env, h, p.approach_distance)
-        candidates, region = candidates[feasible], region.subset(feasible)
         scorer = self.classifier if p.use_classifier else None
-        if scorer is not None and len(candidates):
-            # encode and score batch by batch: memory stays bounded however many candidates there are
-            scores = np.empty(len(candidates))
-            t_encode = t_score = 0.0
+
+        def candidates_for(s: SamplingParams) -> GraspSet:
+            """Sample, filter (feasibility, environment) and score the hands of s; stage times add up."""
+            t_start = time.perf_counter()
+            cands, region = search_hands(scene, h, s)
+            feasible = feasible_mask(cands, replace(sel, min_score=None))
+            if modelled:
+                feasible &= ~environment_conflicts(cands, region, env, h, p.approach_distance)
+            cands, region = cands[feasible], region.subset(feasible)
             t_batch = time.perf_counter()
-            for a, images in encode_batches(scene, candidates, h, scorer.representation, region=region,
+            timings["sample"] = timings.get("sample", 0.0) + t_batch - t_start
+            if scorer is None or not len(cands):
+                return cands
+            # encode and score batch by batch: memory stays bounded however many candidates there are
+            scores = np.empty(len(cands))
+            for a, images in encode_batches(scene, cands, h, scorer.representation, region=region,
                                             batch=p.score_batch):
                 t_encoded = time.perf_counter()
                 scores[a : a + len(images)] = score_parallel(scorer, images)
-                t_encode += t_encoded - t_batch
+                timings["encode"] = timings.get("encode", 0.0) + t_encoded - t_batch
                 t_batch = time.perf_counter()
-                t_score += t_batch - t_encoded
-            candidates = candidates.with_scores(scores)
-            timings["encode"], timings["score"] = t_encode, t_score
-            t = time.perf_counter()
+                timings["score"] = timings.get("score", 0.0) + t_batch - t_encoded
+            return cands.with_scores(scores)
+
+        timings.update(sample=0.0, encode=0.0, score=0.0)
+        if p.early_stop and p.max_grasps > 0 and sampling.sample_indices is None and scorer is not None:
+            candidates = GraspSet()
+            for chunk in sample_rounds(len(scene.points), sampling, p.early_stop_round):
+                candidates = GraspSet.concatenate([candidates, candidates_for(replace(sampling, sample_indices=chunk))])
+                if enough_grasps(candidates, p):
+                    break
         else:
-            timings["encode"] = 0.0
-            timings["score"] = 0.0
+            candidates = candidates_for(sampling)
+        t = time.perf_counter()
         rng = np.random.default_rng(p.seed)
         grasps = select(candidates, sel, use_selection=p.use_selection, rng=rng)
         lap("select")
@@ -233,6 +251,31 @@ class GraspDetector:
             hand=h,
             environment=env,
         )
+
+
+#: Early stop: a round ends the search once this many times max_grasps candidates, each in its own
+#: EARLY_STOP_SPACING cell, score at least min_score (else EARLY_STOP_SCORE).
+EARLY_STOP_FACTOR = 2
+EARLY_STOP_SCORE = 0.5
+EARLY_STOP_SPACING = 0.02
+
+
+def sample_rounds(n_points: int, sampling: SamplingParams, size: int) -> Iterator[tuple[int, ...]]:
+    """The samples of sample_point_indices (the same seeded draw), in rounds of `size` taken in draw order
+    (each round sorted): the first rounds are a uniform subsample, and all of them are every sample."""
+    rng = np.random.default_rng(sampling.seed)
+    pool = np.arange(n_points) if sampling.sample_pool is None else np.flatnonzero(sampling.sample_pool)
+    drawn = pool[rng.choice(len(pool), size=min(sampling.num_samples, len(pool)), replace=False)]
+    for a in range(0, len(drawn), max(1, size)):
+        yield tuple(int(i) for i in np.sort(drawn[a : a + size]))
+
+
+def enough_grasps(candidates: GraspSet, p: DetectionParams) -> bool:
+    """Whether the candidates so far hold EARLY_STOP_FACTOR x max_grasps high-scoring, diverse grasps (scores
+    >= min_score, else EARLY_STOP_SCORE; positions in distinct EARLY_STOP_SPACING cells)."""
+    good = candidates.scores >= (EARLY_STOP_SCORE if p.min_score is None else p.min_score)
+    cells = np.unique(np.floor(candidates.positions[good] / EARLY_STOP_SPACING).astype(np.int64), axis=0)
+    return len(cells) >= EARLY_STOP_FACTOR * p.max_grasps
 
 
 def _nearest(scene: Scene, p: DetectionParams) -> tuple[int, ...] | None:
