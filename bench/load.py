@@ -318,7 +318,7 @@ def run(args: argparse.Namespace, out: Path, results: Path) -> int:
 
         # in-process detection of the same cloud with the same options (this process, no transport)
         from graspd.cloud import ViewpointCloud
-        from graspd.server.engine import detection_params, parse_request
+        from graspd.server.engine import parse_request
         from graspd.server.registry import ModelRegistry
         from graspd.server.settings import Settings
 
@@ -328,7 +328,7 @@ def run(args: argparse.Namespace, out: Path, results: Path) -> int:
         vc = ViewpointCloud(points=req.cloud.points, viewpoints=np.asarray(req.cloud.viewpoints, np.float32),
                             camera_source=(np.zeros(0, np.int32) if req.cloud.camera_source is None
                                            else req.cloud.camera_source))
-        detect_params = detection_params(req)
+        detect_params = req.to_params()
         detector.detect(vc, detect_params)  # warm caches
         print(f"in-process detector ready (model {registry.default})")
 

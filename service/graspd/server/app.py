@@ -23,7 +23,7 @@ from .deps import ServiceState
 from .engine import DetectionEngine, dumps
 from .logs import begin_request
 from .metrics import Metrics
-from .problems import Problem, from_validation
+from .problems import Problem
 from .registry import ModelRegistry
 from .routers import detect, health, metrics, models, viewer
 from .schemas import DetectRequest
@@ -188,5 +188,4 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]
-    _ = from_validation  # re-exported for routers that validate by hand
     return app

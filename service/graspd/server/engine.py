@@ -121,11 +121,6 @@ def parse_model(model: type[M], payload: bytes | str | dict[str, Any]) -> M:
         raise from_wire(exc) from None
 
 
-def detection_params(req: DetectRequest) -> DetectionParams:
-    """The detector's knobs from a validated request: req.to_params() (kept for bench/load.py)."""
-    return req.to_params()
-
-
 def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
     """One crop entry per grasp: PNG of the window around the projected point between the fingers."""
     image = crops.image  # a PNG was decoded into image when the request was validated
