@@ -7,12 +7,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from graspd_client.codec import WireError
+
 FloatArray = NDArray[np.float32]
 IntArray = NDArray[np.int32]
 
 
-class CloudError(ValueError):
-    """The cloud is malformed; the message names the offending field."""
+class CloudError(WireError):
+    """The cloud is malformed; `field` names the offending one (e.g. "cloud.points")."""
 
 
 @dataclass(frozen=True)
@@ -28,29 +30,27 @@ class ViewpointCloud:
     def __post_init__(self) -> None:
         pts = np.ascontiguousarray(np.asarray(self.points, dtype=np.float32))
         if pts.ndim != 2 or pts.shape[1] != 3:
-            raise CloudError(f"cloud.points must have shape (N, 3), got {pts.shape}")
+            raise CloudError("cloud.points", f"must have shape (N, 3), got {pts.shape}")
         vps = np.ascontiguousarray(np.asarray(self.viewpoints, dtype=np.float32).reshape(-1, 3))
         if vps.shape[0] < 1:
-            raise CloudError("cloud.viewpoints needs at least one camera position")
+            raise CloudError("cloud.viewpoints", "needs at least one camera position")
         if not np.isfinite(vps).all():
-            raise CloudError("cloud.viewpoints must be finite")
+            raise CloudError("cloud.viewpoints", "must be finite")
         src = np.asarray(self.camera_source)
         if src.size == 0:
             src = np.zeros(pts.shape[0], np.int32)
         src = np.ascontiguousarray(src.astype(np.int32, copy=False)).reshape(-1)
         if src.shape[0] != pts.shape[0]:
-            raise CloudError(
-                f"cloud.camera_source must have one entry per point ({pts.shape[0]}), got {src.shape[0]}"
-            )
+            raise CloudError("cloud.camera_source",
+                             f"must have one entry per point ({pts.shape[0]}), got {src.shape[0]}")
         if src.size and (src.min() < 0 or src.max() >= vps.shape[0]):
-            raise CloudError(
-                f"cloud.camera_source indices must lie in [0, {vps.shape[0] - 1}] (one per viewpoint)"
-            )
+            raise CloudError("cloud.camera_source",
+                             f"indices must lie in [0, {vps.shape[0] - 1}] (one per viewpoint)")
         nrm = self.normals
         if nrm is not None:
             nrm = np.ascontiguousarray(np.asarray(nrm, dtype=np.float32))
             if nrm.shape != pts.shape:
-                raise CloudError(f"cloud.normals must have shape {pts.shape}, got {nrm.shape}")
+                raise CloudError("cloud.normals", f"must have shape {pts.shape}, got {nrm.shape}")
         object.__setattr__(self, "points", pts)
         object.__setattr__(self, "viewpoints", vps)
         object.__setattr__(self, "camera_source", src)

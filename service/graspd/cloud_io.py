@@ -33,7 +33,7 @@ def _pcd_header(data: bytes) -> tuple[dict[str, list[str]], int]:
     while True:
         end = data.find(b"\n", offset, limit)
         if end < 0:
-            raise CloudError("pcd: header ends before DATA" if limit == len(data)
+            raise CloudError("body", "pcd: header ends before DATA" if limit == len(data)
                              else f"pcd: no DATA line in the first {_MAX_PCD_HEADER} bytes")
         line = data[offset:end].decode("ascii", errors="replace").strip()
         offset = end + 1
@@ -49,9 +49,9 @@ def _count(header: dict[str, list[str]], key: str, default: str | None = None) -
     """A non-negative integer header value (WIDTH, HEIGHT, POINTS) within MAX_FILE_POINTS; CloudError otherwise."""
     values = header.get(key, [default] if default is not None else [])
     if len(values) != 1 or not values[0].isdigit():  # isdigit: no sign, no exponent, no fraction
-        raise CloudError(f"cloud.points: pcd {key} must be one non-negative integer, got {' '.join(values)!r}")
+        raise CloudError("cloud.points", f"pcd {key} must be one non-negative integer, got {' '.join(values)!r}")
     if len(values[0]) > 12 or int(values[0]) > MAX_FILE_POINTS:
-        raise CloudError(f"cloud.points: pcd {key} {values[0]} exceeds the limit of {MAX_FILE_POINTS} points")
+        raise CloudError("cloud.points", f"pcd {key} {values[0]} exceeds the limit of {MAX_FILE_POINTS} points")
     return int(values[0])
 
 
@@ -79,28 +79,28 @@ def check_pcd_header(data: bytes) -> PcdHeader:
         counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
         kind = header["DATA"][0].lower()
     except (KeyError, IndexError, ValueError) as exc:
-        raise CloudError(f"pcd: malformed header ({type(exc).__name__}: {exc})") from None
+        raise CloudError("body", f"pcd: malformed header ({type(exc).__name__}: {exc})") from None
     if not 1 <= len(fields) <= _MAX_PCD_FIELDS or not len(fields) == len(sizes) == len(types) == len(counts):
-        raise CloudError(f"pcd: FIELDS, SIZE, TYPE and COUNT must list the same 1 to {_MAX_PCD_FIELDS} fields "
+        raise CloudError("body", f"pcd: FIELDS, SIZE, TYPE and COUNT must list the same 1 to {_MAX_PCD_FIELDS} fields "
                          f"(got {len(fields)}, {len(sizes)}, {len(types)}, {len(counts)})")
     if not {"x", "y", "z"} <= set(fields):
-        raise CloudError("pcd: FIELDS must include x y z")
+        raise CloudError("body", "pcd: FIELDS must include x y z")
     for name, t, s, c in zip(fields, types, sizes, counts, strict=True):
         if s not in _PCD_SIZES.get(t, ()):
-            raise CloudError(f"pcd: field {name!r} has TYPE {t} SIZE {s} (F is 4 or 8 bytes, I/U 1, 2, 4 or 8)")
+            raise CloudError("body", f"pcd: field {name!r} has TYPE {t} SIZE {s} (F is 4 or 8 bytes, I/U 1, 2, 4 or 8)")
         if not 1 <= c <= _MAX_PCD_COUNT:
-            raise CloudError(f"pcd: field {name!r} has COUNT {c} (1 to {_MAX_PCD_COUNT})")
+            raise CloudError("body", f"pcd: field {name!r} has COUNT {c} (1 to {_MAX_PCD_COUNT})")
     for a in "xyz":
         if counts[fields.index(a)] != 1:
-            raise CloudError(f"pcd: field {a} must have COUNT 1")
+            raise CloudError("body", f"pcd: field {a} must have COUNT 1")
     points = _count(header, "POINTS")
     width, height = _count(header, "WIDTH"), _count(header, "HEIGHT", "1")
     if width * height != points:
-        raise CloudError(f"cloud.points: pcd WIDTH x HEIGHT ({width} x {height}) differs from POINTS {points}")
+        raise CloudError("cloud.points", f"pcd WIDTH x HEIGHT ({width} x {height}) differs from POINTS {points}")
     if points == 0:
-        raise CloudError("cloud.points: pcd POINTS is 0; send at least one point")
+        raise CloudError("cloud.points", "pcd POINTS is 0; send at least one point")
     if kind not in ("ascii", "binary", "binary_compressed"):
-        raise CloudError(f"pcd: DATA {kind!r} is not supported (ascii, binary or binary_compressed)")
+        raise CloudError("body", f"pcd: DATA {kind!r} is not supported (ascii, binary or binary_compressed)")
     viewpoint = None
     if "VIEWPOINT" in header:
         try:
@@ -108,7 +108,7 @@ def check_pcd_header(data: bytes) -> PcdHeader:
         except ValueError:
             vp = np.zeros(0)
         if vp.shape != (7,) or not np.isfinite(vp).all():
-            raise CloudError(f"pcd: VIEWPOINT must be 7 finite numbers (tx ty tz qw qx qy qz), "
+            raise CloudError("body", f"pcd: VIEWPOINT must be 7 finite numbers (tx ty tz qw qx qy qz), "
                              f"got {' '.join(header['VIEWPOINT'])!r}")
         viewpoint = vp[:3].astype(np.float32)
     record = sum(s * c for s, c in zip(sizes, counts, strict=True))
@@ -121,20 +121,20 @@ def _check_pcd_data(data: bytes, head: PcdHeader) -> None:
     n = head.points
     if head.kind == "binary":
         if len(body) != n * head.record_size:
-            raise CloudError(f"cloud.points: pcd header declares {n} points of {head.record_size} bytes "
+            raise CloudError("cloud.points", f"pcd header declares {n} points of {head.record_size} bytes "
                              f"({n * head.record_size} bytes); the data holds {len(body)} bytes")
     elif head.kind == "binary_compressed":
         if len(body) < 8:
-            raise CloudError("cloud.points: pcd binary_compressed data lacks its two size words")
+            raise CloudError("cloud.points", "pcd binary_compressed data lacks its two size words")
         compressed, uncompressed = np.frombuffer(body[:8], "<u4").tolist()
         if compressed != len(body) - 8:
-            raise CloudError(f"cloud.points: pcd binary_compressed declares {compressed} compressed bytes; "
+            raise CloudError("cloud.points", f"pcd binary_compressed declares {compressed} compressed bytes; "
                              f"the data holds {len(body) - 8}")
         if uncompressed != n * head.record_size:
-            raise CloudError(f"cloud.points: pcd binary_compressed declares {uncompressed} bytes uncompressed; "
+            raise CloudError("cloud.points", f"pcd binary_compressed declares {uncompressed} bytes uncompressed; "
                              f"{n} points of {head.record_size} bytes take {n * head.record_size}")
         if uncompressed > MAX_PCD_EXPANSION * max(compressed, 1):
-            raise CloudError(f"cloud.points: pcd binary_compressed expands {compressed} bytes to {uncompressed} "
+            raise CloudError("cloud.points", f"pcd binary_compressed expands {compressed} bytes to {uncompressed} "
                              f"(more than {MAX_PCD_EXPANSION}x)")
     else:  # numpy's C reader checks every value is a number and every row has the same count
         try:
@@ -142,9 +142,9 @@ def _check_pcd_data(data: bytes, head: PcdHeader) -> None:
                 warnings.simplefilter("ignore", UserWarning)  # "input contained no data"
                 table = np.loadtxt(io.BytesIO(body), dtype=np.float64, ndmin=2, comments=None)
         except ValueError as exc:
-            raise CloudError(f"cloud.points: pcd ascii data unreadable ({exc})") from None
+            raise CloudError("cloud.points", f"pcd ascii data unreadable ({exc})") from None
         if table.shape != (n, head.values_per_point):
-            raise CloudError(f"cloud.points: pcd header declares {n} points of {head.values_per_point} values; "
+            raise CloudError("cloud.points", f"pcd header declares {n} points of {head.values_per_point} values; "
                              f"the data holds {table.shape[0]} rows of {table.shape[1]}")
 
 
@@ -164,10 +164,10 @@ def parse_pcd(data: bytes) -> tuple[NDArray[np.float32], NDArray[np.float32] | N
         tmp.flush()
         cloud = o3d.t.io.read_point_cloud(Path(tmp.name), format="pcd")
     if "positions" not in cloud.point:
-        raise CloudError(f"cloud.points: open3d read no points from the {head.kind} pcd data")
+        raise CloudError("cloud.points", f"open3d read no points from the {head.kind} pcd data")
     xyz = cloud.point.positions.numpy()
     if xyz.shape != (head.points, 3):
-        raise CloudError(f"cloud.points: pcd header declares {head.points} points; open3d read {len(xyz)}")
+        raise CloudError("cloud.points", f"pcd header declares {head.points} points; open3d read {len(xyz)}")
     return xyz.astype(np.float32, copy=False), head.viewpoint
 
 
@@ -182,10 +182,10 @@ def check_ply(data: bytes) -> int:
     data length (before open3d allocates anything: it reserves the declared count, and pads a short file
     with zeros).  A `property list` row takes at least its count's bytes, so a list bomb is refused too."""
     if not data.startswith(b"ply"):
-        raise CloudError("cloud.points: a PLY file must start with 'ply'")
+        raise CloudError("cloud.points", "a PLY file must start with 'ply'")
     end = data.find(b"end_header", 0, _MAX_PLY_HEADER)
     if end < 0:
-        raise CloudError(f"cloud.points: the PLY header has no end_header in its first {_MAX_PLY_HEADER} bytes")
+        raise CloudError("cloud.points", f"the PLY header has no end_header in its first {_MAX_PLY_HEADER} bytes")
     newline = data.find(b"\n", end)
     body = memoryview(data)[newline + 1 :] if newline >= 0 else memoryview(b"")
     fmt = ""
@@ -196,7 +196,7 @@ def check_ply(data: bytes) -> int:
             fmt = parts[1]
         elif parts[:1] == ["element"]:
             if len(parts) != 3 or not parts[2].isdigit() or len(parts[2]) > 12:
-                raise CloudError(f"cloud.points: PLY element line {line.strip()!r} needs a name and a "
+                raise CloudError("cloud.points", f"PLY element line {line.strip()!r} needs a name and a "
                                  f"non-negative integer count")
             elements.append((parts[1], int(parts[2]), []))
         elif parts[:1] == ["property"] and elements:
@@ -204,35 +204,35 @@ def check_ply(data: bytes) -> int:
             known = (len(prop) == 2 and prop[0] in _PLY_SIZES) or (
                 len(prop) == 4 and prop[0] == "list" and prop[1] in _PLY_SIZES and prop[2] in _PLY_SIZES)
             if not known:
-                raise CloudError(f"cloud.points: PLY property line {line.strip()!r} is not understood")
+                raise CloudError("cloud.points", f"PLY property line {line.strip()!r} is not understood")
             elements[-1][2].append(prop)
     if fmt not in _PLY_FORMATS:
-        raise CloudError(f"cloud.points: PLY format {fmt!r} is not one of {list(_PLY_FORMATS)}")
+        raise CloudError("cloud.points", f"PLY format {fmt!r} is not one of {list(_PLY_FORMATS)}")
     vertex = [e for e in elements if e[0] == "vertex"]
     if not vertex:
-        raise CloudError("cloud.points: the PLY header declares no vertex element")
+        raise CloudError("cloud.points", "the PLY header declares no vertex element")
     count, props = vertex[0][1], vertex[0][2]
     if count > MAX_FILE_POINTS:
-        raise CloudError(f"cloud.points: the PLY header declares {count} vertices, more than the limit of "
+        raise CloudError("cloud.points", f"the PLY header declares {count} vertices, more than the limit of "
                          f"{MAX_FILE_POINTS}")
     if count == 0:
-        raise CloudError("cloud.points: the PLY header declares 0 vertices; send at least one point")
+        raise CloudError("cloud.points", "the PLY header declares 0 vertices; send at least one point")
     names = [p[-1] for p in props]
     if not {"x", "y", "z"} <= set(names):
-        raise CloudError(f"cloud.points: the PLY vertex element lacks x, y or z (has {names})")
+        raise CloudError("cloud.points", f"the PLY vertex element lacks x, y or z (has {names})")
     if fmt == "ascii":  # at least one line per declared row of every element; vertex rows checked value by value
         lines = bytes(body).split(b"\n")
         total = sum(e[1] for e in elements)
         start = sum(e[1] for e in elements[: elements.index(vertex[0])])
         rows = [r for r in lines[start : start + count] if r.strip()]
         if len(lines) < total or len(rows) < count or any(len(r.split()) < len(props) for r in rows):
-            raise CloudError(f"cloud.points: the PLY header declares {count} vertices of {len(props)} values; "
+            raise CloudError("cloud.points", f"the PLY header declares {count} vertices of {len(props)} values; "
                              f"the file holds fewer")
     else:  # binary: every element row takes at least its fixed-size properties plus each list's count
         least = sum(e[1] * sum(_PLY_SIZES[p[1]] if p[0] == "list" else _PLY_SIZES[p[0]] for p in e[2])
                     for e in elements)
         if len(body) < least:
-            raise CloudError(f"cloud.points: the PLY header declares {count} vertices (with its other elements "
+            raise CloudError("cloud.points", f"the PLY header declares {count} vertices (with its other elements "
                              f"at least {least} bytes); the file holds {len(body)} bytes")
     return count
 
@@ -249,7 +249,7 @@ def parse_ply(data: bytes) -> NDArray[np.float32]:
         pcd = o3d.io.read_point_cloud(Path(tmp.name), format="ply")
     points = np.asarray(pcd.points, np.float32)
     if len(points) != declared:
-        raise CloudError(f"cloud.points: the PLY header declares {declared} vertices, the file holds {len(points)}")
+        raise CloudError("cloud.points", f"the PLY header declares {declared} vertices, the file holds {len(points)}")
     return points
 
 
@@ -271,13 +271,13 @@ def read_cloud(path: str | Path, viewpoints: NDArray[np.floating] | None = None)
     elif suffix == ".npz":
         with np.load(path) as z:
             if "points" not in z:
-                raise CloudError("npz: needs an array named 'points'")
+                raise CloudError("cloud.points", "npz: needs an array named 'points'")
             points = z["points"]
             file_vp = z["viewpoints"] if "viewpoints" in z else None
             source = z["camera_source"] if "camera_source" in z else None
             normals = z["normals"] if "normals" in z else None
     else:
-        raise CloudError(f"unsupported cloud file type {suffix!r} (use .pcd, .ply or .npz)")
+        raise CloudError("cloud", f"unsupported cloud file type {suffix!r} (use .pcd, .ply or .npz)")
     vps = viewpoints if viewpoints is not None else file_vp
     if vps is None:
         vps = np.zeros((1, 3), np.float32)

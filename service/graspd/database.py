@@ -30,9 +30,11 @@ import sqlalchemy as sa
 from numpy.typing import NDArray
 from sqlalchemy.engine import Connection, Engine
 
+from graspd_client.codec import WireError
 
-class StoreError(ValueError):
-    """A bad store URL or argument; the message names the offending field."""
+
+class StoreError(WireError):
+    """A bad store URL or argument; `field` names it (library_url, success)."""
 
 
 metadata = sa.MetaData()
@@ -161,11 +163,11 @@ def make_engine(url: str) -> Engine:
     """An engine for url; SQLite gets WAL, a 60 s busy timeout and BEGIN IMMEDIATE transactions.  Errors
     quote the URL with its password masked."""
     if not isinstance(url, str) or not url:
-        raise StoreError(f"library_url must be an SQLAlchemy URL string, got {url!r}")  # not a secret: empty
+        raise StoreError("library_url", f"must be an SQLAlchemy URL string, got {url!r}")  # not a secret: empty
     try:
         parsed = sa.engine.make_url(url)
     except sa.exc.ArgumentError:
-        raise StoreError(f"library_url is not an SQLAlchemy URL: {redact_url(url)!r}") from None
+        raise StoreError("library_url", f"is not an SQLAlchemy URL: {redact_url(url)!r}") from None
     if parsed.get_backend_name() != "sqlite":
         return sa.create_engine(url, pool_pre_ping=True)
     memory = parsed.database in (None, "", ":memory:")

@@ -47,7 +47,7 @@ class Feedback:
 def check_success(success: object) -> bool:
     """success as a bool; StoreError naming success unless it is true or false."""
     if not isinstance(success, (bool, np.bool_)):
-        raise StoreError(f"success must be true or false, got {success!r}")
+        raise StoreError("success", f"must be true or false, got {success!r}")
     return bool(success)
 
 

@@ -35,7 +35,7 @@ def crop_mask(points: NDArray[np.floating], workspace: Workspace) -> NDArray[np.
     lo = np.array(workspace[0::2], np.float64)
     hi = np.array(workspace[1::2], np.float64)
     if np.any(hi < lo):
-        raise CloudError("workspace: each max must be >= its min ([xmin, xmax, ymin, ymax, zmin, zmax])")
+        raise CloudError("workspace", "each max must be >= its min ([xmin, xmax, ymin, ymax, zmin, zmax])")
     return np.all((points >= lo) & (points <= hi), axis=1)
 
 

@@ -80,7 +80,7 @@ class Scene:
         """Index a cloud that has normals (see graspd.preprocess); shadow_length defaults to the
         hand's closing width, the deepest an object between the fingers can reach behind its surface."""
         if cloud.normals is None:
-            raise CloudError("cloud.normals are required: run graspd.preprocess.preprocess first")
+            raise CloudError("cloud.normals", "are required: run graspd.preprocess.preprocess first")
         h = hand or HandGeometry()
         return Scene(
             cloud=cloud,

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 from collections.abc import Collection
 from typing import Any
 
@@ -73,18 +72,9 @@ def from_wire(exc: WireError, status: int = 422) -> Problem:
 
 
 def from_error(exc: ValueError, fields: Collection[str], status: int = 422, default: str = "body") -> Problem:
-    """A Problem from an error a request caused outside validation.  A WireError carries its field.
-    graspd.cloud.CloudError and graspd.templates.TemplateError (core, outside the server) do not yet: their
-    message starts with the field ("cloud.points: ...", "hand_pose must ..."), and this is the one place that
-    reads it there, kept only when its first part is one of fields (the request's); else default."""
-    if isinstance(exc, WireError):
+    """A Problem from an error a request caused outside validation.  A WireError (graspd.cloud.CloudError and
+    graspd.templates.TemplateError are ones) carries its field, named when it is default or its first part is
+    one of fields (the request's); any other error, or a field the request does not have, is named default."""
+    if isinstance(exc, WireError) and exc.field and (exc.field == default or exc.field.split(".", 1)[0] in fields):
         return from_wire(exc, status)
-    text = str(exc)
-    m = _LEADING_FIELD.match(text)
-    if m is None or m.group(0).split(".", 1)[0] not in fields:
-        return Problem(status, text, default)
-    return Problem(status, text[m.end():].lstrip(": ") or text, m.group(0))
-
-
-#: The dotted field name a core error message starts with (see from_error).
-_LEADING_FIELD = re.compile(r"^[a-z_]+(\.[a-z_]+)*(?=[: ]|$)")
+    return Problem(status, str(exc), default)

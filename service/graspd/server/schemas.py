@@ -173,7 +173,10 @@ class Hand(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> Hand:
-        self.geometry()  # HandGeometry checks the combination (outer diameter > 2 finger widths, ...): field hand
+        try:
+            self.geometry()  # HandGeometry checks the combination (outer diameter > 2 finger widths, ...)
+        except WireError as exc:  # it names hand.<name>; a combination of overrides is the field hand
+            raise ValueError(str(exc)) from None
         return self
 
     def geometry(self) -> HandGeometry:
@@ -593,7 +596,10 @@ class ModelsResponse(BaseModel):
 
 def _check_hand_pose(v: np.ndarray) -> np.ndarray:
     """The templates' own check of a demonstrated pose (orthonormal, right-handed); field hand_pose."""
-    return check_hand_pose(v)  # a TemplateError is a ValueError: pydantic reports it under hand_pose
+    try:
+        return check_hand_pose(v)
+    except WireError as exc:  # a TemplateError naming hand_pose, the field pydantic reports it under
+        raise ValueError(exc.message) from None
 
 
 class DemonstrationRequest(BaseModel):

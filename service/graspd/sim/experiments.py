@@ -188,7 +188,7 @@ class TemplateSimDetector:
 
     def detect(self, cloud: ViewpointCloud, workspace: tuple[float, ...], hand: HandGeometry, seed: int) -> GraspSet:
         if hand != self.library.hand:
-            raise TemplateError(f"hand: the library was made for {self.library.hand.to_dict()}")
+            raise TemplateError("hand", f"the library was made for {self.library.hand.to_dict()}")
         det = TemplateDetector(self.library, TemplateParams(seed=seed, keep_cloud=False))
         result = det.detect(cloud, max_grasps=self.max_grasps, workspace=workspace)  # type: ignore[arg-type]
         self.last_ids = result.grasp_ids

@@ -1,7 +1,7 @@
 """Grasp templates from demonstrations, improved by failures (Herzog et al. 2012): graspd's second detector.
 
 Library API (what the service wires into endpoints; every error is a TemplateError or CloudError, both
-ValueError subclasses whose message names the offending field: answer them with 4xx):
+graspd_client.codec.WireError (a ValueError) whose .field names the offending field: answer them with 4xx):
 
     from graspd.templates import TemplateLibrary, TemplateDetector, TemplateParams, TemplateError
 
@@ -17,7 +17,7 @@ ValueError subclasses whose message names the offending field: answer them with 
                                           workspace=None)          # -> int
     POST /feedback        -> fb = library.add_feedback(grasp_id: str, success: bool, cloud=None, image=None)
                                           # -> Feedback; fb.to_dict() is JSON-ready.  Unknown ids raise
-                                          # UnknownGrasp("grasp_id ...") -> 404; malformed TemplateError -> 422.
+                                          # UnknownGrasp(field "grasp_id") -> 404; malformed TemplateError -> 422.
                           library.add_outcome(grasp_id, success, pose, width, image)  # a GPD grasp's outcome
     GET /library          -> library.summary()      # JSON-ready dict: counts, hand, template, entries[]
     POST /detect method="templates"

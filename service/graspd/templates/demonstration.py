@@ -41,17 +41,17 @@ def check_hand_pose(hand_pose: object) -> F64:
     try:
         pose = np.asarray(hand_pose, np.float64)
     except (TypeError, ValueError):
-        raise TemplateError("hand_pose must be a 4x4 matrix of numbers") from None
+        raise TemplateError("hand_pose", "must be a 4x4 matrix of numbers") from None
     if pose.shape != (4, 4):
-        raise TemplateError(f"hand_pose must be a 4x4 matrix, got shape {pose.shape}")
+        raise TemplateError("hand_pose", f"must be a 4x4 matrix, got shape {pose.shape}")
     if not np.isfinite(pose).all():
-        raise TemplateError("hand_pose must be finite")
+        raise TemplateError("hand_pose", "must be finite")
     if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
-        raise TemplateError("hand_pose: the last row must be [0, 0, 0, 1]")
+        raise TemplateError("hand_pose", "the last row must be [0, 0, 0, 1]")
     rot = pose[:3, :3]
     if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
-        raise TemplateError("hand_pose: the rotation (columns approach, binormal, axis) must be orthonormal "
-                            "and right-handed")
+        raise TemplateError("hand_pose", "the rotation (columns approach, binormal, axis) must be "
+                            "orthonormal and right-handed")
     return pose
 
 
@@ -70,7 +70,7 @@ def demonstration_template(scene: TemplateScene, hand_pose: F64, hand: HandGeome
     half, depth = scene.geometry.size / 2.0, scene.geometry.depth
     ok = (cos_a >= np.cos(np.radians(max_angle_deg))) & (off <= 0.8 * half) & (np.abs(along) <= depth)
     if not ok.any():
-        raise TemplateError("hand_pose: the hand approaches no camera-facing side of the object closely "
+        raise TemplateError("hand_pose", "the hand approaches no camera-facing side of the object closely "
                             f"enough (within {max_angle_deg:.0f} deg and {0.8 * half:.3f} m of a hull facet axis, "
                             f"fingers within {depth:.3f} m of the facet)")
     cost = np.where(ok, (1.0 - cos_a) + off / half, np.inf)

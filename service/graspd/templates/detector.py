@@ -42,9 +42,9 @@ class TemplateParams:
 
     def __post_init__(self) -> None:
         if not isinstance(self.rotations, (int, np.integer)) or not 1 <= self.rotations <= 360:
-            raise TemplateError(f"rotations must be an integer in [1, 360], got {self.rotations!r}")
+            raise TemplateError("rotations", f"must be an integer in [1, 360], got {self.rotations!r}")
         if not 0.0 <= self.merge_angle_deg < 90.0:
-            raise TemplateError(f"merge_angle_deg must lie in [0, 90), got {self.merge_angle_deg!r}")
+            raise TemplateError("merge_angle_deg", f"must lie in [0, 90), got {self.merge_angle_deg!r}")
 
 
 @dataclass(frozen=True)
@@ -103,9 +103,9 @@ class TemplateDetector:
         An empty library gives no grasps.  TemplateError / CloudError name the offending field."""
         p = params or self.params
         if not isinstance(max_grasps, (int, np.integer)) or max_grasps < 1:
-            raise TemplateError(f"max_grasps must be a positive integer, got {max_grasps!r}")
+            raise TemplateError("max_grasps", f"must be a positive integer, got {max_grasps!r}")
         if len(cloud) == 0:
-            raise CloudError("cloud.points is empty")
+            raise CloudError("cloud.points", "is empty")
         hand, geom = self.library.hand, self.library.geometry
         times: dict[str, float] = {}
         t0 = time.perf_counter()

@@ -23,6 +23,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
+from graspd_client.codec import WireError
+
 from ..cloud import ViewpointCloud
 from ..hand import HandGeometry
 from ..world.points import voxel_downsample
@@ -35,8 +37,8 @@ SURFACE, VOID, OCCLUSION, BACKGROUND = 0, 1, 2, 3
 REGION_NAMES: tuple[str, ...] = ("surface", "void", "occlusion", "background")
 
 
-class TemplateError(ValueError):
-    """Input that no template can be made from; the message names the offending field."""
+class TemplateError(WireError):
+    """Input that no template can be made from; `field` names the offending one (e.g. "hand_pose")."""
 
 
 @dataclass(frozen=True)
@@ -49,11 +51,11 @@ class TemplateGeometry:
 
     def __post_init__(self) -> None:
         if not isinstance(self.n, (int, np.integer)) or self.n < 2:
-            raise TemplateError(f"template.n must be an integer >= 2, got {self.n!r}")
+            raise TemplateError("template.n", f"must be an integer >= 2, got {self.n!r}")
         for name in ("size", "depth"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
-                raise TemplateError(f"template.{name} must be a positive number of metres, got {value!r}")
+                raise TemplateError(f"template.{name}", f"must be a positive number of metres, got {value!r}")
 
     @property
     def tile(self) -> float:
@@ -209,13 +211,13 @@ def prepare_scene(cloud: ViewpointCloud, geometry: TemplateGeometry, workspace: 
     if workspace is not None:
         ws = np.asarray(workspace, np.float64)
         if ws.shape != (6,) or not np.isfinite(ws).all():
-            raise TemplateError("workspace must be 6 finite numbers [xmin, xmax, ymin, ymax, zmin, zmax]")
+            raise TemplateError("workspace", "must be 6 finite numbers [xmin, xmax, ymin, ymax, zmin, zmax]")
         if np.any(ws[1::2] < ws[0::2]):
-            raise TemplateError("workspace: each max must be >= its min ([xmin, xmax, ymin, ymax, zmin, zmax])")
+            raise TemplateError("workspace", "each max must be >= its min ([xmin, xmax, ymin, ymax, zmin, zmax])")
         finite &= np.all((pts >= ws[0::2]) & (pts <= ws[1::2]), axis=1)
     pts, src = pts[finite], src[finite]
     if len(pts) < 10:
-        raise TemplateError(f"cloud.points: {len(pts)} finite points in the workspace, need at least 10")
+        raise TemplateError("cloud.points", f"{len(pts)} finite points in the workspace, need at least 10")
     vps = cloud.viewpoints.astype(np.float64)
     plane, on_table = segment_table(pts.astype(np.float32), cloud.viewpoints, seed=seed) if table else (None, None)
     if plane is not None and on_table is not None:
@@ -226,7 +228,7 @@ def prepare_scene(cloud: ViewpointCloud, geometry: TemplateGeometry, workspace: 
     obj = voxel_downsample(pts[keep].astype(np.float32), 0.6 * geometry.tile).astype(np.float64)
     obj, segments = connected_pieces(obj, 1.5 * geometry.tile)
     if len(obj) < 4:
-        raise TemplateError("cloud.points: fewer than 4 object points above the table")
+        raise TemplateError("cloud.points", "fewer than 4 object points above the table")
     sub = pts[:: max(1, len(pts) // 4000)]
     spacing = float(np.median(cKDTree(sub).query(sub, k=2)[0][:, 1])) / np.sqrt(max(1, len(pts) // 4000))
     spacing = max(spacing, 1e-4)
@@ -285,8 +287,8 @@ def height_axes(scene: TemplateScene, merge_angle_deg: float = 20.0, merge_offse
         centres.append(c)
         normals.append(n)
     if not centres or sum(len(c) for c in centres) == 0:
-        raise TemplateError("cloud.points: the object points span no volume facing a camera "
-                            "(cloud.viewpoints must see the object)")
+        raise TemplateError("cloud.points", "the object points span no volume facing a camera "
+                                            "(cloud.viewpoints must see the object)")
     return np.concatenate(centres), np.concatenate(normals)
 
 
@@ -448,7 +450,7 @@ def candidate_templates(scene: TemplateScene, rotations: int = 16, merge_angle_d
     """All candidate templates of a scene: frames origins (K,3), rotations (K,3,3) columns [x, y, h],
     heights (K, n*n), types (K, n*n); K = number of front-facing hull axes x rotations."""
     if rotations < 1:
-        raise TemplateError(f"rotations must be a positive integer, got {rotations!r}")
+        raise TemplateError("rotations", f"must be a positive integer, got {rotations!r}")
     centres, normals = height_axes(scene, merge_angle_deg)
     base = axis_frames(normals, reference_x(normals))
     angles = 2.0 * np.pi * np.arange(rotations) / rotations

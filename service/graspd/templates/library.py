@@ -41,7 +41,7 @@ def _check_success(success: object) -> None:
     try:
         check_success(success)
     except StoreError as exc:
-        raise TemplateError(str(exc)) from None
+        raise TemplateError(exc.field, exc.message) from None
 
 
 class UnknownGrasp(TemplateError):
@@ -80,7 +80,7 @@ class TemplateLibrary:
         try:
             self.db = Database(url)
         except StoreError as exc:
-            raise TemplateError(str(exc)) from None
+            raise TemplateError(exc.field, exc.message) from None
         self.outcomes = OutcomeStore(self.db)
         self.hand, self.geometry = self._settle_meta(hand, geometry)
         self._snapshot: LibrarySnapshot | None = None
@@ -103,9 +103,9 @@ class TemplateLibrary:
         h0 = HandGeometry(**json.loads(rows["hand"]))
         g0 = TemplateGeometry(**json.loads(rows["geometry"]))
         if hand is not None and hand != h0:
-            raise TemplateError(f"hand: this library was made for {h0.to_dict()}, not {hand.to_dict()}")
+            raise TemplateError("hand", f"this library was made for {h0.to_dict()}, not {hand.to_dict()}")
         if geometry is not None and geometry != g0:
-            raise TemplateError(f"template geometry: this library uses {g0.__dict__}, not {geometry.__dict__}")
+            raise TemplateError("template", f"this library uses {g0.__dict__}, not {geometry.__dict__}")
         return h0, g0
 
     def close(self) -> None:
@@ -125,9 +125,9 @@ class TemplateLibrary:
         demonstrated hand pose (4x4, rotation columns [approach, binormal, axis], translation = hand base
         centre, cloud frame).  Returns the entry id.  TemplateError / CloudError name the bad field."""
         if not isinstance(cloud, ViewpointCloud):
-            raise TemplateError("cloud must be a graspd.cloud.ViewpointCloud")
+            raise TemplateError("cloud", "must be a graspd.cloud.ViewpointCloud")
         if label is not None and (not isinstance(label, str) or len(label) > 200):
-            raise TemplateError("label must be a string of at most 200 characters")
+            raise TemplateError("label", "must be a string of at most 200 characters")
         scene = prepare_scene(cloud, self.geometry, workspace)
         heights, types, frame = demonstration_template(scene, hand_pose, self.hand)
         pose = np.asarray(hand_pose, np.float64)
@@ -145,11 +145,11 @@ class TemplateLibrary:
         if image is not None:
             image = np.asarray(image)
             if image.dtype != np.uint8 or image.ndim != 3:
-                raise TemplateError(f"image must be uint8 (C, H, W), got {image.dtype} {image.shape}")
+                raise TemplateError("image", f"must be uint8 (C, H, W), got {image.dtype} {image.shape}")
         elif cloud is not None or kept is not None:
             if representation not in REPRESENTATIONS:
-                raise TemplateError(f"representation must be one of {sorted(REPRESENTATIONS)}, "
-                                    f"got {representation!r}")
+                raise TemplateError("representation", f"must be one of {sorted(REPRESENTATIONS)}, "
+                                                      f"got {representation!r}")
             src = cloud if cloud is not None else cloud_from_arrays(kept or {})
             image = grasp_image(src, grasp["pose"], grasp["width"], self.hand, representation)
         return self.store_outcome(grasp_id, bool(success), grasp, image, representation)
@@ -199,11 +199,11 @@ class TemplateLibrary:
             row = conn.execute(sa.select(detections.c.payload, detections.c.cloud)
                                .where(detections.c.id == det_id)).first()
         if row is None:
-            raise UnknownGrasp(f"grasp_id {grasp_id!r}: no such detection (ids come from template detection; "
-                               "old detections may have been pruned)")
+            raise UnknownGrasp("grasp_id", f"{grasp_id!r}: no such detection (ids come from template detection; "
+                                           "old detections may have been pruned)")
         p = from_npz(row[0])
         if k >= len(p["entry_ids"]):
-            raise UnknownGrasp(f"grasp_id {grasp_id!r}: that detection returned {len(p['entry_ids'])} grasps")
+            raise UnknownGrasp("grasp_id", f"{grasp_id!r}: that detection returned {len(p['entry_ids'])} grasps")
         grasp = {"heights": p["heights"][k], "types": p["types"][k], "entry_id": int(p["entry_ids"][k]),
                  "pose": p["poses"][k], "width": float(p["widths"][k]), "mismatch": float(p["mismatch"][k])}
         return grasp, None if row[1] is None else from_npz(row[1])
@@ -275,7 +275,7 @@ class TemplateLibrary:
         with self.db.connect() as conn:
             r = conn.execute(sa.select(entries).where(entries.c.id == entry_id)).first()
             if r is None:
-                raise TemplateError(f"entry_id {entry_id}: no such library entry")
+                raise TemplateError("entry_id", f"{entry_id}: no such library entry")
             nf = conn.execute(sa.select(sa.func.count()).where(failures.c.entry_id == entry_id)).scalar_one()
         return {"id": int(r.id), "label": r.label, "created_at": float(r.created_at),
                 "heights": np.frombuffer(r.heights, np.float32).reshape(n, n),
@@ -311,14 +311,14 @@ class TemplateLibrary:
     def _check_template(self, heights: NDArray[Any], types: NDArray[Any], field: str) -> None:
         t = self.geometry.num_tiles
         if np.asarray(heights).size != t or np.asarray(types).size != t:
-            raise TemplateError(f"{field}: expected {t} tiles (n = {self.geometry.n})")
+            raise TemplateError(field, f"expected {t} tiles (n = {self.geometry.n})")
 
 
 def parse_grasp_id(grasp_id: object) -> tuple[str, int]:
     """'<detection id>.<index>' -> (detection id, index); TemplateError naming grasp_id otherwise."""
     if not isinstance(grasp_id, str) or grasp_id.count(".") != 1:
-        raise TemplateError(f"grasp_id must look like '<detection id>.<index>', got {grasp_id!r}")
+        raise TemplateError("grasp_id", f"must look like '<detection id>.<index>', got {grasp_id!r}")
     det, _, k = grasp_id.partition(".")
     if not det or not k.isdigit() or len(det) > 32:
-        raise TemplateError(f"grasp_id must look like '<detection id>.<index>', got {grasp_id!r}")
+        raise TemplateError("grasp_id", f"must look like '<detection id>.<index>', got {grasp_id!r}")
     return det, int(k)
