@@ -157,12 +157,6 @@ class GraspDetector:
         self.classifier = classifier
         self.hand = hand or HandGeometry()
 
-    def prepare(self, cloud: ViewpointCloud, params: DetectionParams, hand: HandGeometry) -> Scene:
-        """Preprocess and index a cloud (exposed for benchmarks and training-data generation)."""
-        pre = PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace,
-                               remove_outliers=params.remove_outliers)
-        return Scene.build(preprocess(cloud, pre), hand)
-
     def detect(self, cloud: ViewpointCloud, params: DetectionParams | None = None,
                hand: HandGeometry | None = None) -> Detection:
         p = params or DetectionParams()

@@ -92,11 +92,6 @@ class GraspSet:
     def with_scores(self, scores: NDArray[np.floating]) -> GraspSet:
         return replace(self, scores=np.asarray(scores, np.float64).reshape(-1))
 
-    def sorted_by_score(self) -> GraspSet:
-        """Best first; NaN scores last, in their original order."""
-        key = np.where(np.isnan(self.scores), -np.inf, self.scores)
-        return self[np.argsort(-key, kind="stable")]
-
     def transformed(self, rotation: NDArray[np.floating], translation: NDArray[np.floating]) -> GraspSet:
         """The grasps moved rigidly by p -> R p + t."""
         r = np.asarray(rotation, np.float64)
@@ -141,18 +136,3 @@ class GraspSet:
                 }
             )
         return out
-
-    def save_npz(self, path: str) -> None:
-        np.savez_compressed(
-            path,
-            positions=self.positions,
-            rotations=self.rotations,
-            widths=self.widths,
-            scores=self.scores,
-            samples=self.samples,
-        )
-
-    @staticmethod
-    def load_npz(path: str) -> GraspSet:
-        with np.load(path) as z:
-            return GraspSet(**{k: z[k] for k in ("positions", "rotations", "widths", "scores", "samples")})
