@@ -2,7 +2,7 @@
 
 from .codec import WIRE_DTYPES, WireError, decode_array, encode_array
 from .errors import GraspdError, RequestRejected, ServerBusy, ServerError, TransportError
-from .grasps import Grasps
+from .grasps import Grasp, Grasps
 from .http import AsyncGraspClient, GraspClient
 from .wire import build_demonstration_request, build_detect_request, build_feedback_request
 
@@ -10,15 +10,16 @@ __version__ = "0.1.0"
 
 
 def __getattr__(name: str) -> object:
-    if name == "ZenohGraspClient":  # imported lazily: zenoh is an optional extra
-        from .zenoh_client import ZenohGraspClient
+    if name in ("ZenohGraspClient", "AsyncZenohGraspClient"):  # imported lazily: zenoh is an optional extra
+        from . import zenoh_client
 
-        return ZenohGraspClient
+        return getattr(zenoh_client, name)
     raise AttributeError(name)
 
 
 __all__ = [
-    "WIRE_DTYPES", "AsyncGraspClient", "GraspClient", "GraspdError", "Grasps", "RequestRejected",
-    "ServerBusy", "ServerError", "TransportError", "WireError", "ZenohGraspClient", "build_demonstration_request",
-    "build_detect_request", "build_feedback_request", "decode_array", "encode_array",
+    "WIRE_DTYPES", "AsyncGraspClient", "AsyncZenohGraspClient", "Grasp", "GraspClient", "GraspdError", "Grasps",
+    "RequestRejected", "ServerBusy", "ServerError", "TransportError", "WireError", "ZenohGraspClient",
+    "build_demonstration_request", "build_detect_request", "build_feedback_request", "decode_array",
+    "encode_array",
 ]

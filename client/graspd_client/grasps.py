@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import operator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,6 +26,42 @@ def _column(grasps: list[dict[str, Any]], key: str, width: tuple[int, ...]) -> F
     except (TypeError, ValueError) as exc:
         raise WireError(f"grasps.{key}", f"expected numbers of shape {width} per grasp ({exc})") from None
     return arr
+
+
+@dataclass(frozen=True)
+class Grasp:
+    """One grasp of a detect response, in the caller's cloud frame (metres): pose (4,4) with rotation columns
+    [approach, binormal, axis] and translation = hand-base centre; width = object extent between the fingers;
+    score NaN when unscored; id for feedback; rank 0 = best."""
+
+    id: str
+    pose: F64
+    width: float
+    score: float
+    rank: int = 0
+    sample: F64 = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def position(self) -> F64:
+        """Hand-base centre (3,)."""
+        return self.pose[:3, 3]
+
+    @property
+    def rotation(self) -> F64:
+        """(3,3) rotation, columns [approach, binormal, axis]."""
+        return self.pose[:3, :3]
+
+    @property
+    def approach(self) -> F64:
+        return self.pose[:3, 0]
+
+    @property
+    def binormal(self) -> F64:
+        return self.pose[:3, 1]
+
+    @property
+    def axis(self) -> F64:
+        return self.pose[:3, 2]
 
 
 @dataclass(frozen=True)
@@ -58,6 +96,28 @@ class Grasps:
 
     def __len__(self) -> int:
         return len(self.ids)
+
+    @overload
+    def __getitem__(self, index: int) -> Grasp: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[Grasp]: ...
+
+    def __getitem__(self, index: int | slice) -> Grasp | list[Grasp]:
+        """grasps[i]: the i-th best Grasp (negative from the end; IndexError past it); grasps[a:b]: a list."""
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        i = operator.index(index)
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError(f"grasp {index} of {len(self)}")
+        return Grasp(id=self.ids[i], pose=self.poses[i], width=float(self.widths[i]), score=float(self.scores[i]),
+                     rank=i, sample=self.samples[i])
+
+    def __iter__(self) -> Iterator[Grasp]:
+        """The grasps best first, one Grasp each."""
+        return (self[i] for i in range(len(self)))
 
     @property
     def rotations(self) -> F64:
