@@ -7,6 +7,7 @@ A real server, a real zenoh session, peer mode on loopback."""
 from __future__ import annotations
 
 import json
+import re
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -31,6 +32,7 @@ from graspd.ros import (
 )
 from graspd.ros.types import msg_text
 from graspd.server.app import create_app
+from graspd.server.ros_stream import DEFAULT_INPUT_KEYS, DEFAULT_OUTPUT_KEYS, parse_options
 from graspd.server.settings import Settings
 from graspd_client import RequestRejected
 from graspd_client.wire import zenoh_token_attachment
@@ -109,7 +111,7 @@ def ros_server(make_settings: Callable[..., Settings]) -> Iterator[tuple[TestCli
 
 @pytest.fixture
 def session(ros_server: tuple[TestClient, str]) -> Iterator[Any]:
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     with zenoh.open(zenoh_config(connect=[ros_server[1]])) as s:
         yield s
@@ -307,3 +309,21 @@ def test_malformed_stream_message_names_the_field(session: Any, krylon: Viewpoin
         assert any(json.loads(b).get("field") == err["field"] for b in listener.got["json"])
     finally:
         listener.close()
+
+
+def test_ros2_examples_match_the_server() -> None:
+    """examples/ros2: the run-time options and the env's stream options validate; the bridge allows exactly the
+    server's default input and ROS output keys."""
+    examples = Path(__file__).resolve().parents[2] / "examples" / "ros2"
+    parse_options((examples / "stream_options.json").read_bytes(), {}, ((0.0, 0.0, 0.0),))
+    env = (examples / "graspd.env").read_text()
+    options = re.search(r"^GRASPD_STREAM_OPTIONS='(.*)'$", env, re.M)
+    assert options is not None
+    parse_options(options.group(1), {}, ((0.0, 0.0, 0.0),))
+    bridge = (examples / "zenoh-bridge-ros2dds.json5").read_text()
+    publishers = re.search(r"publishers: \[(.*?)\]", bridge, re.S)
+    subscribers = re.search(r"subscribers: \[(.*?)\]", bridge, re.S)
+    assert publishers is not None and subscribers is not None
+    assert set(re.findall(r'"/graspd/(\w+)"', publishers.group(1))) == set(DEFAULT_INPUT_KEYS.values())
+    ros_outputs = {v for k, v in DEFAULT_OUTPUT_KEYS.items() if k not in ("json", "errors")}
+    assert set(re.findall(r'"/graspd/(\w+)"', subscribers.group(1))) == ros_outputs
