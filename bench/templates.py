@@ -173,7 +173,7 @@ def plot(rows: list[tuple[str, int, dict[str, float]]], lib: TemplateLibrary, de
 def main() -> None:
     """Time template detection (or, with `experiment ...`, run a simulated experiment)."""
     if sys.argv[1:2] == ["experiment"]:
-        from graspd.sim import experiments  # pybullet: only for the simulated experiments
+        from graspd.sim import experiments  # noqa: PLC0415 - pybullet: only for the simulated experiments
 
         experiments.main(sys.argv[2:])
         return

@@ -11,7 +11,7 @@ __version__ = "0.1.0"
 
 def __getattr__(name: str) -> object:
     if name in ("ZenohGraspClient", "AsyncZenohGraspClient"):  # imported lazily: zenoh is an optional extra
-        from . import zenoh_client
+        from . import zenoh_client  # noqa: PLC0415
 
         return getattr(zenoh_client, name)
     raise AttributeError(name)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from collections.abc import Sequence
 from os import PathLike
 from typing import Any
@@ -46,7 +47,7 @@ def zenoh_config(mode: str = "peer", connect: Sequence[str] = DEFAULT_ENDPOINTS,
                  config_file: str | PathLike[str] | None = None) -> Any:
     """A zenoh.Config for mode/endpoints; multicast scouting off unless asked (loopback default).  With
     config_file (Zenoh JSON5: TLS, user/password...), a key the file sets wins; the arguments fill in the rest."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     conf = zenoh.Config() if config_file is None else zenoh.Config.from_file(str(config_file))
     default = zenoh.Config()
@@ -83,7 +84,7 @@ class ZenohGraspClient:
                  mode: str = "peer", timeout: float = 30.0, retries: int = 3, session: Any = None,
                  balance: bool = False, token: str | None = None,
                  config: str | PathLike[str] | None = None) -> None:
-        import zenoh
+        import zenoh  # noqa: PLC0415
 
         if not timeout > 0:
             raise ValueError(f"timeout must be > 0 s, got {timeout}")
@@ -121,7 +122,7 @@ class ZenohGraspClient:
 
     def instances(self) -> list[dict[str, Any]]:
         """Every server answering on <prefix>/instances/* (their ids and per-instance detect keys)."""
-        import zenoh
+        import zenoh  # noqa: PLC0415
 
         out = []
         try:
@@ -152,9 +153,8 @@ class ZenohGraspClient:
         """The first reply to a query on key (a selector: key?parameters): TransportError when none came,
         saying whether the server was out of sight (no queryable matched: retried for DISCOVERY_S) or silent
         for the whole timeout."""
-        import time
 
-        import zenoh
+        import zenoh  # noqa: PLC0415
 
         start = time.monotonic()
         end = start + self.timeout
@@ -183,7 +183,6 @@ class ZenohGraspClient:
         """The decoded JSON reply to one raw query payload on key (default: detect; a selector may carry
         parameters, e.g. "graspd/detect?type=cloud_sources" for CDR gpd_ros CloudSources), retrying busy
         answers.  Errors as for GraspClient (TransportError when no reply came within timeout)."""
-        import time
 
         fixed = key
         for attempt in range(self.retries + 1):

@@ -89,7 +89,7 @@ class OnnxGraspClassifier:
 
     def __init__(self, onnx_path: str | Path, card: dict[str, Any] | None = None, threads: int = 2,
                  batch_size: int = 1024) -> None:
-        import onnxruntime as ort
+        import onnxruntime as ort  # noqa: PLC0415
 
         self.path = Path(onnx_path)
         if not self.path.is_file():

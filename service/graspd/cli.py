@@ -10,7 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .detector import Scorer
+from .classifier import available_models, default_model_name, load_model
+from .cloud import CloudError
+from .cloud_io import read_cloud
+from .detector import DetectionParams, GraspDetector, Scorer
+from .environment import EnvironmentParams
+from .hand import HandGeometry, hand_preset
+from .plot import plot_grasps
+from .preprocess import PreprocessParams, preprocess
+from .viewer import viewer_html
 
 #: Modules exposing register(subparsers) for further subcommands (serve, train, ...).
 SUBCOMMAND_MODULES: tuple[str, ...] = ("graspd.training.cli", "graspd.templates.cli")
@@ -21,12 +29,6 @@ OPTIONAL_SUBCOMMAND_MODULES: tuple[str, ...] = ("graspd.server.cli",)
 
 
 def _detect(args: argparse.Namespace) -> int:
-    from .cloud import CloudError
-    from .cloud_io import read_cloud
-    from .detector import DetectionParams, GraspDetector
-    from .environment import EnvironmentParams
-    from .hand import HandGeometry, hand_preset
-
     try:
         viewpoints = np.array(args.viewpoint, np.float32).reshape(-1, 3) if args.viewpoint else None
         cloud = read_cloud(args.cloud, viewpoints=viewpoints)
@@ -61,20 +63,14 @@ def _detect(args: argparse.Namespace) -> int:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text)
     if args.plot or args.view:
-        from .preprocess import PreprocessParams, preprocess
-
         # the cloud the environment labelled: the detector's preprocessing of the input
         shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
         title = f"{Path(args.cloud).name}: top {min(args.top, len(detection.grasps))} of " \
                 f"{detection.num_candidates} candidates, model {detection.model or 'none (unscored)'}"
         if args.plot:
-            from .plot import plot_grasps
-
             plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title,
                         gravity=params.gravity, environment=detection.environment)
         if args.view:
-            from .viewer import viewer_html
-
             Path(args.view).parent.mkdir(parents=True, exist_ok=True)
             Path(args.view).write_text(viewer_html(shown, detection, hand, top=args.view_top,
                                                    title=f"{Path(args.cloud).name}: {len(detection.grasps)} grasps, "
@@ -90,10 +86,7 @@ def _detect(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from .detector import DetectionParams, GraspDetector
-    from .plot import plot_grasps
-    from .preprocess import PreprocessParams, preprocess
-    from .world.scenes import GRAVITY, cluttered_tabletop
+    from .world.scenes import GRAVITY, cluttered_tabletop  # noqa: PLC0415
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -119,7 +112,6 @@ def _demo(args: argparse.Namespace) -> int:
 
 def _load_classifier(name: str | None, models_dir: str | None) -> Scorer | None:
     """The named ONNX classifier, or the default one if it is there (None: run unscored)."""
-    from .classifier import available_models, default_model_name, load_model
 
     if name is None:
         if default_model_name() not in available_models(models_dir):

@@ -156,7 +156,7 @@ def parse_pcd(data: bytes) -> tuple[NDArray[np.float32], NDArray[np.float32] | N
     """
     head = check_pcd_header(data)
     _check_pcd_data(data, head)
-    import open3d as o3d
+    import open3d as o3d  # noqa: PLC0415
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     with tempfile.NamedTemporaryFile(suffix=".pcd") as tmp:
@@ -241,7 +241,7 @@ def parse_ply(data: bytes) -> NDArray[np.float32]:
     """Vertex positions (N,3) of a PLY file (ASCII or binary), read with open3d; a file holding fewer
     vertices than its header declares is refused."""
     declared = check_ply(data)
-    import open3d as o3d  # after the check: nothing is allocated for a file that lies
+    import open3d as o3d  # noqa: PLC0415 - after the check: nothing is allocated for a file that lies
 
     with tempfile.NamedTemporaryFile(suffix=".ply") as tmp:
         tmp.write(data)

@@ -168,7 +168,7 @@ class Environment:
 
 def _ransac_plane(points: F64, params: EnvironmentParams, rng: np.random.Generator) -> Plane | None:
     """The plane with most inliers (open3d RANSAC) fitted on at most ransac_points points."""
-    import open3d as o3d
+    import open3d as o3d  # noqa: PLC0415
 
     if len(points) < 3:
         return None

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 F64 = NDArray[np.float64]
 
@@ -22,7 +23,6 @@ def _empty(*shape: int) -> F64:
 
 def rotation_to_quat_xyzw(rotations: F64) -> F64:
     """Unit quaternions (M,4) in x, y, z, w order for rotation matrices (M,3,3)."""
-    from scipy.spatial.transform import Rotation
 
     if len(rotations) == 0:
         return _empty(4)

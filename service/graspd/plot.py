@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import ConvexHull, QhullError
 
 from .cloud import ViewpointCloud
 from .environment import Box, Environment, Label
@@ -137,7 +138,6 @@ def support_outline(cloud: ViewpointCloud, environment: Environment | None, fram
     pts = cloud.points[environment.labels == Label.SUPPORT].astype(np.float64)
     if len(pts) < 3:
         return None
-    from scipy.spatial import ConvexHull, QhullError
 
     flat = np.stack([pts @ frames.across, pts @ frames.away], axis=1)
     try:
@@ -201,13 +201,13 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
     """Write a PNG of cloud (the preprocessed cloud the environment labelled, cloud frame, m) with the top
     grasps of grasps (ranked best first).  labels (one environment.Label per point) default to environment's;
     up comes from the environment, else against gravity.  At most max_points points are drawn."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
-    from matplotlib.colors import Normalize
-    from matplotlib.lines import Line2D
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib.collections import LineCollection  # noqa: PLC0415
+    from matplotlib.colors import Normalize  # noqa: PLC0415
+    from matplotlib.lines import Line2D  # noqa: PLC0415
 
     path = Path(path)
     env = environment if environment is not None and len(environment.labels) == len(cloud) else None

@@ -64,7 +64,7 @@ def voxelize(points: NDArray[np.float32], camera_source: NDArray[np.int32], voxe
 
 def estimate_normals(points: NDArray[np.float32], radius: float, max_nn: int) -> NDArray[np.float32]:
     """Unit surface normals (N,3) by local PCA over a hybrid radius/kNN neighbourhood (unoriented)."""
-    import open3d as o3d
+    import open3d as o3d  # noqa: PLC0415
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=max_nn))
@@ -97,7 +97,7 @@ def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) ->
     if p.voxel_size > 0.0:
         pts, src, nrm = voxelize(pts, src, p.voxel_size, nrm)
     if p.remove_outliers and len(pts) > p.outlier_neighbors:
-        import open3d as o3d
+        import open3d as o3d  # noqa: PLC0415
 
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts.astype(np.float64)))
         _, keep = pcd.remove_statistical_outlier(p.outlier_neighbors, p.outlier_std_ratio)
@@ -114,7 +114,7 @@ def support_plane_mask(points: NDArray[np.float32], distance: float = 0.01, min_
                        seed: int = 0) -> NDArray[np.bool_]:
     """Points within `distance` (m) of the dominant plane (RANSAC), if that plane holds at least
     min_fraction of the cloud; else all False.  Used to keep samples off the table."""
-    import open3d as o3d
+    import open3d as o3d  # noqa: PLC0415
 
     mask = np.zeros(len(points), bool)
     if len(points) < 3:

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from graspd.cloud import ViewpointCloud
+from graspd.server.runner import free_port
 from graspd.server.settings import Settings
 from graspd_client import AsyncGraspClient, GraspClient, RequestRejected, ServerBusy, TransportError
 from graspd_client.zenoh_client import ZenohGraspClient
@@ -50,8 +52,6 @@ def test_errors_name_the_field(server: Server, krylon: ViewpointCloud) -> None:
 
 
 def test_unreachable_server_is_a_transport_error() -> None:
-    from graspd.server.runner import free_port
-
     with GraspClient(f"http://127.0.0.1:{free_port()}", timeout=2, retries=0) as client:
         with pytest.raises(TransportError, match="POST /detect"):
             client.detect(np.zeros((3, 3)), num_samples=5)
@@ -63,7 +63,6 @@ def test_503_is_retried_after_retry_after(server: Server, krylon: ViewpointCloud
             GraspClient(url, timeout=60, retries=50, max_retry_delay=0.2) as patient:
         worker = threading.Thread(target=busy_maker.detect, args=(krylon.points,), kwargs={"num_samples": 4000})
         worker.start()
-        import time
 
         time.sleep(0.15)  # the slow request holds the only worker; no queue
         with pytest.raises(ServerBusy):

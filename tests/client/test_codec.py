@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from graspd_client import codec
 from graspd_client.codec import WIRE_DTYPES, WireError, decode_array, encode_array
 
 
@@ -92,7 +93,6 @@ def test_fast_and_standard_base64_agree(text: str) -> None:
     """With pybase64 (the server's) and without it (a robot with numpy + httpx only) the codec accepts the same
     well-formed data with the same bytes, and refuses anything outside the alphabet either way; pybase64 is
     only stricter about '=' after a complete quartet."""
-    from graspd_client import codec
 
     assert codec._fast_b64 is not None, "pybase64 is a dependency of the server and installed with it"
     obj = {"dtype": "uint8", "shape": [len(base64.b64decode(text)) if _valid(text) else 0], "data": text}

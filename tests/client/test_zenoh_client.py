@@ -74,7 +74,7 @@ def test_no_server_is_a_transport_error_said_at_once() -> None:
         with pytest.raises(TransportError) as info:
             zc.detect([[0.0, 0.0, 1.0]])
         assert "no server reachable" in str(info.value) and time.monotonic() - t0 < 5
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     listen = f"tcp/127.0.0.1:{free_port()}"
     with zenoh.open(zenoh_config(listen=[listen], connect=[])), \
@@ -88,7 +88,7 @@ def test_no_server_is_a_transport_error_said_at_once() -> None:
 
 def test_silent_server_times_out_after_the_timeout() -> None:
     """A queryable that never answers: TransportError "no reply within 1 s", after 1 s (as HTTP's timeout)."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     listen = f"tcp/127.0.0.1:{free_port()}"
     held: list[Any] = []

@@ -5,10 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import open3d as o3d
 import pytest
 
 from graspd.cloud import CloudError, ViewpointCloud
-from graspd.cloud_io import read_cloud, save_npz
+from graspd.cloud_io import parse_pcd, parse_ply, read_cloud, save_npz
 
 
 def _pcd_header(n: int, kind: str, viewpoint: str = "0 0 0 1 0 0 0") -> bytes:
@@ -34,8 +35,6 @@ def test_real_kinect_pcd_reads(real_data: Path) -> None:
 
 
 def test_ply_reads(tmp_path: Path) -> None:
-    import open3d as o3d
-
     pts = np.random.default_rng(2).normal(size=(30, 3))
     o3d.io.write_point_cloud(str(tmp_path / "c.ply"), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)))
     assert np.allclose(read_cloud(tmp_path / "c.ply").points, pts, atol=1e-6)
@@ -86,17 +85,12 @@ LYING_PCD = [
 
 @pytest.mark.parametrize(("name", "data", "why"), LYING_PCD, ids=[c[0] for c in LYING_PCD])
 def test_pcd_headers_that_lie_are_refused(name: str, data: bytes, why: str) -> None:
-    from graspd.cloud_io import parse_pcd
-
     with pytest.raises(CloudError, match=why):
         parse_pcd(data)
 
 
 def test_binary_compressed_pcd_round_trips_with_its_viewpoint(tmp_path: Path) -> None:
     """PCL's most common format, written by open3d (LZF); the VIEWPOINT line is honoured in every format."""
-    import open3d as o3d
-
-    from graspd.cloud_io import parse_pcd
 
     path = tmp_path / "c.pcd"
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(PTS.astype(np.float64)))
@@ -115,7 +109,6 @@ def test_binary_compressed_pcd_round_trips_with_its_viewpoint(tmp_path: Path) ->
 
 def test_pcd_with_other_fields_and_types_reads_xyz() -> None:
     """x y z in float64 beside a 3-value descriptor, and int16 coordinates: open3d reads xyz of any layout."""
-    from graspd.cloud_io import parse_pcd
 
     dt = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("f", "<f4", (3,))])
     rec = np.zeros(2, dt)
@@ -142,16 +135,12 @@ LYING_PLY = [
 
 @pytest.mark.parametrize(("name", "data", "why"), LYING_PLY, ids=[c[0] for c in LYING_PLY])
 def test_ply_counts_are_checked_before_reading(name: str, data: bytes, why: str) -> None:
-    from graspd.cloud_io import parse_ply
-
     assert len(data) < 2000  # a few hundred bytes that declare up to hundreds of megabytes
     with pytest.raises(CloudError, match=why):
         parse_ply(data)
 
 
 def test_ply_with_a_list_property_still_reads(tmp_path: Path) -> None:
-    from graspd.cloud_io import parse_ply
-
     rec = np.zeros(3, np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("n", "u1"), ("i", "<i4", (2,))]))
     rec["x"], rec["n"] = [1, 2, 3], 2
     data = PLY_HEAD.format(n=3, extra="property list uchar int idx\n").encode() + rec.tobytes()

@@ -11,12 +11,15 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from graspd.candidates import SamplingParams, search_hands
 from graspd.classifier import load_model
 from graspd.cloud import ViewpointCloud
 from graspd.cloud_io import read_cloud
 from graspd.detector import Detection, DetectionParams, GraspDetector
-from graspd.environment import Box, EnvironmentParams, Label, hand_hits_environment
+from graspd.environment import Box, EnvironmentParams, Label, hand_hits_environment, model_environment
 from graspd.hand import HandGeometry
+from graspd.preprocess import PreprocessParams, preprocess
+from graspd.scene import Scene
 from graspd.world.cameras import tabletop_cameras
 from graspd.world.noise import DepthNoise
 from graspd.world.render import render_scene
@@ -121,10 +124,6 @@ def test_wall_points_are_labelled_as_environment(tray: ViewpointCloud) -> None:
 def test_hands_stop_short_of_the_support_and_reach_down_to_it(tray: ViewpointCloud) -> None:
     """The support is a plane the hand search stops at in closed form: no part of any candidate's hand or
     approach path dips below the clearance, yet fingertips come down close to the floor beside objects."""
-    from graspd.candidates import SamplingParams, search_hands
-    from graspd.environment import model_environment
-    from graspd.preprocess import PreprocessParams, preprocess
-    from graspd.scene import Scene
 
     pre = preprocess(tray, PreprocessParams(voxel_size=0.003))
     env = model_environment(pre, HAND, EnvironmentParams())

@@ -10,11 +10,14 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from scipy.spatial.transform import Rotation
 
+from graspd import classifier
 from graspd.cloud import ViewpointCloud
 from graspd.cloud_io import read_cloud
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
+from graspd_client import build_detect_request
 
 
 def free_port() -> int:
@@ -54,12 +57,11 @@ def make_settings(tmp_path: Path) -> Callable[..., Settings]:
 def models_and_default(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     """A folder of real models the project trained and the default name: the shipped models/ when they are
     there, else the tiny test model (~1-2 min to make)."""
-    from graspd import classifier
 
     shipped = classifier.default_models_dir()
     if classifier.default_model_name() in classifier.available_models(shipped):
         return shipped, classifier.default_model_name()
-    from graspd.training.plans import train_tiny_model
+    from graspd.training.plans import train_tiny_model  # noqa: PLC0415
 
     return train_tiny_model(tmp_path_factory.mktemp("tiny-model"), seed=0).parent, "tiny15"
 
@@ -79,8 +81,6 @@ def client(make_settings: Callable[..., Settings]) -> Iterator[TestClient]:
 
 
 def _small_body(cloud: ViewpointCloud, **extra: Any) -> dict[str, Any]:
-    from graspd_client import build_detect_request
-
     options = {"num_samples": 60, **extra}
     return build_detect_request(cloud.points, cloud.viewpoints, **options)
 
@@ -103,7 +103,6 @@ def check_convention() -> Callable[[list[dict[str, Any]]], None]:
 
 def _assert_grasp_convention(grasps: list[dict[str, Any]]) -> None:
     """Every grasp: orthonormal right-handed [approach, binormal, axis] matching pose and quaternion."""
-    from scipy.spatial.transform import Rotation
 
     for g in grasps:
         r = np.array([g["approach"], g["binormal"], g["axis"]]).T

@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from graspd.server.app import create_app
+from graspd.server.engine import parse_request
 from graspd.server.settings import Settings
 from graspd_client import encode_array
 
@@ -151,8 +152,6 @@ def test_bearer_token(make_settings: Callable[..., Settings], body: dict[str, An
 
 def test_full_queue_is_503_with_retry_after(make_settings: Callable[..., Settings], krylon: Any,
                                             small_body: Callable[..., dict[str, Any]]) -> None:
-    from graspd.server.engine import parse_request
-
     with TestClient(create_app(make_settings(detect_workers=1, queue_size=0))) as c:
         engine = c.app.state.service.engine  # type: ignore[attr-defined]
         slow, _ = engine.submit(parse_request(small_body(krylon, num_samples=3000)), {})

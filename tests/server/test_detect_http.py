@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import open3d as o3d
 from fastapi.testclient import TestClient
 
 from graspd.cloud import ViewpointCloud
@@ -52,8 +53,6 @@ def test_pcd_upload_matches_json(client: TestClient, krylon_path: Path, krylon: 
 
 
 def test_ply_upload(client: TestClient, krylon: ViewpointCloud, tmp_path: Path) -> None:
-    import open3d as o3d
-
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(krylon.points.astype(np.float64)))
     path = tmp_path / "krylon.ply"
     o3d.io.write_point_cloud(str(path), pcd)

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
@@ -19,7 +20,6 @@ SPEC = Path(__file__).resolve().parents[2] / "openapi" / "openapi.json"
 
 def test_stateful_fuzz_finds_no_server_error(make_settings: Callable[..., Settings]) -> None:
     schemathesis = pytest.importorskip("schemathesis")  # dev dependency; installed in CI
-    from hypothesis import HealthCheck, settings
 
     schema = schemathesis.openapi.from_path(str(SPEC))
     seen: collections.Counter[str] = collections.Counter()

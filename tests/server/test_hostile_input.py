@@ -11,10 +11,13 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import open3d as o3d
 import pytest
 from fastapi.testclient import TestClient
+from PIL import Image
 
 from graspd.cloud import ViewpointCloud
+from graspd.ros import RosDecodeError, decode_pointcloud2, encode_pointcloud2
 
 EYE = np.eye(4).tolist()
 INTR = {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0}
@@ -65,8 +68,6 @@ def test_lying_files_are_422_naming_the_points(client: TestClient, name: str, da
 
 
 def test_binary_compressed_upload_is_accepted(client: TestClient, krylon: ViewpointCloud, tmp_path: Any) -> None:
-    import open3d as o3d
-
     path = tmp_path / "k.pcd"
     o3d.io.write_point_cloud(str(path), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(krylon.points)),
                              compressed=True)
@@ -120,8 +121,6 @@ def test_images_that_cannot_give_crops_are_422(client: TestClient, small_body: C
 
 def test_matching_image_still_gives_crops(client: TestClient, small_body: Callable[..., dict[str, Any]],
                                           krylon: ViewpointCloud) -> None:
-    from PIL import Image
-
     buf = io.BytesIO()
     Image.new("RGB", (64, 48)).save(buf, format="PNG")
     image = {"image_png": base64.b64encode(buf.getvalue()).decode()}
@@ -145,7 +144,6 @@ def test_request_id_header_matches_the_body(client: TestClient, body: dict[str, 
 
 def test_pointcloud2_declaring_more_than_its_data_is_refused() -> None:
     """CDR PointCloud2 (the Zenoh stream): width x height x point_step checked against the data and the cap."""
-    from graspd.ros import RosDecodeError, decode_pointcloud2, encode_pointcloud2
 
     good = encode_pointcloud2(P500)
     assert len(decode_pointcloud2(good).cloud.points) == 500

@@ -16,6 +16,7 @@ from urllib.parse import urlparse
 import pytest
 
 from graspd.server.app import create_app
+from graspd.server.engine import parse_request
 from graspd.server.logs import RequestIdFilter
 from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
@@ -115,8 +116,6 @@ def test_a_500_hides_internals_and_keeps_the_connection(make_settings: Callable[
 
 def test_full_queue_answers_503_before_the_body(make_settings: Callable[..., Settings], krylon: Any,
                                                 small_body: Callable[..., dict[str, Any]]) -> None:
-    from graspd.server.engine import parse_request
-
     settings = make_settings(port=0, detect_workers=1, queue_size=0)
     app = create_app(settings)
     with serve_in_thread(settings, app=app) as url, connect(url) as s:

@@ -43,7 +43,7 @@ def test_library_503_hides_the_password(make_settings: Callable[..., Settings], 
                                         caplog: pytest.LogCaptureFixture) -> None:
     """GET /library and its Zenoh twin answer 503 naming template_library, with the URL's password masked,
     and the log lines (with their exception texts) do not hold it either."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     caplog.set_level(logging.DEBUG)
     url = _urls()[case]

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
+from hypothesis import HealthCheck, given, settings
 
 from graspd.server.openapi import openapi_text
 from graspd.server.runner import serve_in_thread
@@ -42,7 +43,6 @@ def test_schema_documents_units_frames_and_convention() -> None:
 
 def test_schemathesis_finds_no_server_error(make_settings: Callable[..., Settings]) -> None:
     schemathesis = pytest.importorskip("schemathesis")  # dev dependency; installed in CI
-    from hypothesis import HealthCheck, settings
 
     schema = schemathesis.openapi.from_path(str(SPEC))
     failures: list[str] = []
@@ -61,8 +61,6 @@ def test_schemathesis_finds_no_server_error(make_settings: Callable[..., Setting
                 if response.status_code >= 400:
                     body = response.json()
                     assert "error" in body and "field" in body
-
-            from hypothesis import given
 
             given(case=operation.as_strategy())(check)()
     assert not failures, failures

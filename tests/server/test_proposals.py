@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 from fastapi.testclient import TestClient
+from PIL import Image
 
 from graspd.cloud import ViewpointCloud
 from graspd.server import proposals
@@ -54,8 +55,6 @@ def test_crop_windows_centre_and_border() -> None:
 
 
 def _png_array(b: bytes) -> np.ndarray:
-    from PIL import Image
-
     return np.array(Image.open(io.BytesIO(b)))
 
 
@@ -82,7 +81,6 @@ def test_crops_in_detect_response(client: TestClient, krylon: ViewpointCloud) ->
         a = _png_array(crop)
         assert a.shape == (64, 64, 3) and tuple(a[32, 32]) == (u % 256, v % 256, 7)
     # the same image as PNG gives the same crops
-    from PIL import Image
 
     buf = io.BytesIO()
     Image.fromarray(img).save(buf, format="PNG")

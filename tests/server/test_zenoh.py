@@ -4,6 +4,7 @@ several servers through their per-instance keys.  Peer mode on loopback, no rout
 from __future__ import annotations
 
 import json
+import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -22,8 +23,6 @@ from graspd_client.zenoh_client import ZenohGraspClient, zenoh_config
 
 
 def free_port() -> int:
-    import socket
-
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
@@ -79,7 +78,7 @@ def test_cdr_pointcloud2_query(zenoh_server: tuple[TestClient, str], krylon: Vie
 
 
 def test_streaming_cloud_to_grasps(zenoh_server: tuple[TestClient, str], krylon: ViewpointCloud) -> None:
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     _, endpoint = zenoh_server
     got: list[dict[str, Any]] = []

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import logging
+import shutil
+import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -20,11 +22,13 @@ from fastapi.testclient import TestClient
 from fixtures import box_top_grasp
 from graspd.cloud import ViewpointCloud
 from graspd.server.app import create_app
+from graspd.server.engine import parse_request
 from graspd.server.settings import Settings
 from graspd.server.zenoh_node import (
     ZenohSetupError,
     check_exposure,
     exposure,
+    in_fresh_context,
     is_local_endpoint,
     zenoh_config,
 )
@@ -53,7 +57,7 @@ def guarded(make_settings: Callable[..., Settings]) -> Iterator[tuple[TestClient
 
 def _replies(session: Any, key: str, payload: bytes = b"", attachment: bytes | None = None) -> list[Any]:
     """Every reply (ok or error) to a query on key from every matching queryable."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     return list(session.get(key, payload=payload, attachment=attachment, target=zenoh.QueryTarget.ALL,
                             consolidation=zenoh.ConsolidationMode.NONE, timeout=10))
@@ -85,7 +89,7 @@ KEYS = ["detect", "instances/solo", "instances/solo/detect", "demonstrations", "
 def test_anonymous_peer_refused_on_every_queryable(guarded: tuple[TestClient, str], body: dict[str, Any],
                                                    attachment: bytes | None) -> None:
     """Each queryable answers a query without the right attachment with HTTP's 401 body, and does nothing."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     http, endpoint = guarded
     payloads = {"detect": json.dumps(body).encode(), "instances/solo/detect": json.dumps(body).encode(),
@@ -131,7 +135,7 @@ def test_writers_never_act_for_anonymous_peers(guarded: tuple[TestClient, str], 
 def test_wildcard_query_reaches_no_writer_or_detector(guarded: tuple[TestClient, str]) -> None:
     """graspd/** without the token: every queryable answers 401; with the token, detectors and writers still
     refuse a query not addressed to their exact key (400 naming key_expr); the library is untouched."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     http, endpoint = guarded
     with zenoh.open(client_config(connect=[endpoint])) as session:
@@ -165,7 +169,7 @@ def test_stream_without_the_token_is_dropped(guarded: tuple[TestClient, str], kr
                                              caplog: pytest.LogCaptureFixture) -> None:
     """Anonymous clouds on graspd/cloud are dropped (counted, one WARNING without the token); the client's
     published clouds carry the token and get grasps."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     http, endpoint = guarded
     caplog.set_level(logging.INFO)
@@ -228,9 +232,7 @@ def test_deep_json_gets_an_error_reply(guarded: tuple[TestClient, str], depth: i
 def test_a_500_names_only_the_request_id(guarded: tuple[TestClient, str], caplog: pytest.LogCaptureFixture) -> None:
     """A server fault behind a Zenoh queryable answers 500 with a generic message and the request id, never the
     exception text; the log lines for it (the traceback, the outcome) carry the same id."""
-    import zenoh
-
-    from graspd.server.zenoh_node import in_fresh_context
+    import zenoh  # noqa: PLC0415
 
     http, endpoint = guarded
     node = http.app.state.service.zenoh  # type: ignore[attr-defined]
@@ -268,9 +270,7 @@ def test_full_queue_answers_503_before_parsing(make_settings: Callable[..., Sett
                                                small_body: Callable[..., dict[str, Any]]) -> None:
     """With every worker busy and no queue, a query gets 503 with Retry-After before its payload is parsed
     (garbage gets 503, not 400); once free, the same garbage gets its 400, and the reply's request id."""
-    import zenoh
-
-    from graspd.server.engine import parse_request
+    import zenoh  # noqa: PLC0415
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     settings = make_settings(zenoh_enabled=True, zenoh_listen=[endpoint], zenoh_stream=False, detect_workers=1,
@@ -342,7 +342,7 @@ def test_user_password_config_end_to_end(make_settings: Callable[..., Settings],
                                          krylon: ViewpointCloud) -> None:
     """The README's setup minus TLS: the server's config file requires Zenoh user/password authentication;
     a client with the credentials and the token detects, a client without credentials gets no session."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     (tmp_path / "users.txt").write_text("robot:arm-password\n")
@@ -366,8 +366,6 @@ def test_user_password_config_end_to_end(make_settings: Callable[..., Settings],
 
 def _make_certs(folder: Path) -> None:
     """A CA and a server certificate for 127.0.0.1/localhost (P-256), with the openssl command."""
-    import shutil
-    import subprocess
 
     if shutil.which("openssl") is None:
         pytest.skip("the openssl command is not installed (needed to make test certificates)")
@@ -385,7 +383,7 @@ def _make_certs(folder: Path) -> None:
 
 def _example(name: str, out: Path, **overrides: Any) -> Path:
     """examples/zenoh/<name> as Zenoh reads it, with some keys replaced (paths, endpoints), written to out."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     conf = zenoh.Config.from_file(str(Path(__file__).resolve().parents[2] / "examples" / "zenoh" / name))
     for key, value in overrides.items():
@@ -399,7 +397,7 @@ def test_example_secure_deployment_end_to_end(make_settings: Callable[..., Setti
     """The README's secure deployment (examples/zenoh/*.json5: TLS, user/password, access control, and the
     token): the robot detects; no credentials, a user the access rules do not name, a plain-TCP peer and a
     robot without the token get nothing done."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     _make_certs(tmp_path)
     port = free_port()

@@ -25,6 +25,7 @@ from fixtures import box_top_grasp
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd.templates import TemplateDetector, TemplateLibrary
+from graspd_client.zenoh_client import zenoh_config
 
 BOX = (0.05, 0.10, 0.08)
 PASSWORD = "pg-S3cret/with@chars"
@@ -114,9 +115,7 @@ def test_wrong_password_answers_503_without_the_password(postgres: tuple[str, in
                                                          caplog: pytest.LogCaptureFixture, tmp_path: Path) -> None:
     """The server rejects the password: GET /library and graspd/library answer 503 naming template_library,
     and neither they nor the log hold the wrong password (nor the right one)."""
-    import zenoh
-
-    from graspd_client.zenoh_client import zenoh_config
+    import zenoh  # noqa: PLC0415
 
     caplog.set_level(logging.DEBUG)
     wrong = "WrongPassw0rd/guess"

@@ -4,16 +4,23 @@ disjoint splits; the derived representations match the core encoder."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from graspd.images import REPRESENTATIONS, channel_layout
+from graspd.candidates import SamplingParams, sample_candidates
+from graspd.hand import HandGeometry
+from graspd.images import REPRESENTATIONS, channel_layout, encode_images
+from graspd.preprocess import preprocess
+from graspd.scene import Scene
 from graspd.training.dataset import (
     CATEGORIES,
     CHUNK_KEYS,
     GenerationParams,
+    _generate_chunk,
+    _params_from_dict,
     derive_images,
     generate_dataset,
     iter_chunks,
@@ -22,7 +29,11 @@ from graspd.training.dataset import (
     read_manifest,
     read_split,
     split_mask,
+    write_preview,
 )
+from graspd.world.cameras import random_view
+from graspd.world.objects import procedural_object, random_urdf_mesh
+from graspd.world.render import render_scene
 
 TINY = GenerationParams(seed=11, exemplars=120, num_urdfs=2, procedural=(("box", 1), ("cylinder", 1)),
                         views_per_object=3, num_samples=40, per_view=10, objects_per_chunk=3)
@@ -43,7 +54,6 @@ def test_same_seed_same_hashes(tiny: Path, tmp_path: Path) -> None:
     assert a["dataset_sha256"] == b["dataset_sha256"]
     assert [c["sha256"] for c in a["chunks"]] == [c["sha256"] for c in b["chunks"]]
     other = tmp_path / "other"
-    from dataclasses import replace
 
     generate_dataset(other, replace(TINY, seed=12), workers=1)
     assert read_manifest(other)["dataset_sha256"] != a["dataset_sha256"]
@@ -103,14 +113,6 @@ def test_derived_representations(tiny: Path) -> None:
 
 def test_derived_images_equal_the_encoder_output() -> None:
     """derive_images(encode(.., '15'), rep) == encode(.., rep) on a real rendered view."""
-    from graspd.candidates import SamplingParams, sample_candidates
-    from graspd.hand import HandGeometry
-    from graspd.images import encode_images
-    from graspd.preprocess import preprocess
-    from graspd.scene import Scene
-    from graspd.world.cameras import random_view
-    from graspd.world.objects import procedural_object
-    from graspd.world.render import render_scene
 
     hand = HandGeometry()
     obj = procedural_object("cylinder", 2)
@@ -134,8 +136,6 @@ def test_cli_rejects_bad_arguments_and_existing_output(tiny: Path, capsys: pytes
 
 
 def test_preview_png(tiny: Path, tmp_path: Path) -> None:
-    from graspd.training.dataset import _params_from_dict, write_preview
-
     assert _params_from_dict(read_manifest(tiny)["parameters"]) == TINY  # the manifest rebuilds the params
     view = next(v for v in read_manifest(tiny)["views"] if v["kept"] > 0)
     out = write_preview(tiny, tmp_path / "preview.png", view["object_id"], view["view_id"])
@@ -145,8 +145,6 @@ def test_preview_png(tiny: Path, tmp_path: Path) -> None:
 def test_broken_source_mesh_is_skipped_not_fatal(tmp_path: Path) -> None:
     """pybullet_data random_urdfs/168 has NaN vertices: the generator records it as skipped and goes on."""
     pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
-    from graspd.training.dataset import _generate_chunk
-    from graspd.world.objects import random_urdf_mesh
 
     with pytest.raises(ValueError, match="broken mesh"):
         random_urdf_mesh(168)

@@ -12,7 +12,7 @@ from graspd.world.meshes import box_mesh
 from graspd.world.noise import DepthNoise, axial_sigma, depth_edges, quantize_depth
 from graspd.world.objects import procedural_object
 from graspd.world.render import MeshScene, render_scene, render_scene_with_ids
-from graspd.world.scenes import tabletop_scene
+from graspd.world.scenes import random_tabletop, tabletop_scene
 
 
 def distances(mesh: o3d.geometry.TriangleMesh, points: np.ndarray) -> np.ndarray:
@@ -99,7 +99,6 @@ def test_noise_helpers() -> None:
 
 def test_random_tabletop_is_deterministic() -> None:
     pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
-    from graspd.world.scenes import random_tabletop
 
     a = random_tabletop(4, seed=2)
     b = random_tabletop(4, seed=2)

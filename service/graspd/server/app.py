@@ -10,6 +10,7 @@ from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.datastructures import MutableHeaders
@@ -31,6 +32,7 @@ from .settings import Settings
 from .templates_api import REQUEST_MODELS
 from .templates_api import router as templates_router
 from .warmup import warm_up
+from .zenoh_node import ZenohNode
 
 log = logging.getLogger("graspd.server")
 
@@ -132,8 +134,6 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
         state = ServiceState(settings, reg, mets, engine)
         app.state.service = state
         if settings.zenoh_enabled:
-            from .zenoh_node import ZenohNode
-
             state.zenoh = ZenohNode(settings, engine, mets)
             state.zenoh.start()
         log.info("graspd ready", extra={"models": reg.names(), "default_model": reg.default,
@@ -173,8 +173,6 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
     def openapi() -> dict[str, Any]:
         """FastAPI's schema plus DetectRequest (its body is read by hand to also accept PCD/PLY files)."""
         if app.openapi_schema is None:
-            from fastapi.openapi.utils import get_openapi
-
             schema = get_openapi(title=app.title, version=app.version, description=app.description,
                                  routes=app.routes)
             comps = schema.setdefault("components", {}).setdefault("schemas", {})

@@ -6,6 +6,14 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+import uvicorn
+
+from .allocator import tune_malloc
+from .app import create_app
+from .logs import configure_logging
+from .runner import uvicorn_config
+from .settings import Settings
+
 
 def register(subparsers: Any) -> None:
     """Add the `serve` subcommand to graspd's argparse subparsers."""
@@ -27,8 +35,6 @@ def register(subparsers: Any) -> None:
 
 
 def settings_from_args(args: argparse.Namespace) -> Any:
-    from .settings import Settings
-
     overrides = {k: getattr(args, k, None) for k in ("host", "port", "models_dir", "default_model", "detect_workers",
                                                      "zenoh_enabled", "zenoh_listen", "zenoh_connect",
                                                      "zenoh_instance", "zenoh_config")}
@@ -37,12 +43,6 @@ def settings_from_args(args: argparse.Namespace) -> Any:
 
 def serve(args: argparse.Namespace) -> int:
     """Run until SIGINT/SIGTERM; running detections finish before the process exits."""
-    import uvicorn
-
-    from .allocator import tune_malloc
-    from .app import create_app
-    from .logs import configure_logging
-    from .runner import uvicorn_config
 
     tune_malloc()  # before any worker thread exists: large request buffers go back to the OS
     settings = settings_from_args(args)

@@ -7,11 +7,11 @@ import io
 
 import numpy as np
 from numpy.typing import NDArray
+from PIL import Image
 
 
 def encode_png_b64(image: NDArray[np.uint8]) -> str:
     """Base64 text of a PNG of an (H,W,3) uint8 image (fast compression: crops are small)."""
-    from PIL import Image
 
     buf = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(image), "RGB").save(buf, format="PNG", compress_level=1)
@@ -43,7 +43,6 @@ def check_image_size(width: int, height: int, max_pixels: int = MAX_IMAGE_PIXELS
 def decode_png_rgb(b64: str, max_pixels: int = MAX_IMAGE_PIXELS) -> NDArray[np.uint8]:
     """(H,W,3) uint8 from base64 PNG text; ValueError says why it cannot be read.  The size declared in the
     IHDR chunk is checked against max_pixels before any pixel is decoded."""
-    from PIL import Image
 
     raw = base64.b64decode(b64)
     width, height = png_size(raw)

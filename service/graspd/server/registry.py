@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from graspd import classifier
 from graspd.detector import GraspDetector
 
 from .problems import Problem
@@ -35,7 +36,6 @@ class ModelRegistry:
              allow_unscored: bool = False) -> ModelRegistry:
         """Load every model in models_dir, each on its own (graspd.classifier.load_models_checked); failures
         are logged at ERROR by name.  default: the configured default name, else classifier's generic15."""
-        from graspd import classifier
 
         models, errors = classifier.load_models_checked(models_dir, threads=threads)
         for name, why in sorted(errors.items()):

@@ -12,6 +12,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+from .app import create_app
 from .settings import Settings
 
 
@@ -28,7 +32,6 @@ def guarded_h11_protocol(header_timeout_s: float) -> type[asyncio.Protocol]:
     within header_timeout_s, else the connection is closed.  uvicorn's own keep-alive timer only runs after a
     response and restarts on every byte, so a client trickling headers (or never sending any) held a
     connection forever.  Bodies are timed by the routes (routers.detect.read_capped)."""
-    from uvicorn.protocols.http.h11_impl import H11Protocol
 
     class GuardedH11Protocol(H11Protocol):
         _header_timer: asyncio.TimerHandle | None = None
@@ -70,7 +73,6 @@ def guarded_h11_protocol(header_timeout_s: float) -> type[asyncio.Protocol]:
 
 def uvicorn_config(app: Any, settings: Settings, port: int | None = None) -> Any:
     """A uvicorn.Config for app with the settings' HTTP limits (see Settings.http_*, shutdown_grace_s)."""
-    import uvicorn
 
     return uvicorn.Config(
         app, host=settings.host, port=settings.port if port is None else port, log_config=None, access_log=False,
@@ -87,9 +89,6 @@ def uvicorn_config(app: Any, settings: Settings, port: int | None = None) -> Any
 def serve_in_thread(settings: Settings, startup_timeout: float = 60.0, app: Any = None) -> Iterator[str]:
     """Serve app (default: create_app(settings)) on settings.host:port (0 = a free port) with the settings'
     HTTP limits; yields the base URL."""
-    import uvicorn
-
-    from .app import create_app
 
     port = settings.port or free_port(settings.host)
     server = uvicorn.Server(uvicorn_config(app if app is not None else create_app(settings), settings, port))

@@ -9,6 +9,8 @@ from typing import Any
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from graspd.classifier import default_models_dir as models_dir
+
 
 def available_cores() -> int:
     """CPU cores this process may run on (affinity-aware)."""
@@ -19,8 +21,6 @@ def available_cores() -> int:
 
 
 def default_models_dir() -> Path:
-    from graspd.classifier import default_models_dir as models_dir
-
     return models_dir()
 
 

@@ -76,7 +76,7 @@ def zenoh_config(settings: Settings) -> Any:
     """A zenoh.Config: the file GRASPD_ZENOH_CONFIG if set (TLS, auth, access control pass through untouched),
     then mode, listen/connect endpoints and multicast scouting from the settings for every one of those keys
     the file leaves at Zenoh's default (a key the file sets wins)."""
-    import zenoh
+    import zenoh  # noqa: PLC0415
 
     if settings.zenoh_config is None:
         conf = zenoh.Config()
@@ -283,7 +283,7 @@ class ZenohNode:
 
     def start(self) -> None:
         """Open the session (ZenohSetupError for a bad or unsafe configuration) and declare the keys."""
-        import zenoh
+        import zenoh  # noqa: PLC0415
 
         conf = zenoh_config(self.settings)
         check_exposure(self.settings, conf)

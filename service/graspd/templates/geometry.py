@@ -97,7 +97,7 @@ def segment_table(points: F32, viewpoints: F32, distance: float = 0.005, min_fra
     """The dominant plane (open3d RANSAC on at most max_fit_points, seeded) as the table if it holds
     min_fraction of the points, and the mask of points within distance (m) of it; (None, all False)
     if there is no such plane."""
-    import open3d as o3d
+    import open3d as o3d  # noqa: PLC0415
 
     mask = np.zeros(len(points), bool)
     if len(points) < 50:

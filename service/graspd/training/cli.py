@@ -55,8 +55,8 @@ _CONFIG_FLAGS = ("dataset", "name", "representation", "architecture", "split", "
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .config import TrainConfig  # training pulls in torch: loaded only when `graspd train` runs
-    from .plans import train_and_export, train_plan
+    from .config import TrainConfig  # noqa: PLC0415 - training pulls in torch: loaded only when `graspd train` runs
+    from .plans import train_and_export, train_plan  # noqa: PLC0415
 
     models_dir = Path(args.models_dir) if args.models_dir else default_models_dir()
     command = "graspd " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else None

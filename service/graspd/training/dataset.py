@@ -60,6 +60,7 @@ from ..cloud import ViewpointCloud
 from ..grasp import GraspSet
 from ..hand import HAND_PRESETS, HandGeometry, hand_preset
 from ..images import channel_layout, encode_images
+from ..plot import gripper_segments
 from ..preprocess import PreprocessParams, preprocess
 from ..scene import Scene
 from ..world.cameras import PAPER_CAMERA_SEPARATION_DEG, Camera, random_view
@@ -474,12 +475,10 @@ def write_preview(directory: str | Path, path: str | Path, object_id: int = 0, v
     """A PNG to judge a dataset's labels by eye: one view's cloud (re-rendered from the manifest's
     parameters) with its stored grasps as grippers (green = grasp, red = not), seen from the first camera
     and from the side, the mesh's surface as grey dots, and the 15 channels of a few stored exemplars."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..plot import gripper_segments
+    import matplotlib.pyplot as plt  # noqa: PLC0415
 
     directory = Path(directory)
     manifest = read_manifest(directory)

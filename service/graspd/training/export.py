@@ -16,6 +16,8 @@ import torch
 from numpy.typing import NDArray
 from torch import nn
 
+from graspd.classifier import OnnxGraspClassifier
+
 from .network import GraspProbability
 
 INPUT_NAME = "images"
@@ -29,7 +31,7 @@ PARITY_TOLERANCE = 1e-4
 
 def export_onnx(net: nn.Module, path: str | Path, channels: int, image_size: int = 60) -> Path:
     """Write the network (in eval mode, with a softmax head) to path as ONNX with a dynamic batch axis."""
-    import onnx
+    import onnx  # noqa: PLC0415
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -59,7 +61,6 @@ def torch_scores(net: nn.Module, images: NDArray[np.uint8], batch_size: int = 51
 def check_parity(net: nn.Module, onnx_path: str | Path, card: dict[str, Any], images: NDArray[np.uint8],
                  tolerance: float = PARITY_TOLERANCE) -> float:
     """Largest |onnxruntime - torch| P(grasp) over images; ValueError if above tolerance."""
-    from graspd.classifier import OnnxGraspClassifier
 
     clf = OnnxGraspClassifier(onnx_path, card, threads=1)
     diff = float(np.max(np.abs(clf.score(images) - torch_scores(net, images)), initial=0.0))

@@ -69,7 +69,7 @@ class GraspObject:
 
 def pybullet_data_dir() -> Path:
     """The pybullet_data folder shipped inside the pybullet wheel (an optional dependency)."""
-    import pybullet_data
+    import pybullet_data  # noqa: PLC0415
 
     return Path(pybullet_data.getDataPath())
 

@@ -1,5 +1,6 @@
-"""The template package's import graph, read from the source with ast: no loops among its modules, no
-import of graspd.sim, and the outcome store and database below it (they never import graspd.templates)."""
+"""The graspd import graph, read from the source with ast: no loops among its modules' top-level imports
+(the whole tree, and the template package counting every import), no import of graspd.sim by the templates,
+the outcome store and database below the templates, and training reading outcomes without graspd.templates."""
 
 from __future__ import annotations
 
@@ -17,13 +18,31 @@ def module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def imports_of(path: Path) -> set[str]:
-    """Every graspd module path imports (anywhere in the file), as absolute names; `from p import n` counts
-    as p and, when p.n is a module, p.n."""
+def _top_level(tree: ast.Module) -> list[ast.stmt]:
+    """The statements run when the module is imported: its body, into if/try/with blocks, not into functions
+    or classes' methods, nor `if TYPE_CHECKING:`."""
+    out: list[ast.stmt] = []
+    todo = list(tree.body)
+    while todo:
+        node = todo.pop()
+        out.append(node)
+        if isinstance(node, ast.If) and not (isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING"):
+            todo += node.body + node.orelse
+        elif isinstance(node, ast.Try):
+            todo += node.body + node.orelse + node.finalbody + [s for h in node.handlers for s in h.body]
+        elif isinstance(node, (ast.With, ast.ClassDef)):
+            todo += node.body
+    return out
+
+
+def imports_of(path: Path, top_level_only: bool = False) -> set[str]:
+    """Every graspd module path imports (anywhere in the file, or only where it runs on import), as absolute
+    names; `from p import n` counts as p and, when p.n is a module, p.n."""
     name = module_name(path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     out: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    for node in (_top_level(tree) if top_level_only else ast.walk(tree)):
         if isinstance(node, ast.Import):
             out.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -37,8 +56,8 @@ def imports_of(path: Path) -> set[str]:
     return {m for m in out if m in known and m != name}
 
 
-def graph(modules: list[Path]) -> dict[str, set[str]]:
-    return {module_name(p): imports_of(p) for p in modules}
+def graph(modules: list[Path], top_level_only: bool = False) -> dict[str, set[str]]:
+    return {module_name(p): imports_of(p, top_level_only) for p in modules}
 
 
 def find_cycle(edges: dict[str, set[str]]) -> list[str] | None:
@@ -80,3 +99,16 @@ def test_templates_do_not_import_sim() -> None:
 def test_outcome_store_and_database_do_not_import_templates() -> None:
     for name, deps in graph([PACKAGE / "outcomes.py", PACKAGE / "database.py"]).items():
         assert not any(d.startswith("graspd.templates") for d in deps), (name, deps)
+
+
+def test_graspd_modules_import_no_loop_at_top_level() -> None:
+    """No cycle among the imports every graspd module runs when it is imported (the lazy ones, inside
+    functions, load the heavy optional stacks and are not counted)."""
+    edges = graph(sorted(PACKAGE.rglob("*.py")), top_level_only=True)
+    assert {"graspd.server.app", "graspd.detector", "graspd.world.scenes", "graspd.outcomes"} <= edges.keys()
+    assert find_cycle(edges) is None, find_cycle(edges)
+
+
+def test_training_reads_outcomes_without_templates() -> None:
+    for name, deps in graph(sorted((PACKAGE / "training").glob("*.py"))).items():
+        assert not any(d == "graspd.templates" or d.startswith("graspd.templates.") for d in deps), (name, deps)
