@@ -6,15 +6,26 @@ uniformly to the paper's ~39k and ~66k points; 3 mm voxels, as GPD.  Also: the r
 (500 samples, as in the reference C++ run), growth with cloud size (10k -> 300k points) and with the
 number of samples, and peak memory.  Prints markdown tables, writes bench/results/perf.md and perf.png.
 
-    python bench/perf.py [--quick] [--repeats 3]
+Also request latency through the service (its own process, as a robot sees it): start-up with and without
+the warm-up, the first request against the warm p50, and 10k / 66k / 300k-point clouds; with --reference-gpd
+a GPD C++ detect_grasps binary runs on the same cloud and samples and the ratio is printed, otherwise the
+issue's reference figures (12.8 s wall, ~770 candidates) stand.
+
+    PYTHONPATH=service:client python bench/perf.py [--quick] [--repeats 3] [--service-only | --no-service]
+        [--reference-gpd BIN --reference-gpd-config CFG]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import re
 import resource
 import statistics
 import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -30,7 +41,8 @@ from graspd.scene import Scene
 from graspd.world.scenes import cluttered_tabletop, subsample
 
 HAND = HandGeometry()
-RESULTS = Path(__file__).resolve().parent / "results"
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "bench" / "results"
 SHARED_MUG = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "table_mug.pcd"
 
 
@@ -91,6 +103,142 @@ def end_to_end(cloud: ViewpointCloud, num_samples: int, repeats: int, scorer) ->
     return {"wall": t, "candidates": res.num_candidates, **{k: v for k, v in res.timings.items() if k != "total"}}
 
 
+REFERENCE = {"wall": 12.8, "candidates": 770}  # issue 15: GPD 2.0 C++ (Eigen LeNet, 2 threads), table_mug, 500 samples
+
+
+def start_service(warmup: bool = True) -> tuple[subprocess.Popen[bytes], str, float]:
+    """A graspd HTTP service in its own process (uvicorn, as bench/clutter.py starts it) on a free port; waits
+    until /readyz says ready and returns (process, URL, seconds from spawn to ready)."""
+    import httpx
+
+    from graspd.server.runner import free_port
+
+    port = free_port()
+    env = {**os.environ, "PYTHONPATH": f"{REPO / 'service'}:{REPO / 'client'}", "GRASPD_ZENOH_ENABLED": "false",
+           "GRASPD_DEADLINE_S": "300", "GRASPD_LOG_LEVEL": "WARNING", "GRASPD_WARMUP": str(warmup).lower()}
+    t = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "uvicorn", "--factory", "graspd.server.app:create_app",
+                             "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"], env=env)
+    url = f"http://127.0.0.1:{port}"
+    while time.perf_counter() - t < 300:
+        if proc.poll() is not None:
+            break
+        try:
+            if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
+                return proc, url, time.perf_counter() - t
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.05)
+    proc.terminate()
+    raise SystemExit("the graspd service did not become ready")
+
+
+def request_body(cloud: ViewpointCloud, num_samples: int) -> bytes:
+    """A /detect JSON body for a cloud (binary arrays, as the client sends them)."""
+    from graspd_client import build_detect_request
+
+    body = build_detect_request(cloud.points, cloud.viewpoints, cloud.camera_source, num_samples=num_samples)
+    return json.dumps(body).encode()
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (s): work done, much less sensitive to other load than wall."""
+    import psutil
+
+    t = psutil.Process(pid).cpu_times()
+    return float(t.user + t.system)
+
+
+def post(url: str, payload: bytes, pid: int | None = None) -> tuple[float, dict]:
+    """(round-trip seconds, response JSON) of one /detect; with pid, the response also holds "cpu_s", the CPU
+    seconds the server process spent meanwhile."""
+    import httpx
+
+    cpu = cpu_seconds(pid) if pid is not None else 0.0
+    t = time.perf_counter()
+    r = httpx.post(f"{url}/detect", content=payload, headers={"Content-Type": "application/json"}, timeout=300)
+    dt = time.perf_counter() - t
+    r.raise_for_status()
+    body = r.json()
+    if pid is not None:
+        body["cpu_s"] = cpu_seconds(pid) - cpu
+    return dt, body
+
+
+def service_latency(mug: ViewpointCloud | None, big: ViewpointCloud, repeats: int, emit) -> float | None:
+    """Start-up with and without the warm-up and the first request after each (table_mug, 500 samples; starts
+    alternate, medians of `repeats`), the warm p50, and request latency at 10k / 66k / 300k points; returns the
+    warm table_mug p50 (s)."""
+    payload = request_body(mug if mug is not None else subsample(big, 100_000), 500)
+    starts: dict[bool, list[float]] = {False: [], True: []}
+    firsts: dict[bool, list[float]] = {False: [], True: []}
+    first_cpu: dict[bool, list[float]] = {False: [], True: []}
+    for _ in range(repeats):
+        for warmup in (False, True):
+            proc, url, ready = start_service(warmup=warmup)
+            try:
+                starts[warmup].append(ready)
+                dt, body = post(url, payload, proc.pid)
+                firsts[warmup].append(dt)
+                first_cpu[warmup].append(body["cpu_s"])
+            finally:
+                proc.terminate()
+                proc.wait(60)
+    med = {k: (statistics.median(starts[k]), statistics.median(firsts[k]), statistics.median(first_cpu[k]))
+           for k in (False, True)}
+    proc, url, _ = start_service(warmup=True)
+    try:
+        runs = [post(url, payload, proc.pid) for _ in range(max(5, 2 * repeats))]
+        warm = [dt for dt, _ in runs]
+        warm_p50 = statistics.median(warm)
+        warm_cpu = statistics.median(b["cpu_s"] for _, b in runs)
+        name = "table_mug" if mug is not None else "tabletop 100k"
+        emit(f"Start-up to ready, then the first request ({name}, 500 samples), medians of {repeats} alternating "
+             "starts; CPU s: the server process's CPU time during the request (robust to other load):\n")
+        emit("| GRASPD_WARMUP | start-up to ready s | first request s | first / warm p50 | first request CPU s "
+             "| first / warm CPU |\n|---|---|---|---|---|---|")
+        for k in (False, True):
+            emit(f"| {str(k).lower()} | {med[k][0]:.2f} | {med[k][1]:.3f} | {med[k][1] / warm_p50:.2f} "
+                 f"| {med[k][2]:.2f} | {med[k][2] / warm_cpu:.2f} |")
+        emit(f"\nWarm requests ({len(warm)}): p50 {warm_p50:.3f} s wall, {warm_cpu:.2f} CPU s; the warm-up adds "
+             f"{med[True][0] - med[False][0]:.2f} s to start-up.\n")
+        emit("| cloud | points | candidates | warm p50 s |\n|---|---|---|---|")
+        if mug is not None:
+            body = post(url, payload)[1]
+            emit(f"| table_mug | {len(mug)} | {body['num_candidates']} | {warm_p50:.3f} |")
+        for n in (10_000, 66_000, 300_000):
+            if n > len(big):
+                continue
+            sized = request_body(subsample(big, n), 500)
+            body = post(url, sized)[1]
+            times = [post(url, sized)[0] for _ in range(max(3, repeats))]
+            emit(f"| tabletop {n // 1000}k | {n} | {body['num_candidates']} | {statistics.median(times):.3f} |")
+        if mug is not None:
+            emit(f"\ntable_mug warm p50 {warm_p50:.3f} s through HTTP: {REFERENCE['wall'] / warm_p50:.1f}x faster "
+                 f"than the reference GPD C++ figure ({REFERENCE['wall']} s wall, ~{REFERENCE['candidates']} "
+                 "candidates, issue 15, quiet machine).")
+    finally:
+        proc.terminate()
+        proc.wait(60)
+    return warm_p50 if mug is not None else None
+
+
+def reference_gpd(binary: Path, config: Path, emit, graspd_p50: float | None) -> None:
+    """Run GPD's detect_grasps on table_mug.pcd with 500 samples (a copy of config with num_samples = 500),
+    print its wall time, the candidates it reports and the ratio to graspd's warm request."""
+    text = config.read_text()
+    text = re.sub(r"(?m)^num_samples\s*=.*$", "num_samples = 500", text)
+    with tempfile.NamedTemporaryFile("w", suffix=".cfg", delete=False) as f:
+        f.write(text)
+    t = time.perf_counter()
+    out = subprocess.run([str(binary), f.name, str(SHARED_MUG)], capture_output=True, text=True, timeout=600)
+    wall = time.perf_counter() - t
+    found = re.findall(r"(\d+)\s+grasp candidates", out.stdout + out.stderr)
+    cands = found[0] if found else "?"
+    emit(f"\nReference GPD C++ `{binary}` on table_mug.pcd, 500 samples: {wall:.2f} s wall (exit {out.returncode}), "
+         f"{cands} candidates" + (f"; graspd warm request is {wall / graspd_p50:.1f}x faster" if graspd_p50 else ""))
+
+
 def _fmt(v: float) -> str:
     return f"{v:.0f}" if v >= 100 else f"{v:.3f}"
 
@@ -105,7 +253,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true", help="fewer sizes and one repeat (smoke run)")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--service-only", action="store_true", help="only the request latencies through the service")
+    ap.add_argument("--no-service", action="store_true", help="skip the request latencies through the service")
+    ap.add_argument("--reference-gpd", type=Path, help="a GPD C++ detect_grasps binary to run on table_mug.pcd")
+    ap.add_argument("--reference-gpd-config", type=Path, help="its config file (num_samples is set to 500)")
     args = ap.parse_args()
+    if args.reference_gpd is not None and args.reference_gpd_config is None:
+        ap.error("--reference-gpd needs --reference-gpd-config (GPD's detect_grasps reads its settings from it)")
     repeats = 1 if args.quick else args.repeats
     scorers = _load_scorers()
     score_cols = [f"score_{n}_per_1k" for n in scorers]
@@ -117,8 +271,24 @@ def main() -> None:
 
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     emit(f"# graspd speed (bench/perf.py, commit {commit}, {time.strftime('%Y-%m-%d')}, 2-core CPU)\n")
+    emit(f"Machine load at the start: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} cores); "
+         "compare ratios and medians when other work shares the machine.\n")
     big = cluttered_tabletop(num_objects=8, seed=7, resolution_scale=1.5, table_size=(0.6, 0.6))
     emit(f"Rendered cluttered tabletop: {len(big)} points from two cameras 53 deg apart (960x720 each).\n")
+    if not args.no_service:
+        emit("## Request latency through the service (HTTP, 500 samples, default model)\n")
+        mug_cloud = read_cloud(SHARED_MUG) if SHARED_MUG.exists() else None
+        p50 = service_latency(mug_cloud, big, repeats, emit)
+        if args.reference_gpd is not None:
+            reference_gpd(args.reference_gpd, args.reference_gpd_config, emit, p50)
+        else:
+            emit(f"\nNo --reference-gpd given: the reference is issue 15's quiet-machine run of GPD C++ on table_mug, "
+                 f"500 samples: {REFERENCE['wall']} s wall, ~{REFERENCE['candidates']} candidates.")
+        emit(f"\nMachine load after the service runs: {' '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
+        if args.service_only:
+            RESULTS.mkdir(parents=True, exist_ok=True)
+            (RESULTS / "perf-service.md").write_text("\n".join(out) + "\n")
+            return
 
     emit("## Table 2 of the IJRR paper, reproduced (samples on objects, table excluded from sampling)\n")
     rows = []
