@@ -2,15 +2,16 @@
 
 The cloud is ../shared/data/real/table_mug.pcd subsampled to 100,000 points, detected unscored without voxel
 downsampling (so the environment labels every one of the 100k points, all drawn), top 50 grasps.  Measured per
-run: "drawn", the page's own performance.now() when Plotly has drawn the scene (ms from navigation start: reading
-the ~5 MB page, compiling plotly.js, decoding the data, the first WebGL frame in SwiftShader), "plotly.js", the
-same clock on a page holding only plotly.js (its share), and "process", the whole headless Chromium run (start,
+run: "drawn", the page's own performance.now() when its first frame is drawn and finished (ms from navigation
+start: reading the ~1.7 MB page, decoding the base64 typed arrays, the first WebGL frame in SwiftShader), "empty",
+the same clock on an empty page (the browser's own floor), and "process", the whole headless Chromium run (start,
 load, exit).  Needs Debian's chromium.  Usage: .venv/bin/python bench/viewer.py [--runs 3] [--points 100000]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shutil
 import statistics
@@ -39,8 +40,10 @@ def chromium_command(browser: str, profile: Path) -> list[str]:
             "--use-angle=swiftshader", f"--user-data-dir={profile}", "--no-first-run"]
 
 
-def load_ms(browser: str, page: Path, profile: Path, attribute: str) -> tuple[float, float]:
-    """(the page's own ms at which attribute was set, the Chromium process's wall seconds)."""
+def load_ms(browser: str, page: Path, profile: Path, attribute: str) -> tuple[float, float, str]:
+    """(the page's own ms at which attribute was set, the Chromium process's wall seconds, the page's data-mode
+    ("webgl", or "2d" when the browser gave it no WebGL) with its own timings: script start, decoding, set-up,
+    first frame)."""
     t = time.perf_counter()
     dom = subprocess.run(chromium_command(browser, profile) + ["--dump-dom", page.resolve().as_uri()],
                          capture_output=True, text=True, timeout=300).stdout
@@ -48,7 +51,9 @@ def load_ms(browser: str, page: Path, profile: Path, attribute: str) -> tuple[fl
     found = re.search(rf'{attribute}="([0-9.]+)"', dom)
     if found is None:
         raise RuntimeError(f"{page.name}: the page never set {attribute} (not drawn)")
-    return float(found.group(1)), wall
+    mode = re.search(r'data-mode="(\w+)"', dom)
+    timings = re.search(r'data-timings="([^"]*)"', dom)
+    return float(found.group(1)), wall, (mode.group(1) if mode else "-") + (f" ({timings.group(1)})" if timings else "")
 
 
 def main() -> int:
@@ -74,27 +79,28 @@ def main() -> int:
     page = viewer_html(cloud, detection, top=args.grasps, max_points=args.max_points or len(cloud))
     build = time.perf_counter() - t
     with tempfile.TemporaryDirectory() as tmp:
-        view, bare = Path(tmp) / "view.html", Path(tmp) / "plotly_only.html"
+        view, bare = Path(tmp) / "view.html", Path(tmp) / "empty.html"
         view.write_text(page, encoding="utf-8")
-        plotly_js = max(re.findall(r"<script[^>]*>(.*?)</script>", page, flags=re.S), key=len)  # the inlined library
-        bare.write_text("<html><body><script>" + plotly_js + "</script><script>"
+        bare.write_text("<html><body><script>"
                         "document.body.setAttribute('data-parsed', String(performance.now()));</script></body></html>",
                         encoding="utf-8")
         print(f"{len(cloud):,} points ({detection.environment.counts()}), {args.max_points or len(cloud):,} drawn, "
               f"{len(detection.grasps[: args.grasps])} "
               f"grasps; page {len(page) / 1e6:.1f} MB built in {build:.2f} s; id {PLOT_ID}")
         drawn, parsed, process = [], [], []
+        print("| run | drawn (s after navigation) | empty page (s) | chromium process (s) | mode (page timings) |")
+        print("|---|---|---|---|---|")
         for run in range(args.runs):
-            ms, wall = load_ms(browser, view, Path(tmp) / "profile", "data-drawn")
-            js_ms, _ = load_ms(browser, bare, Path(tmp) / "profile", "data-parsed")
+            ms, wall, mode = load_ms(browser, view, Path(tmp) / "profile", "data-drawn")
+            js_ms, _, _ = load_ms(browser, bare, Path(tmp) / "profile", "data-parsed")
             drawn.append(ms)
             parsed.append(js_ms)
             process.append(wall)
-            print(f"run {run + 1}: drawn {ms / 1000:.2f} s (plotly.js alone {js_ms / 1000:.2f} s), "
-                  f"chromium process {wall:.2f} s")
+            print(f"| {run + 1} | {ms / 1000:.2f} | {js_ms / 1000:.2f} | {wall:.2f} | {mode} |")
     d = statistics.median(drawn) / 1000
-    print(f"median: drawn {d:.2f} s after navigation (plotly.js alone {statistics.median(parsed) / 1000:.2f} s), "
-          f"chromium process {statistics.median(process):.2f} s; target <= 2 s: {'met' if d <= 2.0 else 'NOT met'}")
+    print(f"| median | {d:.2f} | {statistics.median(parsed) / 1000:.2f} | {statistics.median(process):.2f} | |")
+    print(f"target <= 2 s drawn: {'met' if d <= 2.0 else 'NOT met'}; load average {os.getloadavg()[0]:.2f} "
+          f"on {os.cpu_count()} cores")
     return 0
 
 

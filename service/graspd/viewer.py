@@ -213,8 +213,10 @@ button { font-size: 11px; margin-bottom: 4px; }
 <script>
 "use strict";
 (function () {
+const T0 = performance.now();
 const D = JSON.parse(document.getElementById("graspd-data").textContent);
 function bytes(s) {
+  if (Uint8Array.fromBase64) return Uint8Array.fromBase64(s).buffer;
   const b = atob(s), u = new Uint8Array(b.length);
   for (let i = 0; i < b.length; i++) u[i] = b.charCodeAt(i);
   return u.buffer;
@@ -222,6 +224,7 @@ function bytes(s) {
 const P = new Float32Array(bytes(D.points)), L = new Uint8Array(bytes(D.labels));
 const S = new Float32Array(bytes(D.segs)), SC = new Uint8Array(bytes(D.segColours));
 const SR = new Int16Array(bytes(D.segRanks));
+const T1 = performance.now();
 const scene = document.getElementById("scene"), over = document.getElementById("labels");
 const tip = document.getElementById("tip");
 let canvas = document.getElementById("@@ID@@");
@@ -282,7 +285,9 @@ function size() {
 
 // WebGL: points by label, segments as screen-space quads (ranked grippers thicker when highlighted)
 let gl = null;
-try { gl = canvas.getContext("webgl", { antialias: true, preserveDrawingBuffer: true }); } catch (e) { gl = null; }
+// no multisampling: SwiftShader (headless, no GPU) takes about twice as long for the first frame with it
+try { gl = canvas.getContext("webgl", { antialias: false, preserveDrawingBuffer: true }); } catch (e) { gl = null; }
+const TC = performance.now();
 let drawGL = null;
 if (gl) {
   const prog = (vs, fs) => {
@@ -355,7 +360,9 @@ if (gl) {
       for (let i = 0; i < 5; i++) gl.disableVertexAttribArray(i);
     }
   };
-} else {  // no WebGL: a fresh canvas (the failed one cannot give a 2D context in every browser)
+}
+const T2 = performance.now();
+if (!gl) {  // no WebGL: a fresh canvas (the failed one cannot give a 2D context in every browser)
   const c2 = document.createElement("canvas");
   c2.id = canvas.id; canvas.replaceWith(c2); canvas = c2;
 }
@@ -390,8 +397,8 @@ function frame() {
   ctx.setTransform(dpr, 0, 0, dpr, 0, 0); ctx.clearRect(0, 0, over.width, over.height);
   ctx.font = "bold 11px sans-serif"; ctx.textAlign = "center"; ctx.textBaseline = "middle";
   ctx.lineWidth = 3; ctx.strokeStyle = "#fff"; ctx.fillStyle = "#000";
-  D.tags.forEach((t, k) => {
-    if (k >= D.labelled && k !== hl) return;
+  D.tags.forEach((t, k) => {  // the first ranks' numbers, or only the highlighted one's
+    if (hl >= 0 ? k !== hl : k >= D.labelled) return;
     const q = project(v.m, t);
     if (q[2]) { ctx.strokeText(String(k + 1), q[0], q[1]); ctx.fillText(String(k + 1), q[0], q[1]); }
   });
@@ -404,7 +411,11 @@ function redraw() { if (!queued) { queued = true; requestAnimationFrame(() => { 
 frame();
 if (gl) gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));  // wait for the GPU
 canvas.setAttribute("data-mode", gl ? "webgl" : "2d");
-canvas.setAttribute("data-drawn", String(performance.now()));
+const T3 = performance.now();
+const ms = x => x.toFixed(0);
+canvas.setAttribute("data-timings", "script start " + ms(T0) + " ms, data decoded +" + ms(T1 - T0) +
+  ", context +" + ms(TC - T1) + ", set up +" + ms(T2 - TC) + ", first frame +" + ms(T3 - T2));
+canvas.setAttribute("data-drawn", String(T3));
 
 // the side list: hovering or clicking a row highlights its gripper
 const rows = document.querySelectorAll("#grasps tbody tr");

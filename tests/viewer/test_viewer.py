@@ -140,11 +140,12 @@ def chromium_command(browser: str, profile: Path) -> list[str]:
             "--use-angle=swiftshader", "--hide-scrollbars", f"--user-data-dir={profile}", "--no-first-run"]
 
 
-def screenshot(page: Path, out: Path, profile: Path, size: tuple[int, int] = (1200, 800)) -> np.ndarray:
+def screenshot(page: Path, out: Path, profile: Path, size: tuple[int, int] = (1200, 800),
+               extra: tuple[str, ...] = ()) -> np.ndarray:
     browser = chromium()
     assert browser is not None
     cmd = chromium_command(browser, profile) + [f"--window-size={size[0]},{size[1]}", "--virtual-time-budget=20000",
-                                                f"--screenshot={out}", page.resolve().as_uri()]
+                                                f"--screenshot={out}", *extra, page.resolve().as_uri()]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
     assert out.exists(), proc.stderr[-2000:]
     return np.asarray(Image.open(out).convert("RGB"))
@@ -162,7 +163,7 @@ def test_headless_chromium_draws_the_grippers(mug, tmp_path: Path) -> None:
     bare = screenshot(without, tmp_path / "without.png", tmp_path / "profile")
     h, w, _ = shot.shape
     scene = np.zeros((h, w), bool)
-    scene[:, int(0.15 * w) : int(0.85 * w)] = True  # leave out the legend (left) and the colour bar (right)
+    scene[:, int(0.15 * w) : int(0.85 * w)] = True  # leave out the side panel (legend, colour bar, grasp list)
     drawn = int((_gripper_pixels(shot) & scene).sum())
     assert drawn > 500, f"only {drawn} gripper-coloured pixels in the page"
     assert int((_gripper_pixels(bare) & scene).sum()) < 50  # nothing else on the page has their colour
@@ -170,5 +171,10 @@ def test_headless_chromium_draws_the_grippers(mug, tmp_path: Path) -> None:
     assert _count_near(shot, _hex_rgb(LABEL_STYLE[Label.OBJECT][1]), tol=30) > 300
     dom = subprocess.run(chromium_command(chromium() or "", tmp_path / "profile") + [
         "--dump-dom", with_grasps.resolve().as_uri()], capture_output=True, text=True, timeout=180).stdout
-    assert re.search(rf'id="{PLOT_ID}"[^>]*data-drawn="[0-9.]+"', dom) or \
-        re.search(rf'data-drawn="[0-9.]+"[^>]*id="{PLOT_ID}"', dom)
+    canvas = re.search(rf'<canvas id="{PLOT_ID}"[^>]*>', dom)
+    assert canvas is not None and re.search(r'data-drawn="[0-9.]+"', canvas.group(0))
+    assert 'data-mode="webgl"' in canvas.group(0)  # SwiftShader gave the page WebGL with these flags
+    # without WebGL the page draws on a 2D canvas: the grippers and the object are still there
+    flat = screenshot(with_grasps, tmp_path / "flat.png", tmp_path / "profile", extra=("--disable-3d-apis",))
+    assert int((_gripper_pixels(flat) & scene).sum()) > 500
+    assert _count_near(flat, _hex_rgb(LABEL_STYLE[Label.OBJECT][1]), tol=30) > 300
