@@ -611,7 +611,8 @@ class ZenohNode:
     # ---- run-time options ------------------------------------------------------------------
     def set_options(self, payload: bytes) -> StreamOptions:
         """Validate a config payload (Problem naming the field) and make it the stream options."""
-        options = guarded_parse(lambda p: parse_options(p, self._base_options, self.options.viewpoints), payload)
+        options = guarded_parse(lambda p: parse_options(p, self._base_options, (self.settings.stream_viewpoint,)),
+                                payload)
         with self._options_lock:
             self._options = options
         log.info("stream options set", extra={"transport": "zenoh", "options": options.source})
