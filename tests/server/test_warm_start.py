@@ -10,6 +10,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from graspd.detector import DetectionParams, GraspDetector
+from graspd.parallel import THREADS, available_cores
 from graspd.server.app import create_app
 from graspd.server.registry import ModelRegistry
 from graspd.server.settings import Settings
@@ -52,3 +53,12 @@ def test_warmup_setting_from_environment(monkeypatch: pytest.MonkeyPatch) -> Non
     assert Settings().warmup is True
     monkeypatch.setenv("GRASPD_WARMUP", "false")
     assert Settings().warmup is False
+
+
+def test_threads_setting_sizes_the_process_budget(make_settings: Callable[..., Settings],
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(THREADS, "cores", THREADS.cores)  # restored after the test
+    with TestClient(create_app(make_settings(threads=1, warmup=False))):
+        assert THREADS.cores == 1 and THREADS.share() == 1
+    with TestClient(create_app(make_settings(warmup=False))):
+        assert THREADS.cores == available_cores()

@@ -19,6 +19,7 @@ from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from graspd import __version__
+from graspd.parallel import THREADS
 
 from .deps import ServiceState
 from .engine import DetectionEngine, dumps
@@ -28,7 +29,7 @@ from .problems import Problem
 from .registry import ModelRegistry
 from .routers import detect, health, metrics, models, viewer
 from .schemas import DetectRequest
-from .settings import Settings
+from .settings import Settings, available_cores
 from .templates_api import REQUEST_MODELS
 from .templates_api import router as templates_router
 from .warmup import warm_up
@@ -127,6 +128,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         reg = registry or ModelRegistry.load(settings.resolved_models_dir(), settings.default_model,
                                              settings.model_threads, allow_unscored=settings.allow_unscored)
+        THREADS.cores = settings.threads or available_cores()
         # before the first request can arrive (uvicorn answers nothing, /readyz included, until this returns)
         warmup_s = await asyncio.to_thread(warm_up, reg) if settings.warmup else None
         mets = Metrics()

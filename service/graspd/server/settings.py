@@ -35,6 +35,8 @@ class Settings(BaseSettings):
     default_model: str | None = Field(default=None, description="model used when a request names none")
     model_threads: int = Field(default=1, ge=0, description="onnxruntime intra-op threads per model")
     detect_workers: int = Field(default=0, ge=0, description="detections run at once; 0 = one per CPU core")
+    threads: int = Field(default=0, ge=0, description="cores the running detections share (graspd.parallel: a lone "
+                         "request uses them all, concurrent ones divide them); 0 = every core of the process")
     warmup: bool = Field(default=True, description="run one detection on a small bundled cloud at start-up, before "
                          "the service answers, so that the first request is as fast as the rest (~1 s of start-up)")
     queue_size: int = Field(default=32, ge=0, description="requests that may wait for a worker before 503")
