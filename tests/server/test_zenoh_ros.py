@@ -139,8 +139,12 @@ def publish_until(session: Any, key: str, payload: bytes, listener: Listener, pr
 
 
 def frames(listener: Listener) -> bool:
-    """A frame arrived on every output: the JSON answer and, last, the MarkerArray."""
-    return all(listener.got[k] for k in ("json", "gcl", "poses", "moveit", "markers"))
+    """A frame arrived on every output: the JSON answer, one moveit Grasp per grasp, the MarkerArray (each key's
+    subscriber runs its callbacks on its own, so the last one published need not be the last one received)."""
+    if not all(listener.got[k] for k in ("json", "gcl", "poses", "markers")):
+        return False
+    answer = json.loads(listener.got["json"][0])
+    return len(listener.got["moveit"]) >= len(answer.get("grasps", [])) > 0
 
 
 def sources_of(cloud: ViewpointCloud) -> tuple[np.ndarray, np.ndarray]:

@@ -186,7 +186,10 @@ def test_stream_without_the_token_is_dropped(guarded: tuple[TestClient, str], kr
             ZenohGraspClient(connect=[endpoint], timeout=30, token=TOKEN) as robot:
         sub = session.declare_subscriber("graspd/grasps", on_grasps)
         pub = session.declare_publisher("graspd/cloud")
-        for _ in range(50):  # until the subscription has propagated, and beyond
+        deadline = time.monotonic() + 30
+        while not pub.matching_status.matching and time.monotonic() < deadline:  # the server's subscription known
+            time.sleep(0.05)
+        for _ in range(50):
             pub.put(payload)
             pub.put(payload, attachment=b"Bearer nope")
             time.sleep(0.05)
