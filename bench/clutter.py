@@ -42,8 +42,17 @@ for sub in ("service", "client"):
     if str(REPO / sub) not in sys.path:
         sys.path.insert(0, str(REPO / sub))
 
+import numpy as np  # noqa: E402
+
+from graspd.classifier import available_models, default_model_name, load_model, read_card  # noqa: E402
+from graspd.classifier import default_models_dir as models_dir  # noqa: E402
 from graspd.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, TopDownBaseline  # noqa: E402
-from graspd.sim.protocol import RoundResult, Setting, Summary, run_round, summarize  # noqa: E402
+from graspd.sim.protocol import RoundResult, Setting, Summary, cameras_for, run_round, summarize  # noqa: E402
+from graspd.sim.sensing import observe, render_rgb  # noqa: E402
+from graspd.sim.world import build_scene  # noqa: E402
+from graspd.world.cameras import Camera  # noqa: E402
+from graspd.world.noise import DepthNoise  # noqa: E402
+from graspd_client import GraspClient  # noqa: E402
 
 DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-rep15", "gpd-rep12", "gpd-rep3")
 SCENES: dict[str, Setting] = {
@@ -70,8 +79,6 @@ def parse_setting(spec: str) -> tuple[str, str]:
 
 def model_for(detector: str, model: str | None) -> str | None:
     """The classifier name a detector needs (None for baseline and gpd-noclass)."""
-    from graspd.classifier import available_models, read_card
-    from graspd.classifier import default_models_dir as models_dir
 
     if detector in ("baseline", "gpd-noclass"):
         return None
@@ -82,8 +89,6 @@ def model_for(detector: str, model: str | None) -> str | None:
                 return name
         raise SystemExit(f"{detector}: no model of representation {rep} in {models_dir()}")
     if model is None:
-        from graspd.classifier import default_model_name
-
         names = available_models()
         if not names:
             raise SystemExit(f"{detector}: no classifier in {models_dir()}; pass --model or train one")
@@ -104,8 +109,6 @@ def make_detector(detector: str, model: str | None, service: str | None) -> SimD
         return ServiceGPD(url=service, name=detector, model=model, options=options)
     classifier = None
     if model is not None:
-        from graspd.classifier import load_model
-
         classifier = load_model(model, threads=1)
     return InProcessGPD(name=detector, classifier=classifier, options=options)
 
@@ -199,12 +202,10 @@ def markdown(summaries: dict[str, Summary], meta: dict[str, Any]) -> str:
 
 def bar_chart(summaries: dict[str, Summary], path: Path, title: str) -> None:
     """Grasp success and objects removed per setting with 95% intervals and the issue's targets."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
+    import matplotlib.pyplot as plt  # noqa: PLC0415
     names = list(summaries)
     x = np.arange(len(names))
     fig, ax = plt.subplots(figsize=(max(6.0, 1.3 * len(names) + 2), 4.5))
@@ -246,17 +247,10 @@ def write_results(out: Path, tag: str, summaries: dict[str, Summary], rounds: di
 
 def scene_pictures(path: Path, seed: int) -> None:
     """One picture per scene kind (seed's scene, after settling) and the cloud its cameras send, from above."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from graspd.sim.protocol import cameras_for
-    from graspd.sim.sensing import observe, render_rgb
-    from graspd.sim.world import build_scene
-    from graspd.world.cameras import Camera
-    from graspd.world.noise import DepthNoise
+    import matplotlib.pyplot as plt  # noqa: PLC0415
 
     fig, axes = plt.subplots(2, len(SCENES), figsize=(4.2 * len(SCENES), 7))
     for col, (name, setting) in enumerate(SCENES.items()):
@@ -286,8 +280,6 @@ def free_port() -> int:
 
 def start_service() -> tuple[subprocess.Popen[bytes], str]:
     """Run the graspd HTTP app under uvicorn on a free local port; wait until it is ready."""
-    from graspd_client import GraspClient
-
     port = free_port()
     env = {**os.environ, "PYTHONPATH": f"{REPO / 'service'}:{REPO / 'client'}", "GRASPD_ZENOH_ENABLED": "false",
            "GRASPD_DEADLINE_S": "300", "GRASPD_LOG_LEVEL": "WARNING"}

@@ -13,8 +13,12 @@ from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from graspd_client import GraspClient
 
 from ..cloud import ViewpointCloud
+from ..detector import DetectionParams, GraspDetector
 from ..grasp import GraspSet
 from ..hand import HandGeometry
 from ..world.points import voxel_downsample
@@ -68,8 +72,6 @@ class TopDownBaseline:
     inset: float = 0.025
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
-        from scipy.spatial import cKDTree
-
         pts = voxel_downsample(cloud.points.astype(np.float64), 0.004)
         floor = max(workspace[4], 0.0)
         pts = pts[pts[:, 2] > floor + 0.005]
@@ -152,8 +154,6 @@ class InProcessGPD:
     options: dict[str, Any] = field(default_factory=dict)
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
-        from ..detector import DetectionParams, GraspDetector
-
         params = DetectionParams(seed=seed, workspace=workspace,
                                  use_classifier=self.classifier is not None, **self.options)
         return GraspDetector(classifier=self.classifier, hand=hand).detect(cloud, params, hand=hand).grasps
@@ -171,8 +171,6 @@ class ServiceGPD:
     options: dict[str, Any] = field(default_factory=dict)
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
-        from graspd_client import GraspClient
-
         with GraspClient(self.url, timeout=120.0) as client:
             g = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source, workspace=workspace,
                               hand=hand.to_dict(), model=self.model, seed=seed % (2**32), **self.options)

@@ -14,6 +14,7 @@ from enum import StrEnum
 import numpy as np
 import pybullet as pb
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from ..grasp import GraspSet
 from ..hand import HandGeometry
@@ -60,8 +61,6 @@ class Attempt:
 
 
 def _rot_quat(rotation: F64) -> list[float]:
-    from scipy.spatial.transform import Rotation
-
     return [float(v) for v in Rotation.from_matrix(rotation).as_quat()]
 
 
