@@ -167,20 +167,30 @@ class Environment:
 
 
 def _ransac_plane(points: F64, params: EnvironmentParams, rng: np.random.Generator) -> Plane | None:
-    """The plane with most inliers (open3d RANSAC) fitted on at most ransac_points points."""
-    import open3d as o3d  # noqa: PLC0415
-
+    """The plane with most inliers within plane_distance: RANSAC over ransac_iterations point triplets of at
+    most ransac_points points, all hypotheses scored at once (numpy, seeded: the same cloud and seed always
+    give the same plane, which open3d's multi-threaded RANSAC did not), refined by least squares."""
     if len(points) < 3:
         return None
     sub = points if len(points) <= params.ransac_points else \
         points[rng.choice(len(points), params.ransac_points, replace=False)]
-    o3d.utility.random.seed(int(rng.integers(2**31)))
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sub))
-    model, inliers = pcd.segment_plane(distance_threshold=params.plane_distance, ransac_n=3,
-                                       num_iterations=params.ransac_iterations)
+    tri = sub[rng.integers(0, len(sub), size=(params.ransac_iterations, 3))]  # (K, 3 points, xyz)
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    ok = length > 1e-9
+    if not ok.any():
+        return None
+    normals = normals[ok] / length[ok, None]
+    offsets = -np.einsum("kj,kj->k", normals, tri[ok, 0])
+    counts = (np.abs(sub @ normals.T + offsets) <= params.plane_distance).sum(axis=0)
+    best = int(np.argmax(counts))
+    inliers = sub[np.abs(sub @ normals[best] + offsets[best]) <= params.plane_distance]
     if len(inliers) < 3:
         return None
-    return Plane.from_coefficients(np.asarray(model, np.float64))
+    centre = inliers.mean(axis=0)
+    _, _, vt = np.linalg.svd(inliers - centre, full_matrices=False)
+    normal = vt[-1] / np.linalg.norm(vt[-1])
+    return Plane(normal, -float(normal @ centre))
 
 
 def _in_plane_axes(normal: F64) -> F64:

@@ -142,3 +142,13 @@ def test_hands_stop_short_of_the_support_and_reach_down_to_it(tray: ViewpointClo
     down = grasps.approach @ plane.normal < -0.95
     tips = plane.distance(grasps.positions[down] + HAND.hand_depth * grasps.approach[down])
     assert down.sum() >= 5 and tips.min() < 0.01, "top-down fingertips reach within 1 cm of the floor"
+
+
+def test_the_same_cloud_and_seed_give_the_same_environment(tray: ViewpointCloud) -> None:
+    """Plane fitting is seeded numpy, not multi-threaded open3d RANSAC: a request is reproducible."""
+    pre = preprocess(tray, PreprocessParams(voxel_size=0.003))
+    first, second = (model_environment(pre, HAND, EnvironmentParams(), seed=5) for _ in range(2))
+    assert first.support is not None and second.support is not None
+    assert np.array_equal(first.support.normal, second.support.normal)
+    assert first.support.offset == second.support.offset
+    assert np.array_equal(first.labels, second.labels)
