@@ -46,7 +46,8 @@ def make_settings(tmp_path: Path) -> Callable[..., Settings]:
                                 "data_dir": tmp_path / "data",
                                 "deadline_s": 300.0,
                                 "queue_size": 8, "log_json": True,
-                                "allow_unscored": True}  # no models: requests naming none are unscored, not 503
+                                "allow_unscored": True,  # no models: requests naming none are unscored, not 503
+                                "warmup": False}  # test_warm_start.py turns it on where it is the subject
         base.update(overrides)
         return Settings(**base)
 

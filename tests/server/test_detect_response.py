@@ -84,3 +84,12 @@ def test_upload_query_parameters_come_from_detect_request(client: TestClient) ->
     assert documented == openapi_parameters()
     limits = {p["name"]: p["schema"] for p in documented}
     assert limits["num_samples"]["maximum"] == wire.MAX_NUM_SAMPLES and limits["hand"]["type"] == "string"
+
+
+def test_request_options_reach_the_detector_parameters() -> None:
+    cloud = {"points": [[0.0, 0.0, 0.5], [0.01, 0.0, 0.5], [0.0, 0.01, 0.5]], "viewpoints": [[0.0, 0.0, 0.0]]}
+    default = DetectRequest.model_validate({"cloud": cloud}).to_params()
+    asked = DetectRequest.model_validate({"cloud": cloud, "early_stop": True, "max_grasps": 5,
+                                          "approach_distance": 0.08, "clustering": True}).to_params()
+    assert (default.early_stop, default.use_clustering, default.approach_distance) == (False, False, 0.05)
+    assert (asked.early_stop, asked.use_clustering, asked.approach_distance, asked.max_grasps) == (True, True, 0.08, 5)

@@ -350,6 +350,9 @@ class DetectRequest(BaseModel):
     approach_distance: float = Field(0.05, ge=0.0, le=0.5, allow_inf_nan=False,
                                      description="pre-grasp distance (m) back along the approach over which the "
                                      "open hand's path must be free of points and environment")
+    early_stop: bool = Field(False, description="search the seeded samples in rounds and stop once 2 x "
+                             "max_grasps high-scoring grasps in distinct 2 cm cells are found: much faster for "
+                             "requests that ask for few grasps, but the answer can differ from a full search")
     min_aperture: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False,
                                        description="drop grasps whose width (object extent between the fingers) "
                                        "is below this (m)")
@@ -432,6 +435,7 @@ class DetectRequest(BaseModel):
                 exclude_support_plane=self.exclude_support_plane,
                 environment=EnvironmentParams() if self.environment is None else self.environment.params(),
                 approach_distance=self.approach_distance,
+                early_stop=self.early_stop,
                 seed=self.seed,
             )
         except ValueError as exc:
