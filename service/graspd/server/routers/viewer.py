@@ -60,7 +60,7 @@ async def multipart_file(headers: Headers, body: bytes, field: str = "file") -> 
 
 
 def _page(captured: dict[str, Any], name: str) -> str:
-    """The viewer page of a finished detection (on a worker thread: the detection and the page encoding take a while)."""
+    """The viewer page of a finished detection (on a worker thread: encoding the page takes a while)."""
     det: Detection | TemplateDetection = captured["det"]
     if not isinstance(det, Detection):
         raise Problem(422, "the viewer draws method \"gpd\" detections", "method")
@@ -88,8 +88,8 @@ async def viewer_page() -> HTMLResponse:
     response_class=HTMLResponse,
     summary="The interactive 3D view of a cloud's grasps",
     description="multipart/form-data with a field \"file\" (PCD or PLY); options as the query parameters of a "
-                "/detect upload.  Answers a self-contained HTML page (a small WebGL viewer, nothing fetched) of the cloud "
-                "coloured by environment label, the environment and the top 50 grippers coloured by score.",
+                "/detect upload.  Answers a self-contained HTML page (a small WebGL viewer, nothing fetched) of "
+                "the cloud coloured by environment label, the environment and the top 50 grippers coloured by score.",
     responses={200: {"content": {"text/html": {}}}, 400: {"model": ErrorBody}, 401: {"model": ErrorBody},
                408: {"model": ErrorBody}, 413: {"model": ErrorBody}, 415: {"model": ErrorBody},
                422: {"model": ErrorBody}, 503: {"model": ErrorBody}, 504: {"model": ErrorBody}},
