@@ -39,6 +39,19 @@ class GraspClassifier(Protocol):
     def score(self, images: NDArray[np.uint8]) -> NDArray[np.float32]: ...
 
 
+#: The hand fields a grasp image depends on (its closing region): a model scores images of one hand.
+IMAGE_HAND_FIELDS = ("finger_width", "hand_outer_diameter", "hand_depth", "hand_height")
+
+
+def card_fits_hand(card: dict[str, Any], hand: dict[str, float]) -> bool:
+    """Whether a model card's hand makes the same grasp images as `hand` (a HandGeometry.to_dict()): equal on
+    every IMAGE_HAND_FIELDS field to 0.1 mm.  A card without a hand fits nothing."""
+    made_for = card.get("hand")
+    if not isinstance(made_for, dict):
+        return False
+    return all(abs(float(made_for.get(k, float("nan"))) - float(hand[k])) <= 1e-4 for k in IMAGE_HAND_FIELDS)
+
+
 def default_model_name() -> str:
     """Name of the default model (the generic 15-channel classifier)."""
     return DEFAULT_MODEL_NAME

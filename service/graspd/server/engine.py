@@ -218,13 +218,14 @@ class DetectionEngine:
                 raise Problem(504, f"deadline of {self.settings.deadline_s} s passed while queued", "deadline")
             req = parse()
             timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
-            model = self.registry.resolve(req.model, req.use_classifier and req.method == "gpd")
             try:
                 hand = req.hand_geometry()
                 cloud = req.to_cloud()
                 params = req.to_params()
             except WireError as exc:
                 raise from_wire(exc) from None
+            model = self.registry.resolve(req.model, req.use_classifier and req.method == "gpd",
+                                          hand or HandGeometry())
             det: Detection | TemplateDetection
             ctx = current_request()
             with THREADS.request():  # concurrent requests share the cores (graspd.parallel)
@@ -252,8 +253,10 @@ class DetectionEngine:
             self.metrics.points.observe(det.num_points)
             timings["total"] = time.perf_counter() - enqueued + before
             self.metrics.observe_timings(timings)
+            fits = None if isinstance(det, TemplateDetection) else self.registry.fits(det.model, used_hand)
             return DetectResponse.from_detection(det, request_id=request_id, timings=timings, hand=used_hand,
-                                                 crops=crops, header=header or None).to_json()
+                                                 crops=crops, header=header or None,
+                                                 model_fits_hand=fits).to_json()
         finally:
             elapsed = time.perf_counter() - start
             with self._lock:

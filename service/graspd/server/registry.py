@@ -12,6 +12,7 @@ from typing import Any
 
 from graspd import classifier
 from graspd.detector import GraspDetector
+from graspd.hand import HandGeometry
 
 from .problems import Problem
 
@@ -53,10 +54,22 @@ class ModelRegistry:
     def names(self) -> list[str]:
         return sorted(self.classifiers)
 
-    def resolve(self, name: str | None, scoring: bool = True) -> str | None:
-        """The model a request gets: its own, else the default.  A name that is not in the folder is a 422
-        naming 'model'; one that failed to load, or a missing default while scoring was asked for, is a 503
-        naming 'model'.  With scoring False (use_classifier false) a missing default is no error."""
+    def fits(self, name: str | None, hand: HandGeometry) -> bool | None:
+        """Whether model `name` was trained on grasp images of this hand (None: no model, unscored)."""
+        if name is None or name not in self.classifiers:
+            return None
+        return classifier.card_fits_hand(dict(getattr(self.classifiers[name], "card", {})), hand.to_dict())
+
+    def resolve(self, name: str | None, scoring: bool = True, hand: HandGeometry | None = None) -> str | None:
+        """The model a request gets: its own, else the default, unless the default was trained for another
+        hand than the request's and a loaded model fits it (then that one, by name).  A name that is not in
+        the folder is a 422 naming 'model'; one that failed to load, or a missing default while scoring was
+        asked for, is a 503 naming 'model'.  With scoring False (use_classifier false) a missing default is
+        no error."""
+        if name is None and scoring and hand is not None and self.fits(self.default, hand) is False:
+            fitting = [n for n in self.names() if self.fits(n, hand)]
+            if fitting:
+                return fitting[0]
         if name is not None:
             if name in self.classifiers:
                 return name

@@ -531,11 +531,17 @@ class DetectResponse(BaseModel):
     environment: EnvironmentOut | None = Field(None, description="gpd: what the environment stage found")
     num_entries: int | None = Field(None, description="templates: library entries matched against")
     header: RosHeader | None = Field(None, description="Zenoh, CDR PointCloud2 input only: its ROS header")
+    model_fits_hand: bool | None = Field(None, description="gpd with a model: whether the model was trained on "
+                                         "grasp images of the request's hand (finger width, outer diameter, "
+                                         "depth, height).  false: the hand and the model differ and the scores "
+                                         "are less reliable (train one on a dataset of that hand: python -m "
+                                         "graspd.training.dataset --hand NAME, then graspd train)")
 
     @classmethod
     def from_detection(cls, det: Detection | TemplateDetection, *, request_id: str, timings: dict[str, float],
                        hand: HandGeometry, crops: list[dict[str, Any]] | None = None,
-                       header: dict[str, Any] | None = None) -> DetectResponse:
+                       header: dict[str, Any] | None = None, model_fits_hand: bool | None = None
+                       ) -> DetectResponse:
         """The response to a detection, validated against this model (so what is sent cannot drift from what
         is documented).  Grasp ids are assigned here: gpd "<request id>-<k>", templates the ids the library
         recorded.  crops: one CropOut-shaped dict per grasp; header: the ROS header of a CDR input (Zenoh).
@@ -566,6 +572,8 @@ class DetectResponse(BaseModel):
             out.update(model=det.model, scored=det.scored, environment=None if env is None else env.to_dict())
         if header is not None:
             out["header"] = header
+        if model_fits_hand is not None:
+            out["model_fits_hand"] = model_fits_hand
         return cls.model_validate(out)
 
     def to_json(self) -> bytes:
