@@ -63,6 +63,16 @@ class HandGeometry:
             [[-a - self.palm_depth, -od / 2, -hh / 2], [0.0, od / 2, hh / 2]],
         ])
 
+    def body_contains(self, local: NDArray[np.floating], opening: float | None = None) -> NDArray[np.bool_]:
+        """Which hand-frame points (N, 3; m) lie inside the two fingers opened to `opening` (default fully
+        open, max_aperture) or inside the palm (palm_depth deep behind the base, as wide as the open hand)."""
+        gap = self.max_aperture if opening is None else opening
+        x, ay = local[:, 0], np.abs(local[:, 1])
+        in_z = np.abs(local[:, 2]) < self.hand_height / 2
+        finger = (x >= 0) & (x < self.hand_depth) & (ay > gap / 2) & (ay < gap / 2 + self.finger_width)
+        palm = (x < 0) & (x > -self.palm_depth) & (ay < self.hand_outer_diameter / 2)
+        return np.asarray(in_z & (finger | palm))
+
     def with_overrides(self, **overrides: Any) -> HandGeometry:
         """A copy with some fields replaced (validated)."""
         return replace(self, **overrides)

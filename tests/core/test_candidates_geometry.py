@@ -116,3 +116,17 @@ def test_grasp_frames_are_right_handed_rotations(cylinder_two_cameras: Viewpoint
     assert np.allclose(np.einsum("mji,mjk->mik", r, r), np.eye(3), atol=1e-6)
     assert np.allclose(np.cross(grasps.approach, grasps.binormal), grasps.axis, atol=1e-6)
     assert np.all(np.isnan(grasps.scores))
+
+
+def test_the_hand_body_holds_its_fingers_and_palm_not_the_closing_region() -> None:
+    hand = HandGeometry()
+    gap, fw, hd = hand.max_aperture, hand.finger_width, hand.hand_depth
+    pts = np.array([[hd / 2, gap / 2 + fw / 2, 0.0],    # in the left finger
+                    [hd / 2, -gap / 2 - fw / 2, 0.0],   # in the right finger
+                    [-hand.palm_depth / 2, 0.0, 0.0],   # in the palm
+                    [hd / 2, 0.0, 0.0],                 # between the fingers: the closing region
+                    [hd / 2, gap / 2 + fw / 2, hand.hand_height],  # above the hand
+                    [-hand.palm_depth - 0.001, 0.0, 0.0]])  # behind the palm
+    assert hand.body_contains(pts).tolist() == [True, True, True, False, False, False]
+    closed_to_2cm = hand.body_contains(np.array([[hd / 2, 0.015, 0.0]]), opening=0.02)
+    assert closed_to_2cm.tolist() == [True]

@@ -47,12 +47,7 @@ def hand_frame_points(points: F64, position: F64, rotation: F64) -> F64:
 def hand_collides(local: F64, hand: HandGeometry, opening: float) -> bool:
     """True if any hand-frame point lies inside the palm (hand.palm_depth deep) or the two fingers opened to
     `opening` (m)."""
-    in_z = np.abs(local[:, 2]) < hand.hand_height / 2
-    in_y = np.abs(local[:, 1]) < opening / 2 + hand.finger_width
-    palm = in_z & in_y & (local[:, 0] > -hand.palm_depth) & (local[:, 0] < 0.0)
-    fingers = in_z & (np.abs(local[:, 1]) > opening / 2) & in_y & (local[:, 0] >= 0.0) & (
-        local[:, 0] < hand.hand_depth)
-    return bool(np.any(palm | fingers))
+    return bool(hand.body_contains(local, opening).any())
 
 
 @dataclass

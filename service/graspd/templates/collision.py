@@ -21,7 +21,7 @@ def hand_collisions(scene: TemplateScene, positions: F64, rotations: F64, hand: 
     hit = np.zeros(m, bool)
     if m == 0:
         return hit
-    od, fw, hd, hh = hand.hand_outer_diameter, hand.finger_width, hand.hand_depth, hand.hand_height
+    od, hh = hand.hand_outer_diameter, hand.hand_height
     boxes = hand.swept_boxes()  # [left finger, right finger, palm] x [low, high] corners, hand frame
     lo, hi = boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)
     x_lo, x_hi = float(lo[0]), float(hi[0])  # -palm_depth, hand_depth
@@ -34,11 +34,7 @@ def hand_collisions(scene: TemplateScene, positions: F64, rotations: F64, hand: 
     gid, idx = ball_pairs(scene.tree, centre, radius)
     d = scene.object_points[idx] - positions[gid]
     loc = np.einsum("tj,tjk->tk", d, rotations[gid])
-    in_z = np.abs(loc[:, 2]) < hh / 2
-    ay = np.abs(loc[:, 1])
-    finger = in_z & (loc[:, 0] >= 0) & (loc[:, 0] < hd) & (ay > od / 2 - fw) & (ay < od / 2)
-    palm = in_z & (loc[:, 0] < 0) & (loc[:, 0] > x_lo) & (ay < od / 2)
-    hit[np.unique(gid[finger | palm])] = True
+    hit[np.unique(gid[hand.body_contains(loc)])] = True
     return hit
 
 
