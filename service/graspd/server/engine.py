@@ -102,8 +102,9 @@ def parse_request(payload: bytes | str | dict[str, Any]) -> DetectRequest:
     return parse_model(DetectRequest, payload)
 
 
-def parse_model(model: type[M], payload: bytes | str | dict[str, Any]) -> M:
-    """A validated request model from JSON text or a decoded object; Problem (400/422) names the field."""
+def json_object(payload: bytes | str | dict[str, Any]) -> dict[str, Any]:
+    """A JSON object from JSON text (or one already decoded); Problem 400 (not JSON) or 422 (too deep, not
+    an object) naming the body."""
     if isinstance(payload, bytes | str):
         try:
             payload = loads(payload)
@@ -113,6 +114,12 @@ def parse_model(model: type[M], payload: bytes | str | dict[str, Any]) -> M:
             raise Problem(400, f"invalid JSON ({exc})", "body") from None
     if not isinstance(payload, dict):
         raise Problem(422, f"a JSON object is expected, got {type(payload).__name__}", "body")
+    return payload
+
+
+def parse_model(model: type[M], payload: bytes | str | dict[str, Any]) -> M:
+    """A validated request model from JSON text or a decoded object; Problem (400/422) names the field."""
+    payload = json_object(payload)
     try:
         return model.model_validate(payload)
     except ValidationError as exc:

@@ -41,7 +41,7 @@ from graspd.ros import (
 )
 from graspd.templates import TemplateDetection
 
-from .engine import JsonTooDeep, loads, parse_model
+from .engine import json_object, parse_model
 from .problems import Problem
 from .schemas import MAX_COORDINATE, Cloud, DetectRequest
 
@@ -123,7 +123,7 @@ def parse_options(payload: bytes | str | dict[str, Any], base: Mapping[str, Any]
         size = len(payload)
         if size > MAX_CONFIG_BYTES:
             raise Problem(413, f"config of {size} bytes exceeds the limit of {MAX_CONFIG_BYTES}", "payload")
-    obj = payload if isinstance(payload, dict) else _json_object(payload)
+    obj = json_object(payload)
     for name in NOT_OPTIONS:
         if name in obj:
             raise Problem(422, f"{name!r} is not a stream option (the cloud comes in the message)", name)
@@ -136,19 +136,6 @@ def parse_options(payload: bytes | str | dict[str, Any], base: Mapping[str, Any]
             raise Problem(exc.status, exc.message, "viewpoints" + exc.field[len("cloud.viewpoints"):]) from None
         raise
     return StreamOptions(req, np.asarray(req.cloud.viewpoints, np.float64), {k: v for k, v in merged.items()})
-
-
-def _json_object(payload: bytes | str) -> dict[str, Any]:
-    """A JSON object, read and refused (400/422 naming the body) as parse_model reads a request."""
-    try:
-        obj = loads(payload)
-    except JsonTooDeep as exc:
-        raise Problem(422, str(exc), "body") from None
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise Problem(400, f"invalid JSON ({exc})", "body") from None
-    if not isinstance(obj, dict):
-        raise Problem(422, f"a JSON object is expected, got {type(obj).__name__}", "body")
-    return obj
 
 
 def decode_input(payload: bytes, name: str, options: StreamOptions) -> CloudMessage:
