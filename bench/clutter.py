@@ -5,7 +5,8 @@ chart and a JSON file (with the git commit) into bench/results/.  A setting is D
 
   detectors: baseline (top-down, no learning), gpd-noclass (GPD, no classification), gpd (GPD with the
              --model classifier, default: graspd's default model), gpd-noselect (same, random order instead
-             of selection), gpd-rep15 / gpd-rep12 / gpd-rep3 (the first model in models/ of that representation)
+             of selection), gpd-cluster (same, GPD's cluster-sum ranking instead of the default),
+             gpd-rep15 / gpd-rep12 / gpd-rep3 (the first model in models/ of that representation)
   scenes:    pour-passive, pour-active (10 objects poured into a tray), pile-side, packed-side (5 objects)
 
 The gpd detectors call the detector exactly as a robot does: plain POST /detect requests through
@@ -54,7 +55,7 @@ from graspd.world.cameras import Camera  # noqa: E402
 from graspd.world.noise import DepthNoise  # noqa: E402
 from graspd_client import GraspClient  # noqa: E402
 
-DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-rep15", "gpd-rep12", "gpd-rep3")
+DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-cluster", "gpd-rep15", "gpd-rep12", "gpd-rep3")
 SCENES: dict[str, Setting] = {
     "pour-passive": Setting(scene="pour", num_objects=10, sensing="passive"),
     "pour-active": Setting(scene="pour", num_objects=10, sensing="active"),
@@ -103,9 +104,12 @@ def make_detector(detector: str, model: str | None, service: str | None) -> SimD
     options: dict[str, Any] = {}
     if detector == "gpd-noselect":
         options["use_selection"] = False
+    if detector == "gpd-cluster":
+        options["use_clustering"] = True
     if service is not None:
         # named ablations only; everything else is the service's default
-        options = {"gpd-noselect": {"selection": False}, "gpd-noclass": {"use_classifier": False}}.get(detector, {})
+        options = {"gpd-noselect": {"selection": False}, "gpd-noclass": {"use_classifier": False},
+                   "gpd-cluster": {"clustering": True}}.get(detector, {})
         return ServiceGPD(url=service, name=detector, model=model, options=options)
     classifier = None
     if model is not None:
