@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from .environment import Plane
 from .grasp import GraspSet
 from .hand import HandGeometry
 from .parallel import THREADS
@@ -35,9 +36,9 @@ class SamplingParams:
     |Phi| orientations in [-pi/2, pi/2) and |Y| finger placements; frame_radius r (m).  clear_behind (m):
     how far behind the finger roots the hand's body and approach path must be free of points (palm depth
     plus approach distance); None checks only the points within the hand's own reach, as GPD does.
-    obstacles: the points the hands test against (default all); support (unit normal n, offset d: the plane
-    n.p + d = 0, n toward the free side) stops each hand support_clearance (m) short of the plane in closed
-    form, so the support's points need not be among the obstacles (most of a tabletop cloud is table)."""
+    obstacles: the points the hands test against (default all); support (its normal toward the free side)
+    stops each hand support_clearance (m) short of the plane in closed form, so the support's points need not
+    be among the obstacles (most of a tabletop cloud is table)."""
 
     num_samples: int = 1000
     num_orientations: int = 8
@@ -48,7 +49,7 @@ class SamplingParams:
     sample_pool: NDArray[np.bool_] | None = None
     clear_behind: float | None = None
     obstacles: NDArray[np.bool_] | None = None
-    support: tuple[tuple[float, float, float], float] | None = None
+    support: Plane | None = None
     support_clearance: float = 0.0
 
 
@@ -158,8 +159,8 @@ def _support_limit(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.fl
     """(samples, orientations, placements) furthest fingertip depth (m past the sample) that keeps the whole
     hand, and its path back by `behind`, support_clearance above the support plane; -inf where no depth does."""
     assert p.support is not None
-    n = np.asarray(p.support[0], np.float64)
-    height = samples.astype(np.float64) @ n + p.support[1] - p.support_clearance  # (S,)
+    n = p.support.normal
+    height = p.support.distance(samples.astype(np.float64)) - p.support_clearance  # (S,)
     nf = frames.transpose(0, 2, 1) @ n  # (S, 3): n in each sample frame
     c, s_ = np.cos(phis)[None, :], np.sin(phis)[None, :]
     na = c * nf[:, 0:1] + s_ * nf[:, 1:2]  # (S, Phi): n . approach

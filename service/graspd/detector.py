@@ -191,10 +191,7 @@ class GraspDetector:
                                   seed=p.seed, sample_pool=pool, sample_indices=_nearest(scene, p),
                                   clear_behind=h.palm_depth + p.approach_distance if modelled else None,
                                   obstacles=None if plane is None else env.labels != Label.SUPPORT,
-                                  support=None if plane is None else (
-                                      (float(plane.normal[0]), float(plane.normal[1]), float(plane.normal[2])),
-                                      float(plane.offset)),
-                                  support_clearance=env.clearance)
+                                  support=plane, support_clearance=env.clearance)
         sel = p.selection(h, env)
         scorer = self.classifier if p.use_classifier else None
 

@@ -131,7 +131,7 @@ def test_hands_stop_short_of_the_support_and_reach_down_to_it(tray: ViewpointClo
     plane = env.support
     params = SamplingParams(num_samples=200, seed=3, sample_pool=env.object_mask, clear_behind=0.05 + HAND.palm_depth,
                             obstacles=env.labels != Label.SUPPORT, support_clearance=env.clearance,
-                            support=(tuple(float(v) for v in plane.normal), float(plane.offset)))  # type: ignore[arg-type]
+                            support=plane)
     grasps, _ = search_hands(Scene.build(pre, HAND), HAND, params)
     assert len(grasps) > 50
     corners = HAND.swept_boxes(0.05)  # (3 boxes, low/high, xyz) in the hand frame
