@@ -9,7 +9,7 @@ runs as the paper's "no classification" ablation and says so (scored = False).
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
@@ -170,39 +170,14 @@ class GraspDetector:
             timings[stage] = now - t
             t = now
 
-        pre = PreprocessParams(voxel_size=p.voxel_size, workspace=p.workspace, remove_outliers=p.remove_outliers)
-        prepared = preprocess(cloud, pre)
-        lap("preprocess")
-        env = model_environment(prepared, h, p.environment, gravity=p.gravity, seed=p.seed)
-        lap("environment")
-        scene = Scene.build(prepared, h)
-        lap("scene")
-        modelled = env.mode != "none"
-        if p.exclude_support_plane is False or (p.exclude_support_plane is None and not modelled):
-            pool = None
-        elif modelled:
-            pool = env.object_mask
-        else:
-            pool = ~support_plane_mask(prepared.points)
-        # the support is a plane the hands stop short of in closed form, not thousands of points to test
-        plane = env.support if modelled else None
-        sampling = SamplingParams(num_samples=p.num_samples, num_orientations=p.num_orientations,
-                                  num_finger_placements=p.num_finger_placements, frame_radius=p.frame_radius,
-                                  seed=p.seed, sample_pool=pool, sample_indices=_nearest(scene, p),
-                                  clear_behind=h.palm_depth + p.approach_distance if modelled else None,
-                                  obstacles=None if plane is None else env.labels != Label.SUPPORT,
-                                  support=plane, support_clearance=env.clearance)
-        sel = p.selection(h, env)
+        prep = self.prepare(cloud, p, h, lap)
+        scene, env, sampling, sel = prep.scene, prep.environment, prep.sampling, prep.selection
         scorer = self.classifier if p.use_classifier else None
 
         def candidates_for(s: SamplingParams) -> GraspSet:
             """Sample, filter (feasibility, environment) and score the hands of s; stage times add up."""
             t_start = time.perf_counter()
-            cands, region = search_hands(scene, h, s)
-            feasible = feasible_mask(cands, replace(sel, min_score=None))
-            if modelled:
-                feasible &= ~environment_conflicts(cands, region, env, h, p.approach_distance)
-            cands, region = cands[feasible], region.subset(feasible)
+            cands, region = self.search(prep, s, p, h)
             t_batch = time.perf_counter()
             timings["sample"] = timings.get("sample", 0.0) + t_batch - t_start
             if scorer is None or not len(cands):
@@ -238,10 +213,64 @@ class GraspDetector:
             model=None if scorer is None else scorer.name,
             scored=scorer is not None,
             num_candidates=len(candidates),
-            num_points=len(prepared),
+            num_points=len(prep.cloud),
             hand=h,
             environment=env,
         )
+
+    def prepare(self, cloud: ViewpointCloud, p: DetectionParams, h: HandGeometry,
+                lap: Callable[[str], None] | None = None) -> Prepared:
+        """Preprocess, model the environment and build the scene of a request: everything before sampling."""
+        pre = PreprocessParams(voxel_size=p.voxel_size, workspace=p.workspace, remove_outliers=p.remove_outliers)
+        prepared = preprocess(cloud, pre)
+        if lap is not None:
+            lap("preprocess")
+        env = model_environment(prepared, h, p.environment, gravity=p.gravity, seed=p.seed)
+        if lap is not None:
+            lap("environment")
+        scene = Scene.build(prepared, h)
+        if lap is not None:
+            lap("scene")
+        modelled = env.mode != "none"
+        if p.exclude_support_plane is False or (p.exclude_support_plane is None and not modelled):
+            pool = None
+        elif modelled:
+            pool = env.object_mask
+        else:
+            pool = ~support_plane_mask(prepared.points)
+        # the support is a plane the hands stop short of in closed form, not thousands of points to test
+        plane = env.support if modelled else None
+        sampling = SamplingParams(num_samples=p.num_samples, num_orientations=p.num_orientations,
+                                  num_finger_placements=p.num_finger_placements, frame_radius=p.frame_radius,
+                                  seed=p.seed, sample_pool=pool, sample_indices=_nearest(scene, p),
+                                  clear_behind=h.palm_depth + p.approach_distance if modelled else None,
+                                  obstacles=None if plane is None else env.labels != Label.SUPPORT,
+                                  support=plane, support_clearance=env.clearance)
+        return Prepared(cloud=prepared, environment=env, scene=scene, sampling=sampling,
+                        selection=p.selection(h, env))
+
+    @staticmethod
+    def search(prep: Prepared, sampling: SamplingParams, p: DetectionParams, h: HandGeometry
+               ) -> tuple[GraspSet, ClosingRegionPoints]:
+        """The candidates of the sampling that pass the feasibility and environment filters, with their
+        closing-region points: what the classifier scores (and what training data is labelled from)."""
+        cands, region = search_hands(prep.scene, h, sampling)
+        feasible = feasible_mask(cands, replace(prep.selection, min_score=None))
+        if prep.environment.mode != "none":
+            feasible &= ~environment_conflicts(cands, region, prep.environment, h, p.approach_distance)
+        return cands[feasible], region.subset(feasible)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A request after preprocessing: the cloud, its environment and scene, and the sampling and selection
+    parameters derived from them (GraspDetector.prepare)."""
+
+    cloud: ViewpointCloud
+    environment: Environment
+    scene: Scene
+    sampling: SamplingParams
+    selection: SelectionParams
 
 
 #: Early stop: a round ends the search once this many times max_grasps candidates, each in its own

@@ -10,11 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import open3d as o3d
 import pybullet as pb
 
 from ..hand import HandGeometry
 from ..world.scenes import TrayGeometry
-from .objects import TEST_OBJECT_IDS, graspable_scale, object_urdf
+from .objects import TEST_OBJECT_IDS, body_mesh, graspable_scale, object_urdf
 
 SCENE_KINDS = ("pour", "pile", "packed")
 TIME_STEP = 1.0 / 240.0
@@ -27,8 +28,9 @@ class SimWorld:
     client: int
     tray: TrayGeometry
     has_tray: bool
-    objects: dict[int, int] = field(default_factory=dict)  # body id -> held-out object id
+    objects: dict[int, int] = field(default_factory=dict)  # body id -> random_urdfs object id
     static_bodies: list[int] = field(default_factory=list)
+    scales: dict[int, float] = field(default_factory=dict)  # body id -> globalScaling
 
     @staticmethod
     def create(tray: TrayGeometry | None = None, has_tray: bool = True) -> SimWorld:
@@ -76,11 +78,13 @@ class SimWorld:
         pb.changeDynamics(body, -1, lateralFriction=1.0, spinningFriction=0.002, rollingFriction=0.0005,
                           physicsClientId=self.client)
         self.objects[body] = object_id
+        self.scales[body] = scale
         return body
 
     def remove_object(self, body: int) -> None:
         pb.removeBody(body, physicsClientId=self.client)
         self.objects.pop(body, None)
+        self.scales.pop(body, None)
 
     def step(self, seconds: float) -> None:
         for _ in range(int(round(seconds / TIME_STEP))):
@@ -96,6 +100,30 @@ class SimWorld:
 
     def object_position(self, body: int) -> np.ndarray:
         return np.asarray(pb.getBasePositionAndOrientation(body, physicsClientId=self.client)[0])
+
+    def object_meshes(self) -> list[tuple[int, o3d.geometry.TriangleMesh]]:
+        """(body id, its mesh posed in the world frame, m) of every object in play: the ground truth."""
+        out = []
+        for body, object_id in self.objects.items():
+            pos, quat = pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+            rot = np.asarray(pb.getMatrixFromQuaternion(quat), np.float64).reshape(3, 3)
+            mesh = body_mesh(object_id, self.scales.get(body, 1.0))
+            mesh.rotate(rot, center=np.zeros(3))
+            mesh.translate(np.asarray(pos))
+            mesh.compute_triangle_normals()
+            out.append((body, mesh))
+        return out
+
+    def static_meshes(self) -> list[o3d.geometry.TriangleMesh]:
+        """The floor and tray walls as world-frame box meshes (m): what holds the objects."""
+        out = []
+        for body in self.static_bodies:
+            lo, hi = (np.asarray(v, np.float64) for v in pb.getAABB(body, physicsClientId=self.client))
+            box = o3d.geometry.TriangleMesh.create_box(*(hi - lo))
+            box.translate(lo)
+            box.compute_triangle_normals()
+            out.append(box)
+        return out
 
     def inside_region(self) -> tuple[float, float, float, float]:
         """[xmin, xmax, ymin, ymax] (m) in which an object counts as still in play."""

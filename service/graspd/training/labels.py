@@ -47,7 +47,9 @@ class LabelParams:
     ray spacing (m) over finger faces and the palm; palm_depth (m) how far behind the hand base the palm
     rays start (None = the hand's own palm model, HandGeometry.palm_depth).  The default 0.01 is what the
     shipped datasets and models were labelled with; HandGeometry's default palm is 0.02 m deep, so None
-    would change the labels of the default hand (issue 12: kept, not silently changed)."""
+    would change the labels of the default hand (issue 12: kept, not silently changed).  approach_path (m): the
+    palm and finger columns must also be free this far back along the approach, the path the open hand
+    travels to the grasp (scene data: the service's approach_distance; 0 for the single-object data)."""
 
     tolerance: float = 0.001
     approach_tolerance: float = 0.003
@@ -57,6 +59,7 @@ class LabelParams:
     palm_ray_spacing: float = 0.004
     rows: int = 5
     palm_depth: float | None = 0.01
+    approach_path: float = 0.0
     chunk: int = 1024
     nthreads: int = 0
 
@@ -97,22 +100,27 @@ def normal_slack_deg(hand: HandGeometry, params: LabelParams) -> float:
 
 
 def _cone_pairs(cl: NDArray[np.floating], nl: NDArray[np.floating], ml: NDArray[np.bool_],
-                cr: NDArray[np.floating], nr: NDArray[np.floating], mr: NDArray[np.bool_], cos_cone: float
-                ) -> NDArray[np.bool_]:
+                cr: NDArray[np.floating], nr: NDArray[np.floating], mr: NDArray[np.bool_], cos_cone: float,
+                gl: NDArray[np.int64] | None = None, gr: NDArray[np.int64] | None = None) -> NDArray[np.bool_]:
     """Whether some contact pair (one of each finger's region, masks ml/mr (n,g)) has the line between its
-    contacts (n,g,3) inside both friction cones about the inward normals (outward normals nl/nr)."""
+    contacts (n,g,3) inside both friction cones about the inward normals (outward normals nl/nr); with mesh
+    ids gl/gr (n,g), only pairs on one mesh count."""
     u = cr[:, None, :, :] - cl[:, :, None, :]  # (n, g_left, g_right, 3)
     u /= np.maximum(np.linalg.norm(u, axis=3, keepdims=True), 1e-9)
     ok_l = -np.einsum("nlk,nlrk->nlr", nl, u) >= cos_cone
     ok_r = np.einsum("nrk,nlrk->nlr", nr, u) >= cos_cone
-    return np.any(ok_l & ok_r & ml[:, :, None] & mr[:, None, :], axis=(1, 2))
+    ok = ok_l & ok_r & ml[:, :, None] & mr[:, None, :]
+    if gl is not None and gr is not None:
+        ok &= gl[:, :, None] == gr[:, None, :]
+    return np.any(ok, axis=(1, 2))
 
 
 def _cast(scene: MeshScene, pos: NDArray[np.float32], rot: NDArray[np.float32], local: NDArray[np.float32],
           axis: int, nthreads: int, sign: tuple[int, float] | None = None
-          ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+          ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]:
     """Cast rays from hand-frame origins local (R,3) of every hand (n) along hand axis `axis` (the last
-    R - sign[0] rays reversed by sign[1]); returns t_hit (n,R) (m, inf = miss) and hit normals (n,R,3)."""
+    R - sign[0] rays reversed by sign[1]); returns t_hit (n,R) (m, inf = miss), hit normals (n,R,3) and the
+    hit meshes' indices (n,R; -1 = miss)."""
     n, r = len(pos), len(local)
     rays = np.empty((n, r, 6), np.float32)
     rays[:, :, :3] = pos[:, None, :] + np.matmul(local[None], rot.transpose(0, 2, 1))
@@ -120,7 +128,9 @@ def _cast(scene: MeshScene, pos: NDArray[np.float32], rot: NDArray[np.float32], 
     if sign is not None:
         rays[:, sign[0]:, 3:] *= sign[1]
     hit = scene.cast_rays(rays.reshape(-1, 6), nthreads)
-    return hit["t_hit"].numpy().reshape(n, r), hit["primitive_normals"].numpy().reshape(n, r, 3)
+    t = hit["t_hit"].numpy().reshape(n, r)
+    gid = np.where(np.isfinite(t), hit["geometry_ids"].numpy().astype(np.int64).reshape(n, r), -1)
+    return t, hit["primitive_normals"].numpy().reshape(n, r, 3), gid
 
 
 def _grid(lo: float, hi: float, spacing: float) -> NDArray[np.float64]:
@@ -129,9 +139,13 @@ def _grid(lo: float, hi: float, spacing: float) -> NDArray[np.float64]:
 
 
 def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: GraspSet, hand: HandGeometry,
-                 params: LabelParams | None = None) -> Labels:
-    """Labels of every candidate against the full meshes (world frame of the grasps, m)."""
+                 params: LabelParams | None = None, graspable: NDArray[np.bool_] | None = None) -> Labels:
+    """Labels of every candidate against the full meshes (world frame of the grasps, m).  graspable (one
+    flag per mesh; None = all): an antipodal pair counts only with both contacts on one graspable mesh, so a
+    scene's table, tray walls and two touching objects are never a grasp (they still collide)."""
     p = params or LabelParams()
+    if p.approach_path < 0:
+        raise ValueError(f"label approach_path must be >= 0 m, got {p.approach_path}")
     scene = meshes if isinstance(meshes, MeshScene) else MeshScene(list(meshes))
     cos_slack = float(np.cos(np.deg2rad(normal_slack_deg(hand, p))))
 
@@ -144,11 +158,11 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
     py, pz = (a.reshape(-1) for a in np.meshgrid(ys, zs, indexing="ij"))
     in_gap = np.abs(py) < gap
     palm_depth = hand.palm_depth if p.palm_depth is None else p.palm_depth
-    palm_limit = np.where(in_gap, palm_depth, palm_depth + hd)
+    palm_limit = np.where(in_gap, palm_depth, palm_depth + hd) + p.approach_path
 
     left_local = np.stack([gx, np.full_like(gx, -od / 2), gz], axis=1).astype(np.float32)
     right_local = left_local * np.array([1.0, -1.0, 1.0], np.float32)
-    palm_local = np.stack([np.full_like(py, -palm_depth), py, pz], axis=1).astype(np.float32)
+    palm_local = np.stack([np.full_like(py, -palm_depth - p.approach_path), py, pz], axis=1).astype(np.float32)
     g = len(gx)
 
     m = len(grasps)
@@ -163,7 +177,8 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
         rot = grasps.rotations[sl].astype(np.float32)
         bn = rot[:, :, 1]
         # Closing rays: from each finger's outer face toward the other finger.
-        t, nrm = _cast(scene, pos, rot, np.concatenate([left_local, right_local]), 1, p.nthreads, sign=(g, -1.0))
+        t, nrm, gid = _cast(scene, pos, rot, np.concatenate([left_local, right_local]), 1, p.nthreads,
+                            sign=(g, -1.0))
         dirs = np.concatenate([np.broadcast_to(bn[:, None, :], (len(pos), g, 3)),
                                np.broadcast_to(-bn[:, None, :], (len(pos), g, 3))], axis=1)
         hit_ok = np.isfinite(t)
@@ -179,6 +194,12 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
         region_r = sr_ <= first_r[:, None] + 2 * p.tolerance
         cos_ok = hit_ok & (-facing >= cos_slack)  # outward normal within the slack of the closing line
         pair = region_l & region_r & cos_ok[:, :g] & cos_ok[:, g:]
+        if graspable is not None:  # both contacts of a pair on one graspable mesh
+            gl, gr = gid[:, :g], gid[:, g:]
+            one = (gl == gr) & (gl >= 0) & graspable[np.maximum(gl, 0)]
+            pair &= one
+            region_l &= (gl < 0) | graspable[np.maximum(gl, 0)]
+            region_r &= (gr < 0) | graspable[np.maximum(gr, 0)]
         both = np.isfinite(first_l) & np.isfinite(first_r)
         anti = np.any(pair, axis=1) & both
         if p.mu is not None:  # with friction the contacts need not face each other along y
@@ -190,11 +211,13 @@ def label_grasps(meshes: list[o3d.geometry.TriangleMesh] | MeshScene, grasps: Gr
             cr = np.stack([gxb, gap - np.where(region_r, sr_, 0.0), gzb], axis=2)
             for b in range(0, len(todo), 64):
                 i = todo[b : b + 64]
-                anti[i] = _cone_pairs(cl[i], nl[i], region_l[i], cr[i], nr[i], region_r[i], cos_slack)
+                anti[i] = _cone_pairs(cl[i], nl[i], region_l[i], cr[i], nr[i], region_r[i], cos_slack,
+                                      None if graspable is None else gid[i, :g],
+                                      None if graspable is None else gid[i, g:])
         # Palm and finger columns along the approach: only where they can still change the label.
         check = np.flatnonzero(anti & ~coll)
         if len(check):
-            tp, nrm_p = _cast(scene, pos[check], rot[check], palm_local, 0, p.nthreads)
+            tp, nrm_p, _ = _cast(scene, pos[check], rot[check], palm_local, 0, p.nthreads)
             facing_p = np.einsum("nrk,nk->nr", nrm_p, rot[check, :, 0])
             back_p = np.isfinite(tp) & (facing_p > _BACK_FACE_COS)
             coll[check] |= np.any((tp < palm_limit[None, :] - p.approach_tolerance) | back_p, axis=1)

@@ -149,8 +149,9 @@ def fit_to_hand(mesh: o3d.geometry.TriangleMesh, hand: HandGeometry, fit: float 
     return float(factor)
 
 
-def random_urdf_mesh(index: int, hand: HandGeometry | None = None, held_out_ok: bool = False) -> GraspObject:
-    """The mesh of pybullet_data random_urdfs/<index>, with the URDF's scale, fitted to the hand."""
+def _urdf_mesh_and_scale(index: int, global_scale: float, held_out_ok: bool
+                         ) -> tuple[o3d.geometry.TriangleMesh, float]:
+    """random_urdfs/<index>'s mesh scaled as pybullet loads it (link frame, m, not centred) and the URDF's scale."""
     folder = urdf_folder(index, held_out_ok)
     urdf = (folder / f"{index:03d}.urdf").read_text()
     match = re.search(r'<mesh\s+filename="([^"]+)"(?:\s+scale="([^"]+)")?', urdf)
@@ -158,15 +159,32 @@ def random_urdf_mesh(index: int, hand: HandGeometry | None = None, held_out_ok: 
         raise ValueError(f"{folder}: no <mesh filename=...> in the URDF")
     scale_xyz = np.array([float(v) for v in (match.group(2) or "1 1 1").split()], np.float64)
     mesh = o3d.io.read_triangle_mesh(folder / match.group(1))
-    verts = np.asarray(mesh.vertices) * scale_xyz
+    verts = np.asarray(mesh.vertices) * scale_xyz * global_scale
     if len(mesh.triangles) == 0 or not np.isfinite(verts).all():
         raise ValueError(f"{folder / match.group(1)}: no triangles or non-finite vertices (a broken mesh)")
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), mesh.triangles)
+    mesh.merge_close_vertices(1e-7)
+    mesh.remove_degenerate_triangles()
+    mesh.remove_duplicated_triangles()
+    mesh.remove_unreferenced_vertices()
+    mesh.compute_triangle_normals()
+    return mesh, float(scale_xyz[0])
+
+
+def urdf_mesh(index: int, global_scale: float = 1.0, held_out_ok: bool = False) -> o3d.geometry.TriangleMesh:
+    """random_urdfs/<index>'s mesh in its URDF link frame (m): the URDF's mesh scale times pybullet's
+    globalScaling, cleaned, with triangle normals; the body pybullet simulates (pose it with the body's pose)."""
+    return _urdf_mesh_and_scale(index, global_scale, held_out_ok)[0]
+
+
+def random_urdf_mesh(index: int, hand: HandGeometry | None = None, held_out_ok: bool = False) -> GraspObject:
+    """The mesh of pybullet_data random_urdfs/<index>, with the URDF's scale, fitted to the hand."""
+    mesh, urdf_scale = _urdf_mesh_and_scale(index, 1.0, held_out_ok)
     mesh = clean_mesh(mesh)
     factor = fit_to_hand(mesh, hand or HandGeometry())
     mesh.compute_triangle_normals()
     return GraspObject(name=f"urdf_{index:03d}", source=f"pybullet_data:random_urdfs/{index:03d}/{index:03d}.urdf",
-                       category="other", mesh=mesh, scale=float(scale_xyz[0] * factor))
+                       category="other", mesh=mesh, scale=float(urdf_scale * factor))
 
 
 def procedural_object(kind: str, index: int, seed: int = 0, hand: HandGeometry | None = None) -> GraspObject:
