@@ -1,0 +1,70 @@
+"""Scene training data: the benchmark's scenes with training objects only, labelled against their meshes,
+split by objects, resumable."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from graspd.training.dataset import iter_chunks, read_split
+from graspd.training.scene_data import SceneParams, generate_scene_dataset, scene_views
+from graspd.training.scene_eval import precision_at_k
+from graspd.world.objects import HELD_OUT_URDFS, HeldOutObjectError
+
+TINY = SceneParams(scenes=3, views_per_scene=2, objects=(2, 3), num_samples=20, per_view=40, scenes_per_chunk=2)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("scenes")
+    generate_scene_dataset(out, TINY, workers=1)
+    return out
+
+
+def test_training_scenes_refuse_held_out_objects() -> None:
+    with pytest.raises(HeldOutObjectError):
+        scene_views("pile", [HELD_OUT_URDFS[0]], 0, 1, TINY.hand, TINY.noise)
+
+
+def test_object_parts_are_disjoint_and_never_hold_held_out_objects() -> None:
+    parts = TINY.object_parts()
+    sets = [set(parts[p]) for p in ("train", "val", "test")]
+    assert not (sets[0] & sets[1]) and not (sets[0] & sets[2]) and not (sets[1] & sets[2])
+    assert not set().union(*sets) & set(HELD_OUT_URDFS)
+
+
+def test_scene_rows_are_labelled_candidates_of_the_scenes(tiny: Path) -> None:
+    manifest = json.loads((tiny / "manifest.json").read_text())
+    labels = np.concatenate([c["labels"] for c in iter_chunks(tiny, verify=True)])
+    assert manifest["counts"]["total"] == len(labels) > 0
+    assert 0 < labels.sum() < len(labels)  # both classes occur in clutter
+    for view in manifest["views"]:
+        assert view["kept"] <= TINY.per_view and view["num_positive"] + view["num_negative"] == view["num_candidates"]
+    parts = TINY.object_parts()
+    split = read_split(tiny, "object")
+    for scene in manifest["objects"]:
+        assert set(scene["objects"]) <= set(parts[scene["part"]])
+        assert scene["id"] in split[scene["part"]]
+
+
+def test_an_interrupted_run_resumes_from_its_chunks(tiny: Path, tmp_path: Path) -> None:
+    manifest = json.loads((tiny / "manifest.json").read_text())
+    again = tmp_path / "again"
+    again.mkdir()
+    # a run interrupted after its first chunk: the chunk and its record are on disk, no manifest
+    for name in ("chunk_00000.npz", "chunk_00000.npz.json", "params.json"):
+        (again / name).write_bytes((tiny / name).read_bytes())
+    resumed = generate_scene_dataset(again, TINY, workers=1)
+    assert resumed["dataset_sha256"] == manifest["dataset_sha256"]
+    with pytest.raises(FileExistsError):
+        generate_scene_dataset(again, TINY, workers=1)
+
+
+def test_precision_at_k_counts_the_first_k_returned() -> None:
+    ranked = np.array([1.0, 0.0, 1.0, 1.0, 0.0, 1.0])
+    p = precision_at_k(ranked)
+    assert p["p@1"] == 1.0 and p["p@5"] == pytest.approx(0.6) and p["p@10"] == pytest.approx(4 / 6)
+    assert np.isnan(precision_at_k(np.zeros(0))["p@1"])
