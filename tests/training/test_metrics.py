@@ -3,7 +3,14 @@
 import numpy as np
 import pytest
 
-from graspd.training.evaluate import average_precision, classification_metrics, pr_curve, recall_at_precision
+from graspd.training.evaluate import (
+    average_precision,
+    classification_metrics,
+    expected_calibration_error,
+    pr_curve,
+    recall_at_precision,
+    reliability_bins,
+)
 
 
 def test_pr_curve_counts_each_distinct_threshold() -> None:
@@ -51,3 +58,23 @@ def test_perfect_and_inverted_rankings() -> None:
 def test_length_mismatch_is_an_error() -> None:
     with pytest.raises(ValueError, match="same length"):
         pr_curve(np.zeros(3), np.zeros(2))
+
+
+def test_expected_calibration_error_by_hand() -> None:
+    # bin [0.1, 0.2): scores 0.15 x4, one positive -> |0.25 - 0.15|; bin [0.9, 1.0]: 0.95 and 1.0, both positive
+    scores = np.array([0.15, 0.15, 0.15, 0.15, 0.95, 1.0])
+    labels = np.array([1, 0, 0, 0, 1, 1])
+    expected = (4 * 0.10 + 2 * abs(1.0 - 0.975)) / 6
+    assert expected_calibration_error(scores, labels) == pytest.approx(expected)
+    assert classification_metrics(scores, labels)["ece"] == pytest.approx(expected)
+    assert expected_calibration_error(np.r_[np.zeros(5), np.ones(5)], np.r_[np.zeros(5), np.ones(5)]) == 0.0
+    assert expected_calibration_error(np.zeros(0), np.zeros(0)) == 0.0
+
+
+def test_reliability_bins_by_hand() -> None:
+    bins = reliability_bins(np.array([0.05, 0.45, 0.55, 0.5, 1.0]), np.array([0, 1, 0, 1, 1]), bins=2)
+    assert [(b["lower"], b["upper"], b["count"]) for b in bins] == [(0.0, 0.5, 2), (0.5, 1.0, 3)]
+    assert bins[0]["mean_score"] == pytest.approx(0.25) and bins[0]["positive_fraction"] == pytest.approx(0.5)
+    assert bins[1]["mean_score"] == pytest.approx(2.05 / 3) and bins[1]["positive_fraction"] == pytest.approx(2 / 3)
+    empty = reliability_bins(np.array([0.95]), np.array([1]), bins=10)
+    assert empty[0]["count"] == 0 and empty[0]["mean_score"] is None and empty[9]["count"] == 1
