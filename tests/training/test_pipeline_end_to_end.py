@@ -16,13 +16,13 @@ from graspd.training.dataset import read_manifest
 from graspd.training.evaluate import classification_metrics
 from graspd.training.export import check_parity
 from graspd.training.loop import grasp_probability, load_checkpoint, predict_logits, train
-from graspd.training.plans import prefix_dataset, train_tiny_model
+from graspd.training.plans import prefix_dataset
 from graspd.training.rows import load_rows
 
 
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return train_tiny_model(tmp_path_factory.mktemp("tiny"), seed=0)
+@pytest.fixture
+def tiny(tiny_model: Path) -> Path:
+    return tiny_model
 
 
 def test_tiny_model_beats_chance_on_held_out_views(tiny: Path) -> None:

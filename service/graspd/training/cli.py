@@ -44,6 +44,17 @@ def register(subparsers: Any) -> None:
                    "the executed grasps stored with their images (POST /feedback) join the training rows")
     p.add_argument("--feedback-repeat", type=int, dest="feedback_repeat",
                    help="draw each stored outcome this many times per epoch (default 4)")
+    p.add_argument("--resume", action="store_true", default=None,
+                   help="continue an interrupted run from work-dir/last.pt (its config must match, except "
+                        "--max-minutes; the time budget counts the time already spent); with --plan, every model")
+    p.add_argument("--init-from", dest="init_from",
+                   help="fine-tune: start from these weights (a checkpoint.pt, a models/NAME.pt, or a model NAME "
+                        "found as models-dir/NAME.pt); same architecture and representation")
+    p.add_argument("--hard-negatives", type=float, dest="hard_negatives",
+                   help="from epoch 2, oversample this top fraction of the negatives by current score (e.g. 0.1: "
+                        "they make up half the negatives drawn); default 0 = off")
+    p.add_argument("--no-calibrate", action="store_false", dest="calibrate", default=None,
+                   help="skip the Platt calibration of the scores on the validation rows")
     p.add_argument("--models-dir", default=None, help="where to write NAME.onnx and NAME.json (default models/)")
     p.add_argument("--work-dir", default=None, help="checkpoint and training metrics (default models-dir/.work/NAME)")
     p.set_defaults(func=_run)
@@ -51,7 +62,7 @@ def register(subparsers: Any) -> None:
 
 _CONFIG_FLAGS = ("dataset", "name", "representation", "architecture", "split", "categories", "epochs",
                  "batch_size", "learning_rate", "patience", "seed", "threads", "max_train", "max_minutes",
-                 "feedback", "feedback_repeat")
+                 "feedback", "feedback_repeat", "resume", "init_from", "hard_negatives", "calibrate")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -63,7 +74,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.plan:
         try:
             paths = train_plan(json.loads(Path(args.plan).read_text()), models_dir, args.dataset, args.only,
-                               command=command)
+                               command=command, resume=bool(args.resume))
         except (TypeError, ValueError) as exc:
             print(f"graspd train: {exc}", file=sys.stderr)
             return 2

@@ -37,6 +37,10 @@ class TrainConfig:
     feedback: str | None = None               # SQLAlchemy URL of a feedback store: executed grasps join training
     feedback_repeat: int = 4                  # each stored outcome is drawn this many times per epoch
     network: dict[str, Any] = field(default_factory=dict)  # extra FastNet arguments (width, hidden)
+    resume: bool = False                      # continue from out_dir/last.pt when its config matches
+    init_from: str | None = None              # fine-tune: a .pt path (checkpoint or models/NAME.pt) or a model name
+    hard_negatives: float = 0.0               # > 0: oversample this top fraction of negatives by score from epoch 2
+    calibrate: bool = True                    # fit Platt scaling on the val rows and fold it into the last layer
 
     def __post_init__(self) -> None:
         if self.representation not in REPRESENTATIONS:
@@ -48,6 +52,8 @@ class TrainConfig:
         for key in ("epochs", "batch_size", "threads", "feedback_repeat"):
             if getattr(self, key) < 1:
                 raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
+        if not 0.0 <= self.hard_negatives < 1.0:
+            raise ValueError(f"hard_negatives must be in [0, 1), got {self.hard_negatives}")
         if not self.learning_rate > 0:
             raise ValueError(f"learning_rate must be > 0, got {self.learning_rate}")
         if self.categories is not None:
@@ -57,6 +63,7 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        """A config from a dict (plans, checkpoints, cards); fields added later take their defaults."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -65,6 +72,15 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def resumable_with(self, other: dict[str, Any]) -> list[str]:
+        """The fields (other than resume and max_minutes) in which a stored config differs from this one."""
+        mine, theirs = self.to_dict(), TrainConfig.from_dict(other).to_dict()
+        return sorted(k for k in mine if k not in RESUME_FREE and mine[k] != theirs[k])
+
+
+#: Config fields an interrupted run may change when it is resumed.
+RESUME_FREE = ("resume", "max_minutes")
 
 
 def config_command(config: TrainConfig, models_dir: str | Path) -> str:
@@ -83,4 +99,10 @@ def config_command(config: TrainConfig, models_dir: str | Path) -> str:
     if config.feedback is not None:
         parts += ["--feedback", make_url(config.feedback).render_as_string(hide_password=True),
                   "--feedback-repeat", str(config.feedback_repeat)]
+    if config.init_from is not None:
+        parts += ["--init-from", config.init_from]
+    if config.hard_negatives > 0:
+        parts += ["--hard-negatives", str(config.hard_negatives)]
+    if not config.calibrate:
+        parts += ["--no-calibrate"]
     return " ".join(parts)

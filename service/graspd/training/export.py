@@ -69,6 +69,16 @@ def check_parity(net: nn.Module, onnx_path: str | Path, card: dict[str, Any], im
     return diff
 
 
+def save_weights(net: nn.Module, path: str | Path, architecture: str, channels: int, image_size: int,
+                 network: dict[str, Any]) -> Path:
+    """Write the torch weights beside the ONNX file (models/NAME.pt), so that a shipped model can be fine-tuned
+    (TrainConfig.init_from) or reloaded (loop.load_weights)."""
+    path = Path(path)
+    torch.save({"state_dict": net.state_dict(), "architecture": architecture, "channels": channels,
+                "image_size": image_size, "network": dict(network)}, path)
+    return path
+
+
 def write_card(path: str | Path, card: dict[str, Any]) -> Path:
     """Write a model card as indented JSON."""
     path = Path(path)

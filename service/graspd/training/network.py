@@ -77,6 +77,19 @@ class GraspProbability(nn.Module):
         return torch.softmax(self.net(x), dim=1)[:, 1]
 
 
+def fold_logit_affine(net: nn.Module, a: float, b: float) -> None:
+    """Rescale the last linear layer so that its logit difference l1 - l0 becomes a (l1 - l0) + b: the softmax
+    P(grasp) is then sigmoid(a z + b), a calibration the exported ONNX graph carries with no extra node."""
+    layers = [m for m in net.modules() if isinstance(m, nn.Linear)]
+    if not layers or layers[-1].out_features != 2 or layers[-1].bias is None:
+        raise ValueError("the network must end in a linear layer with 2 outputs and a bias")
+    last = layers[-1]
+    with torch.no_grad():
+        last.weight.mul_(a)
+        last.bias.mul_(a)
+        last.bias[1] += b
+
+
 def build_network(architecture: str, channels: int, image_size: int = 60, **kwargs: Any) -> nn.Module:
     """A fresh network by name ('lenet' or 'fast'); ValueError names the known ones."""
     if channels < 1:

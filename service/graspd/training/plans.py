@@ -26,7 +26,7 @@ from .dataset import (
     sha256_file,
 )
 from .evaluate import classification_metrics
-from .export import base_card, check_parity, export_onnx, write_card
+from .export import base_card, check_parity, export_onnx, save_weights, write_card
 from .loop import load_checkpoint, train
 from .network import count_parameters, multiply_adds
 from .rows import row_cache, training_rows
@@ -35,16 +35,22 @@ from .rows import row_cache, training_rows
 def export_trained(net: nn.Module, config: TrainConfig, train_metrics: dict[str, Any], models_dir: str | Path,
                    command: str, evaluate_on: list[tuple[str, list[str] | None]] | None = None,
                    parity_rows: int = 256) -> Path:
-    """Export a trained network to models_dir/<name>.onnx, check ONNX/torch parity, evaluate the exported
-    model on the test parts listed (default: the training split, all categories, and each category
-    trained on), and write the model card models_dir/<name>.json.  Returns the .onnx path."""
+    """Export a trained network to models_dir/<name>.onnx (and its torch weights to <name>.pt, for fine-tuning),
+    check ONNX/torch parity, evaluate the exported model on the test parts listed (default: the training split,
+    all categories, and each category trained on), and write the model card models_dir/<name>.json.  Returns
+    the .onnx path."""
     manifest = read_manifest(config.dataset)
     channels = REPRESENTATIONS[config.representation]
     size = int(manifest["image_size"])
     models = Path(models_dir)
     onnx_path = export_onnx(net, models / f"{config.name}.onnx", channels, size)
+    save_weights(net, models / f"{config.name}.pt", config.architecture, channels, size, config.network)
     card = base_card(config.name, config.representation, channels, size, config.architecture, manifest["hand"],
                      channel_layout(config.representation))
+    calibration = train_metrics.get("calibration")
+    if calibration is not None:
+        card["output"]["meaning"] += ("; calibrated on the validation rows: Platt scaling sigmoid(a z + b) of the "
+                                      "logit difference z, folded into the last layer")
     clf = OnnxGraspClassifier(onnx_path, card, threads=config.threads)
     if evaluate_on is None:
         evaluate_on = [(config.split, None)] + [(config.split, [c]) for c in (config.categories or [])]
@@ -62,6 +68,7 @@ def export_trained(net: nn.Module, config: TrainConfig, train_metrics: dict[str,
     card.update({
         "categories": config.categories or "all",
         "metrics": metrics,
+        "calibration": calibration,
         "network": {"parameters": count_parameters(net), "multiply_adds_per_image": multiply_adds(net, channels, size)},
         "training": {
             "config": config.to_dict(),
@@ -70,6 +77,8 @@ def export_trained(net: nn.Module, config: TrainConfig, train_metrics: dict[str,
             "dataset_counts": manifest.get("counts"),
             "num_train": train_metrics["num_train"], "num_val": train_metrics["num_val"],
             "feedback": train_metrics.get("feedback"),
+            "init_from": train_metrics.get("init_from"),
+            "resumed_from_epoch": train_metrics.get("resumed_from_epoch"),
             "best_epoch": train_metrics["best_epoch"], "epochs_run": len(train_metrics["history"]),
             "stopped": train_metrics["stopped"], "best_val_accuracy": train_metrics["best_val_accuracy"],
             "seconds": round(train_metrics["seconds_total"], 1), "torch_version": train_metrics["torch_version"],
@@ -84,7 +93,7 @@ def train_and_export(config: TrainConfig, models_dir: str | Path, work_dir: str 
                      command: str | None = None, log: Any = print) -> Path:
     """The whole pipeline for one model: train, export to ONNX with parity check, evaluate, write the card."""
     work = Path(work_dir) if work_dir is not None else Path(models_dir) / ".work" / config.name
-    metrics = train(config, work, log=log)
+    metrics = train(config, work, log=log, models_dir=models_dir)
     net, _ = load_checkpoint(work / "checkpoint.pt")
     path = export_trained(net, config, metrics, models_dir, command or config_command(config, models_dir))
     log(f"[{config.name}] exported {path}")
@@ -92,11 +101,13 @@ def train_and_export(config: TrainConfig, models_dir: str | Path, work_dir: str 
 
 
 def train_plan(plan: dict[str, Any], models_dir: str | Path, dataset: str | None = None,
-               only: list[str] | None = None, command: str | None = None, log: Any = print) -> list[Path]:
+               only: list[str] | None = None, command: str | None = None, log: Any = print,
+               resume: bool = False) -> list[Path]:
     """Train, evaluate and export every model of a plan, reading the dataset once (row_cache).
 
     plan: {"defaults": {TrainConfig fields}, "models": [{TrainConfig fields, optional "subdir"}]}; dataset
-    overrides the plan's; only: names to make (default all).  Models go to models_dir/<subdir>/<name>.onnx.
+    overrides the plan's; only: names to make (default all); resume: each model continues from its work dir's
+    last.pt.  Models go to models_dir/<subdir>/<name>.onnx.  Logs the plan's time budget first.
     """
     defaults = dict(plan.get("defaults", {}))
     if dataset is not None:
@@ -109,17 +120,32 @@ def train_plan(plan: dict[str, Any], models_dir: str | Path, dataset: str | None
         unknown = sorted(set(only) - set(names))
         if unknown:
             raise ValueError(f"unknown plan models {unknown}; the plan has {names}")
+    chosen = []
+    for entry in entries:
+        if only and entry.get("name") not in only:
+            continue
+        fields_ = {**defaults, **{k: v for k, v in entry.items() if k != "subdir"}}
+        if resume:
+            fields_["resume"] = True
+        chosen.append((TrainConfig.from_dict(fields_), Path(models_dir) / entry.get("subdir", "")))
+    log(plan_budget([config for config, _ in chosen]))
     paths = []
     with row_cache():
-        for entry in entries:
-            if only and entry.get("name") not in only:
-                continue
-            fields_ = {**defaults, **{k: v for k, v in entry.items() if k != "subdir"}}
-            config = TrainConfig.from_dict(fields_)
-            folder = Path(models_dir) / entry.get("subdir", "")
+        for config, folder in chosen:
             cmd = (command or "graspd train --plan PLAN") + f"  # model {config.name}"
             paths.append(train_and_export(config, folder, Path(models_dir) / ".work" / config.name, cmd, log))
     return paths
+
+
+def plan_budget(configs: list[TrainConfig]) -> str:
+    """One line stating a plan's training time budget: the sum of the models' max_minutes (training only; loading
+    and evaluation come on top), and which models have none."""
+    total = sum(c.max_minutes for c in configs if c.max_minutes is not None)
+    unbounded = [c.name for c in configs if c.max_minutes is None]
+    line = f"plan: {len(configs)} models, training budget {total:.1f} min (sum of max_minutes)"
+    if unbounded:
+        line += f"; no time limit (epochs only) on {', '.join(unbounded)}"
+    return line
 
 
 #: A tiny dataset for tests and demos: a few procedural and pybullet_data objects, 4 views each.
