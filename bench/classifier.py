@@ -7,6 +7,14 @@ Writes OUT/classifier.md (tables) and PNG precision-recall curves:
   onnxruntime on 2 threads (median of repeats, images from the dataset's test part).
 
   PYTHONPATH=service .venv/bin/python bench/classifier.py --dataset DATA --models-dir models --out models/evaluation
+
+Issue 13 adds the top of the ranking on cluttered scenes (graspd.training.scene_eval), measured against the
+true meshes: precision@1/5/10 per scene of the service's answer (defaults, the model under test) and of the
+classifier's own score ranking, on scenes of objects no training scene holds, and a reliability diagram with
+the expected calibration error of the scores on those scenes' candidates:
+
+  PYTHONPATH=service .venv/bin/python bench/classifier.py --scenes 30 --scene-models generic15 scene15 \
+      --out models/evaluation [--dataset SCENE_DATA]   # --scene-objects held-out: random_urdfs 900-999
 """
 
 from __future__ import annotations
@@ -26,8 +34,13 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from graspd.classifier import OnnxGraspClassifier, available_models, load_model  # noqa: E402
-from graspd.training.dataset import CATEGORIES, derive_images  # noqa: E402
-from graspd.training.evaluate import classification_metrics, pr_curve  # noqa: E402
+from graspd.training.dataset import CATEGORIES, derive_images, read_manifest  # noqa: E402
+from graspd.training.evaluate import (  # noqa: E402
+    classification_metrics,
+    expected_calibration_error,
+    pr_curve,
+    reliability_bins,
+)
 from graspd.training.rows import load_rows  # noqa: E402
 
 REPRESENTATIONS = ("15", "12", "3", "herzog")
@@ -87,6 +100,92 @@ def plot_curves(curves: list[tuple[str, NDArray[np.float32], NDArray[np.uint8]]]
     plt.close(fig)
 
 
+def plot_reliability(curves: list[tuple[str, NDArray[np.float64], NDArray[np.bool_]]], title: str, path: Path) -> None:
+    """Reliability diagram: fraction of grasps against mean score per score bin (the diagonal is calibrated)."""
+    fig, ax = plt.subplots(figsize=(5.5, 4.5))
+    ax.plot([0, 1], [0, 1], color="grey", lw=0.8, ls="--", label="calibrated")
+    for label, scores, truth in curves:
+        bins = [b for b in reliability_bins(scores, truth) if b["count"] > 0]
+        ece = expected_calibration_error(scores, truth)
+        ax.plot([b["mean_score"] for b in bins], [b["positive_fraction"] for b in bins], marker="o",
+                label=f"{label} (ECE {ece:.3f})")
+    ax.set(xlabel="mean score in bin", ylabel="fraction that are grasps", title=title, xlim=(0, 1), ylim=(0, 1))
+    ax.legend(loc="upper left", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str, out: Path, threads: int
+                  ) -> tuple[list[str], dict[str, float]]:
+    """The issue-13 tables: precision@k on evaluation scenes for each model, and their reliability diagram."""
+    from graspd.training.scene_eval import SceneEvalParams, evaluate_scenes, evaluation_views  # noqa: PLC0415
+
+    t0 = time.perf_counter()
+    views = evaluation_views(SceneEvalParams(scenes=scenes, objects=objects))
+    what = "the object split's test objects (no training scene holds them)" if objects == "unseen" else \
+        "the held-out test objects random_urdfs 900-999"
+    lines = [f"## Precision at the top on cluttered scenes ({objects} objects)\n",
+             f"{len(views)} scenes (trays, piles, packed rows) of {what}, one view each with the clutter "
+             "benchmark's cameras and noise; built in "
+             f"{time.perf_counter() - t0:.0f} s.  `service` = the answer of POST /detect with defaults (selection "
+             "included); `score` = every candidate by classifier score.  Labels: the true meshes (contacts on one "
+             "object within friction cones of mu 0.5, nothing hit on the way in).\n",
+             "| model | service p@1 | service p@5 | service p@10 | score p@1 | score p@5 | score p@10 | "
+             "candidate ECE |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    found: dict[str, float] = {}
+    curves = []
+    for name in models:
+        clf = load_model(name, models_dir, threads=threads)
+        r = evaluate_scenes(clf, views)
+        m = r["mean"]
+        ece = expected_calibration_error(r["scores"], r["labels"])
+        curves.append((name, r["scores"], r["labels"]))
+        found.update({f"{name} {objects} {k}": v for k, v in m.items()})
+        found[f"{name} {objects} ece"] = ece
+        lines.append(f"| {name} | {m['service p@1']:.3f} | {m['service p@5']:.3f} | {m['service p@10']:.3f} | "
+                     f"{m['score p@1']:.3f} | {m['score p@5']:.3f} | {m['score p@10']:.3f} | {ece:.3f} |")
+        worst = sorted(r["scenes"], key=lambda s: s.get("service p@1", 1.0))[:3]
+        lines.append("")
+        lines.append(f"{name}: lowest service p@1 scenes: " + "; ".join(
+            f"scene {s['scene']} ({s['kind']}, {s['sensing']}, {s['objects']} objects): {s.get('service p@1', 0):.0f}"
+            for s in worst) + "\n")
+    plot_reliability(curves, f"Scores on candidates of {objects}-object scenes", out / f"reliability_{objects}.png")
+    lines.append(f"Reliability diagram: `reliability_{objects}.png`.\n")
+    return lines, found
+
+
+def scene_data_main(args: argparse.Namespace, ev: Evaluator) -> int:
+    """Tables for a scene dataset: every --scene-models model on the view and object splits' test parts
+    (accuracy, RA99P, AP, ECE, precision-recall curves), then the scene precision@k section if --scenes."""
+    lines = [f"# Grasp classifier evaluation on scene data\n\nDataset: `{args.dataset}` (graspd.training.scene_data); "
+             "test parts of its splits: view = new scenes and views of training objects, object = scenes of objects "
+             "no training scene holds.  RA99P = recall at 99% precision; ECE = expected calibration error "
+             "(10 bins).\n", "| model | split | test exemplars | positives | accuracy | RA99P | AP | ECE |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
+    found: dict[str, float] = {}
+    for kind in ("view", "object"):
+        curves = []
+        for name in args.scene_models:
+            m, s, y = ev.run(load_model(name, args.models_dir, threads=args.threads), kind)
+            curves.append((name, s, y))
+            found[f"{name} {kind} ra99p"] = m["ra99p"]
+            lines.append(f"| {name} | {kind} | {m['n']} | {m['positives']} | {m['accuracy']:.3f} | {m['ra99p']:.3f} | "
+                         f"{m['average_precision']:.3f} | {expected_calibration_error(s, y):.3f} |")
+        plot_curves(curves, f"Scene data, {kind} split", args.out / f"scenes_{kind}_split.png")
+    lines.append("")
+    if args.scenes:
+        more, f2 = scene_section(args.scene_models, args.models_dir, args.scenes, args.scene_objects, args.out,
+                                 args.threads)
+        lines += more
+        found.update(f2)
+    text = "\n".join(lines)
+    (args.out / "scene_data.md").write_text(text + "\n")
+    print(text)
+    return 0
+
+
 def _row(name: str, m: dict[str, Any], extra: str = "") -> str:
     return (f"| {name} | {m['n']} | {m['accuracy']:.3f} | {m['ra99p']:.3f} | {m['average_precision']:.3f} |"
             f"{extra}")
@@ -98,14 +197,28 @@ RULE = "|---|---:|---:|---:|---:|"
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--dataset", required=True, type=Path)
+    ap.add_argument("--dataset", type=Path, help="dataset (single-object or scene) for the test-part tables")
     ap.add_argument("--models-dir", default=Path("models"), type=Path)
     ap.add_argument("--out", default=Path("models/evaluation"), type=Path)
     ap.add_argument("--limit", type=int, default=None, help="at most this many test exemplars per table row")
     ap.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads for the timing")
+    ap.add_argument("--scenes", type=int, default=0, help="evaluation scenes for precision@k (0 = skip)")
+    ap.add_argument("--scene-objects", choices=["unseen", "held-out"], default="unseen")
+    ap.add_argument("--scene-models", nargs="+", default=["generic15"], help="models for the scene tables")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.dataset is None:
+        if not args.scenes:
+            ap.error("give --dataset, --scenes N, or both")
+        lines, found = scene_section(args.scene_models, args.models_dir, args.scenes, args.scene_objects, args.out,
+                                     args.threads)
+        text = "\n".join(["# Grasp classifier evaluation on scenes\n", *lines])
+        (args.out / f"scenes_{args.scene_objects}.md").write_text(text + "\n")
+        print(text)
+        return 0
     ev = Evaluator(args.dataset, args.limit)
+    if read_manifest(args.dataset).get("kind") == "scenes":
+        return scene_data_main(args, ev)
     comparison = args.models_dir / "comparison"
     shipped = set(available_models(args.models_dir))
     found: dict[str, float] = {}
