@@ -119,7 +119,8 @@ def plot_reliability(curves: list[tuple[str, NDArray[np.float64], NDArray[np.boo
 
 def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str, out: Path, threads: int
                   ) -> tuple[list[str], dict[str, float]]:
-    """The issue-13 tables: precision@k on evaluation scenes for each model, and their reliability diagram."""
+    """The issue-13 tables: precision@k on evaluation scenes for each model, and their reliability diagram.
+    A name FIRST+FULL is the cascade (issue 15): FIRST scores every candidate, FULL the kept ones."""
     from graspd.training.scene_eval import SceneEvalParams, evaluate_scenes, evaluation_views  # noqa: PLC0415
 
     t0 = time.perf_counter()
@@ -133,19 +134,24 @@ def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str
              "included); `score` = every candidate by classifier score.  Labels: the true meshes (contacts on one "
              "object within friction cones of mu 0.5, nothing hit on the way in).\n",
              "| model | service p@1 | service p@5 | service p@10 | score p@1 | score p@5 | score p@10 | "
-             "candidate ECE |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "candidate ECE | s (detect + label, all scenes) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     found: dict[str, float] = {}
     curves = []
     for name in models:
-        clf = load_model(name, models_dir, threads=threads)
-        r = evaluate_scenes(clf, views)
+        first, _, full = name.rpartition("+")
+        clf = load_model(full, models_dir, threads=threads)
+        pre = load_model(first, models_dir, threads=threads) if first else None
+        t_model = time.perf_counter()
+        r = evaluate_scenes(clf, views, prefilter=pre)
+        found[f"{name} {objects} seconds"] = time.perf_counter() - t_model
         m = r["mean"]
         ece = expected_calibration_error(r["scores"], r["labels"])
         curves.append((name, r["scores"], r["labels"]))
         found.update({f"{name} {objects} {k}": v for k, v in m.items()})
         found[f"{name} {objects} ece"] = ece
         lines.append(f"| {name} | {m['service p@1']:.3f} | {m['service p@5']:.3f} | {m['service p@10']:.3f} | "
-                     f"{m['score p@1']:.3f} | {m['score p@5']:.3f} | {m['score p@10']:.3f} | {ece:.3f} |")
+                     f"{m['score p@1']:.3f} | {m['score p@5']:.3f} | {m['score p@10']:.3f} | {ece:.3f} | "
+                     f"{found[f'{name} {objects} seconds']:.0f} |")
         worst = sorted(r["scenes"], key=lambda s: s.get("service p@1", 1.0))[:3]
         lines.append("")
         lines.append(f"{name}: lowest service p@1 scenes: " + "; ".join(
@@ -204,7 +210,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads for the timing")
     ap.add_argument("--scenes", type=int, default=0, help="evaluation scenes for precision@k (0 = skip)")
     ap.add_argument("--scene-objects", choices=["unseen", "held-out"], default="unseen")
-    ap.add_argument("--scene-models", nargs="+", default=["generic15"], help="models for the scene tables")
+    ap.add_argument("--scene-models", nargs="+", default=["generic15"],
+                    help="models for the scene tables; FIRST+FULL names a cascade (FIRST prefilters for FULL)")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.dataset is None:

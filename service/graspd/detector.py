@@ -52,7 +52,9 @@ class DetectionParams:
     gpd_ros CloudSamples / CloudIndexed) instead of num_samples random points.  early_stop (for requests that
     want few grasps; changes which grasps come back, so off by default): search the same seeded samples in
     rounds of early_stop_round and stop once 2 x max_grasps candidates in distinct 2 cm cells score at least
-    min_score (else 0.5); deterministic for a seed."""
+    min_score (else 0.5); deterministic for a seed.  cascade (with a detector that has a prefilter): a cheap
+    first pass scores every candidate and only the best cascade_keep fraction (at least cascade_min) are
+    encoded and scored by the full model; the rest are dropped."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -80,6 +82,9 @@ class DetectionParams:
     score_batch: int = 512
     early_stop: bool = False
     early_stop_round: int = 100
+    cascade: bool = True
+    cascade_keep: float = 0.3
+    cascade_min: int = 200
     sample_points: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -95,6 +100,9 @@ class DetectionParams:
             raise ValueError(f"approach_distance must be in [0, 0.5] m, got {self.approach_distance}")
         if self.early_stop_round < 1:
             raise ValueError(f"early_stop_round must be >= 1, got {self.early_stop_round}")
+        if not 0.0 < self.cascade_keep <= 1.0 or self.cascade_min < 1:
+            raise ValueError(f"cascade_keep must be in (0, 1] and cascade_min >= 1, got {self.cascade_keep}, "
+                             f"{self.cascade_min}")
         if not 0.0 <= self.width_margin <= 0.1:
             raise ValueError(f"width_margin must be in [0, 0.1] m, got {self.width_margin}")
 
@@ -151,11 +159,14 @@ class Detection:
 
 
 class GraspDetector:
-    """Loads nothing itself: give it a classifier (or None for the unscored ablation) and a hand."""
+    """Loads nothing itself: give it a classifier (or None for the unscored ablation) and a hand; prefilter is
+    the cascade's cheap first pass (a classifier of a cheaper representation, e.g. 3 channels), or None."""
 
-    def __init__(self, classifier: Scorer | None = None, hand: HandGeometry | None = None) -> None:
+    def __init__(self, classifier: Scorer | None = None, hand: HandGeometry | None = None,
+                 prefilter: Scorer | None = None) -> None:
         self.classifier = classifier
         self.hand = hand or HandGeometry()
+        self.prefilter = prefilter
 
     def detect(self, cloud: ViewpointCloud, params: DetectionParams | None = None,
                hand: HandGeometry | None = None) -> Detection:
@@ -182,6 +193,12 @@ class GraspDetector:
             timings["sample"] = timings.get("sample", 0.0) + t_batch - t_start
             if scorer is None or not len(cands):
                 return cands
+            if self.prefilter is not None and p.cascade and len(cands) > p.cascade_min:
+                keep = cascade_mask(self.prefilter, scene, cands, region, h, p)
+                cands, region = cands[keep], region.subset(keep)
+                now = time.perf_counter()
+                timings["prefilter"] = timings.get("prefilter", 0.0) + now - t_batch
+                t_batch = now
             # encode and score batch by batch: memory stays bounded however many candidates there are
             scores = np.empty(len(cands))
             for a, images in encode_batches(scene, cands, h, scorer.representation, region=region,
@@ -278,6 +295,20 @@ class Prepared:
 EARLY_STOP_FACTOR = 2
 EARLY_STOP_SCORE = 0.5
 EARLY_STOP_SPACING = 0.02
+
+
+def cascade_mask(prefilter: Scorer, scene: Scene, cands: GraspSet, region: ClosingRegionPoints, hand: HandGeometry,
+                 p: DetectionParams) -> NDArray[np.bool_]:
+    """The candidates the cascade's first pass keeps: the best cascade_keep fraction (at least cascade_min) by
+    the prefilter's score on its own (cheap) images."""
+    scores = np.empty(len(cands))
+    for a, images in encode_batches(scene, cands, hand, prefilter.representation, region=region,
+                                    batch=p.score_batch):
+        scores[a : a + len(images)] = score_parallel(prefilter, images)
+    k = min(len(cands), max(p.cascade_min, int(np.ceil(p.cascade_keep * len(cands)))))
+    keep = np.zeros(len(cands), bool)
+    keep[np.argsort(-scores, kind="stable")[:k]] = True
+    return keep
 
 
 def sample_rounds(n_points: int, sampling: SamplingParams, size: int) -> Iterator[tuple[int, ...]]:

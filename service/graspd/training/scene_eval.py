@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ..detector import DetectionParams, GraspDetector, Scorer
+from ..detector import DetectionParams, GraspDetector, Scorer, cascade_mask
 from ..hand import HandGeometry
 from ..images import encode_images
 from ..world.objects import HELD_OUT_URDFS
@@ -76,11 +76,12 @@ def precision_at_k(labels_in_rank_order: np.ndarray, ks: tuple[int, ...] = TOP_K
 
 
 def evaluate_scenes(scorer: Scorer, views: list[SceneView], hand: HandGeometry | None = None,
-                    num_samples: int = 1000, seed: int = 0) -> dict[str, Any]:
+                    num_samples: int = 1000, seed: int = 0, prefilter: Scorer | None = None) -> dict[str, Any]:
     """Per-scene and mean precision@1/5/10 of the service's ranking and of the classifier's score ranking,
-    plus the scores and labels of every candidate (for calibration plots)."""
+    plus the scores and labels of every candidate scored (for calibration plots).  prefilter: the cascade's
+    first pass (graspd.detector.cascade_mask), applied to both rankings."""
     h = hand or HandGeometry()
-    det = GraspDetector(scorer, h)
+    det = GraspDetector(scorer, h, prefilter)
     labels_params = SceneParams().labels
     per_scene = []
     all_scores, all_labels = [], []
@@ -90,6 +91,9 @@ def evaluate_scenes(scorer: Scorer, views: list[SceneView], hand: HandGeometry |
         served = label_grasps(view.truth, answer.grasps[:max(TOP_K)], h, labels_params, view.graspable).grasp
         prep = det.prepare(view.cloud, p, h)
         cands, region = det.search(prep, prep.sampling, p, h)
+        if prefilter is not None and len(cands) > p.cascade_min:
+            keep = cascade_mask(prefilter, prep.scene, cands, region, h, p)
+            cands, region = cands[keep], region.subset(keep)
         row: dict[str, Any] = {"scene": i, "kind": view.kind, "sensing": view.sensing, "objects": view.num_objects,
                                "candidates": len(cands), "returned": len(answer.grasps)}
         row.update({f"service {k}": v for k, v in precision_at_k(served.astype(float)).items()})
