@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -54,6 +55,21 @@ def parse_grasps(body: Any) -> Grasps:
         return Grasps.from_response(body)
     except WireError as exc:
         raise ServerError(f"malformed detect response: {exc}") from None
+
+
+def instance_upload(mesh_path: str | Path, name: str, category: str | None, hand: str | None) -> dict[str, Any]:
+    """httpx arguments of a POST /models upload (multipart: the mesh file, name, category, hand)."""
+    path = Path(mesh_path)
+    fields = {"name": name, **({"category": category} if category else {}), **({"hand": hand} if hand else {})}
+    return {"files": {"mesh": (path.name, path.read_bytes(), "application/octet-stream")}, "data": fields}
+
+
+def find_job(models: Any, job_id: str) -> Any:
+    """The job job_id in a GET /models answer; ServerError when the server no longer lists it."""
+    for job in models.get("jobs", []) if isinstance(models, dict) else []:
+        if isinstance(job, dict) and job.get("id") == job_id:
+            return job
+    raise ServerError(f"the server lists no instance job {job_id!r} (restarted?)")
 
 
 class GraspClient:
@@ -124,7 +140,28 @@ class GraspClient:
                                           headers={"Content-Type": content_type}, params=params))
 
     def models(self) -> Any:
+        """{"default", "models": [{name, representation, default, card}], "jobs": [instance jobs]}."""
         return self._request("GET", "/models")
+
+    def train_instance(self, mesh_path: str | Path, name: str, category: str | None = None,
+                       hand: str | None = None) -> Any:
+        """Ask the server for an instance model of one object (POST /models): its mesh (.obj, .stl or .ply,
+        metres), the new model's name, optionally its category ("box" or "cylinder": fine-tune the category
+        model) and hand preset.  Answers the queued job ({"id", "name", "state", ...}); wait_instance waits
+        for it, and then detect(..., model=name) uses the new model."""
+        return self._request("POST", "/models", **instance_upload(mesh_path, name, category, hand))
+
+    def wait_instance(self, job_id: str, timeout: float = 1800.0, poll: float = 2.0) -> Any:
+        """The instance job once it is done or failed (its "state" says which); TransportError after timeout s."""
+        end = time.monotonic() + timeout
+        while True:
+            job = find_job(self.models(), job_id)
+            if job["state"] in ("done", "failed") or time.monotonic() > end:
+                break
+            time.sleep(poll)
+        if job["state"] not in ("done", "failed"):
+            raise TransportError(f"instance job {job_id} still {job['state']} after {timeout:g} s")
+        return job
 
     def ready(self) -> bool:
         try:
@@ -190,3 +227,18 @@ class AsyncGraspClient:
 
     async def models(self) -> Any:
         return await self._request("GET", "/models")
+
+    async def train_instance(self, mesh_path: str | Path, name: str, category: str | None = None,
+                             hand: str | None = None) -> Any:
+        return await self._request("POST", "/models", **instance_upload(mesh_path, name, category, hand))
+
+    async def wait_instance(self, job_id: str, timeout: float = 1800.0, poll: float = 2.0) -> Any:
+        end = time.monotonic() + timeout
+        while True:
+            job = find_job(await self.models(), job_id)
+            if job["state"] in ("done", "failed") or time.monotonic() > end:
+                break
+            await asyncio.sleep(poll)
+        if job["state"] not in ("done", "failed"):
+            raise TransportError(f"instance job {job_id} still {job['state']} after {timeout:g} s")
+        return job

@@ -23,6 +23,7 @@ from graspd.parallel import THREADS
 
 from .deps import ServiceState
 from .engine import DetectionEngine, dumps
+from .instance_jobs import InstanceJobs
 from .logs import begin_request
 from .metrics import Metrics
 from .problems import Problem
@@ -54,6 +55,10 @@ The same request and response travel over Zenoh on `<prefix>/detect` (default pr
 **Grasp templates** (Herzog et al. 2012): teach grasps with `POST /demonstrations`, detect with
 `"method": "templates"` on `/detect`, report outcomes of any returned grasp by its `id` with
 `POST /feedback` (failures teach the library), list the library with `GET /library`.
+
+**Instance models** (the IROS 2016 GPD paper's instance prior): `POST /models` with an object's mesh fine-tunes
+a classifier for that object in the background; `GET /models` shows the job, and `/detect` takes the new
+model by name once it is done.
 """
 
 
@@ -133,7 +138,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
         warmup_s = await asyncio.to_thread(warm_up, reg) if settings.warmup else None
         mets = Metrics()
         engine = DetectionEngine(settings, reg, mets)
-        state = ServiceState(settings, reg, mets, engine)
+        state = ServiceState(settings, reg, mets, engine, InstanceJobs(settings, reg))
         app.state.service = state
         if settings.zenoh_enabled:
             state.zenoh = ZenohNode(settings, engine, mets)
@@ -148,6 +153,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
             log.info("graspd shutting down: finishing running detections")
             if state.zenoh is not None:
                 state.zenoh.close()
+            await asyncio.to_thread(state.jobs.close)
             engine.close(wait=True)
 
     app = FastAPI(title="graspd", version=__version__, description=DESCRIPTION, lifespan=lifespan)

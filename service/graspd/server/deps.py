@@ -10,6 +10,7 @@ from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from .engine import DetectionEngine
+from .instance_jobs import InstanceJobs
 from .metrics import Metrics
 from .problems import Problem
 from .registry import ModelRegistry
@@ -24,6 +25,7 @@ class ServiceState:
     registry: ModelRegistry
     metrics: Metrics
     engine: DetectionEngine
+    jobs: InstanceJobs  # instance models being made (POST /models)
     zenoh: Any = None  # graspd.server.zenoh_node.ZenohNode when enabled
 
 

@@ -60,14 +60,19 @@ class ModelRegistry:
             return None
         return classifier.card_fits_hand(dict(getattr(self.classifiers[name], "card", {})), hand.to_dict())
 
+    def is_instance(self, name: str) -> bool:
+        """Whether a model was made for one object (an instance model: its card has "instance"); such a model
+        serves only requests that name it."""
+        return "instance" in dict(getattr(self.classifiers.get(name), "card", {}) or {})
+
     def resolve(self, name: str | None, scoring: bool = True, hand: HandGeometry | None = None) -> str | None:
         """The model a request gets: its own, else the default, unless the default was trained for another
-        hand than the request's and a loaded model fits it (then that one, by name).  A name that is not in
-        the folder is a 422 naming 'model'; one that failed to load, or a missing default while scoring was
-        asked for, is a 503 naming 'model'.  With scoring False (use_classifier false) a missing default is
+        hand than the request's and a loaded model fits it (then that one, by name; never an instance model).  A
+        name that is not in the folder is a 422 naming 'model'; one that failed to load, or a missing default while
+        scoring was asked for, is a 503 naming 'model'.  With scoring False (use_classifier false) a missing default is
         no error."""
         if name is None and scoring and hand is not None and self.fits(self.default, hand) is False:
-            fitting = [n for n in self.names() if self.fits(n, hand)]
+            fitting = [n for n in self.names() if self.fits(n, hand) and not self.is_instance(n)]
             if fitting:
                 return fitting[0]
         if name is not None:
@@ -83,6 +88,14 @@ class ModelRegistry:
             return None
         raise Problem(503, f"{self.load_error}; name another model (GET /models) or set use_classifier false",
                       "model")
+
+    def add(self, name: str, model: Any) -> None:
+        """Serve a model loaded after start-up (an instance model POST /models made) under its name.  The
+        classifier dict is replaced, not changed in place: requests reading it meanwhile see the old or the new."""
+        self.classifiers = {**self.classifiers, name: model}
+        self.errors = {k: v for k, v in self.errors.items() if k != name}
+        self._detectors.pop(name, None)
+        log.info("model added", extra={"model": name})
 
     def detector(self, name: str | None) -> GraspDetector:
         if name not in self._detectors:

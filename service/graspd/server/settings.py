@@ -105,6 +105,23 @@ class Settings(BaseSettings):
                                       "answered 503 by uvicorn")
     http_max_header_bytes: int = Field(default=64 << 10, ge=1024, description="request line and headers at "
                                        "most (bytes)")
+    instance_training: bool = Field(default=True, description="POST /models may train instance models (a "
+                                    "classifier fine-tuned for one uploaded mesh; needs graspd[train])")
+    instance_views: int = Field(default=24, ge=3, le=200, description="rendered views of an instance's mesh (a "
+                                "quarter held out for its comparison, an eighth for validation)")
+    instance_per_view: int | None = Field(default=None, ge=2, le=1024, description="exemplars kept per view; "
+                                          "None: the training default (128)")
+    instance_epochs: int | None = Field(default=None, ge=1, le=200, description="most fine-tuning epochs; None: "
+                                        "the training default (30, within instance_max_minutes)")
+    instance_max_minutes: float = Field(default=2.0, gt=0, le=120, description="fine-tuning time of one instance "
+                                        "model (min)")
+    instance_threads: int = Field(default=1, ge=1, description="torch threads of a training job (it shares the "
+                                  "cores with detection)")
+    instance_queue: int = Field(default=2, ge=0, description="instance jobs that may wait behind the running one "
+                                "before POST /models answers 503")
+    instance_max_mesh_bytes: int = Field(default=16 << 20, gt=0, description="largest mesh upload (bytes)")
+    instance_timeout_s: float = Field(default=1800.0, gt=0, description="a training job running longer is "
+                                      "stopped and fails (s)")
     shutdown_grace_s: float = Field(default=35.0, ge=0, description="on SIGTERM: time running requests get "
                                     "to finish before connections are closed (s)")
 
