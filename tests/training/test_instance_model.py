@@ -15,6 +15,7 @@ import torch
 from torch import nn
 
 from graspd.classifier import OnnxGraspClassifier, default_models_dir, read_card
+from graspd.cli import main as graspd_main
 from graspd.instances import PROGRESS_PREFIX, InstanceError
 from graspd.training.dataset import read_manifest, read_split
 from graspd.training.instance import InstanceParams, make_instance_dataset, network_from_onnx, train_instance
@@ -185,6 +186,18 @@ def test_the_command_line_refuses_bad_options_by_field(tmp_path: Path, box_ply: 
                           "--models-dir", str(base_models)]) == 2
     assert "views:" in capsys.readouterr().err
     assert not (base_models / "mm.onnx").exists() and not (base_models / "ok.onnx").exists()
+
+
+def test_graspd_train_instance_makes_the_model_and_prints_the_comparison(
+        box_ply: Path, base_models: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert graspd_main(["train", "--instance", str(box_ply), "--name", "box_cli", "--category", "box",
+                        "--views", "3", "--per-view", "16", "--epochs", "1", "--max-minutes", "0.1", "--threads", "1",
+                        "--models-dir", str(base_models)]) == 0
+    out = capsys.readouterr().out
+    assert "box15 (category): accuracy" in out and "box_cli (instance): accuracy" in out
+    card = read_card(base_models / "box_cli.json")
+    assert card["instance"]["params"]["views"] == 3 and card["instance"]["base_model"] == "box15"
+    assert card["training"]["config"]["max_minutes"] == 0.1
 
 
 @pytest.mark.slow

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..classifier import default_models_dir
+from . import instance_cli
 
 
 def _categories(text: str) -> list[str]:
@@ -57,6 +58,7 @@ def register(subparsers: Any) -> None:
                    help="skip the Platt calibration of the scores on the validation rows")
     p.add_argument("--models-dir", default=None, help="where to write NAME.onnx and NAME.json (default models/)")
     p.add_argument("--work-dir", default=None, help="checkpoint and training metrics (default models-dir/.work/NAME)")
+    instance_cli.add_arguments(p)  # --instance MESH [--category ...]: an instance model (training/instance.py)
     p.set_defaults(func=_run)
 
 
@@ -66,6 +68,8 @@ _CONFIG_FLAGS = ("dataset", "name", "representation", "architecture", "split", "
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.instance:
+        return instance_cli.run(args)
     from .config import TrainConfig  # noqa: PLC0415 - training pulls in torch: loaded only when `graspd train` runs
     from .plans import train_and_export, train_plan  # noqa: PLC0415
 

@@ -52,7 +52,7 @@ def run(args: argparse.Namespace, argv: list[str] | None = None) -> int:
     """Make the instance model the parsed arguments ask for; 0, or 2 with the reason on stderr."""
     from .instance import InstanceParams, train_instance  # noqa: PLC0415 - torch: loaded only when training
 
-    out = sys.stdout if args.progress_json else sys.stderr
+    out = sys.stderr if args.progress_json else sys.stdout
 
     def emit(event: dict[str, Any]) -> None:
         if args.progress_json:
