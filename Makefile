@@ -29,5 +29,8 @@ test-slow: setup
 bench: setup
 	$(PY) bench/perf.py
 
+openapi: setup
+	PYTHONPATH=service:client $(PY) -m graspd.server.openapi > openapi/openapi.json
+
 clean:
 	rm -rf out .pytest_cache .mypy_cache .ruff_cache

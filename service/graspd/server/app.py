@@ -132,7 +132,8 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         reg = registry or ModelRegistry.load(settings.resolved_models_dir(), settings.default_model,
-                                             settings.model_threads, allow_unscored=settings.allow_unscored)
+                                             settings.model_threads, allow_unscored=settings.allow_unscored,
+                                             cascade=settings.cascade_model or None)
         THREADS.cores = settings.threads or available_cores()
         # before the first request can arrive (uvicorn answers nothing, /readyz included, until this returns)
         warmup_s = await asyncio.to_thread(warm_up, reg) if settings.warmup else None

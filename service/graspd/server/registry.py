@@ -30,13 +30,15 @@ class ModelRegistry:
     errors: dict[str, str] = field(default_factory=dict)  # models that failed to load: name -> why
     wanted_default: str | None = None  # the configured (or built-in) default name
     allow_unscored: bool = False
+    cascade: str | None = None  # the cascade's first-pass model (a loaded model's name), or None
     _detectors: dict[str | None, GraspDetector] = field(default_factory=dict)
 
     @classmethod
     def load(cls, models_dir: Path, default: str | None = None, threads: int = 1,
-             allow_unscored: bool = False) -> ModelRegistry:
+             allow_unscored: bool = False, cascade: str | None = None) -> ModelRegistry:
         """Load every model in models_dir, each on its own (graspd.classifier.load_models_checked); failures
-        are logged at ERROR by name.  default: the configured default name, else classifier's generic15."""
+        are logged at ERROR by name.  default: the configured default name, else classifier's default.
+        cascade: the first-pass model's name (used only if it loaded; else logged and off)."""
 
         models, errors = classifier.load_models_checked(models_dir, threads=threads)
         for name, why in sorted(errors.items()):
@@ -49,7 +51,10 @@ class ModelRegistry:
             load_error = f"default model {wanted!r} is not in {models_dir} (models there: {sorted(models)})"
         if load_error is not None:
             log.error("default model unavailable: not ready", extra={"model": wanted, "error": load_error})
-        return cls(models, wanted if wanted in models else None, load_error, errors, wanted, allow_unscored)
+        if cascade is not None and cascade not in models:
+            log.warning("cascade model not loaded: no cascade", extra={"model": cascade, "models_dir": str(models_dir)})
+            cascade = None
+        return cls(models, wanted if wanted in models else None, load_error, errors, wanted, allow_unscored, cascade)
 
     def names(self) -> list[str]:
         return sorted(self.classifiers)
@@ -97,14 +102,27 @@ class ModelRegistry:
         self._detectors.pop(name, None)
         log.info("model added", extra={"model": name})
 
+    def prefilter(self, name: str | None) -> Any:
+        """The cascade's first pass for model `name`: the cascade model when it is another model made for the
+        same hand (card_fits_hand on the same image fields), else None."""
+        if name is None or self.cascade is None or name == self.cascade or self.cascade not in self.classifiers:
+            return None
+        first = self.classifiers[self.cascade]
+        made_for = dict(getattr(self.classifiers[name], "card", {})).get("hand")
+        if not isinstance(made_for, dict) or not classifier.card_fits_hand(dict(getattr(first, "card", {})), made_for):
+            return None
+        return first
+
     def detector(self, name: str | None) -> GraspDetector:
         if name not in self._detectors:
-            self._detectors[name] = GraspDetector(None if name is None else self.classifiers[name])
+            self._detectors[name] = GraspDetector(None if name is None else self.classifiers[name],
+                                                  prefilter=self.prefilter(name))
         return self._detectors[name]
 
     def describe(self) -> dict[str, Any]:
         return {
             "default": self.default,
+            "cascade": self.cascade,
             "models": [
                 {"name": n, "representation": str(getattr(c, "representation", "")), "default": n == self.default,
                  "card": dict(getattr(c, "card", {}))}

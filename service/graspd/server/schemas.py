@@ -353,6 +353,9 @@ class DetectRequest(BaseModel):
     early_stop: bool = Field(False, description="search the seeded samples in rounds and stop once 2 x "
                              "max_grasps high-scoring grasps in distinct 2 cm cells are found: much faster for "
                              "requests that ask for few grasps, but the answer can differ from a full search")
+    cascade: bool = Field(True, description="with the service's cascade model (GRASPD_CASCADE_MODEL, made for the "
+                          "request's hand): a cheap first pass scores every candidate and the full model only the "
+                          "best 30% (at least 200); false: the full model scores every candidate")
     min_aperture: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False,
                                        description="drop grasps whose width (object extent between the fingers) "
                                        "is below this (m)")
@@ -436,6 +439,7 @@ class DetectRequest(BaseModel):
                 environment=EnvironmentParams() if self.environment is None else self.environment.params(),
                 approach_distance=self.approach_distance,
                 early_stop=self.early_stop,
+                cascade=self.cascade,
                 seed=self.seed,
             )
         except ValueError as exc:
@@ -625,6 +629,8 @@ class InstanceJobOut(BaseModel):
 
 class ModelsResponse(BaseModel):
     default: str | None
+    cascade: str | None = Field(None, description="the cascade's first-pass model (GRASPD_CASCADE_MODEL), used "
+                                "with the models made for its hand; null: no cascade")
     models: list[ModelInfo]
     jobs: list[InstanceJobOut] = Field(default_factory=list, description="instance models queued, being made "
                                        "or made by this server process (POST /models), oldest first")
