@@ -176,6 +176,8 @@ def scene_data_main(args: argparse.Namespace, ev: Evaluator) -> int:
     for kind in ("view", "object"):
         curves = []
         for name in args.scene_models:
+            if "+" in name:  # a cascade: its models have rows of their own; the cascade shows in the scene section
+                continue
             clf = load_model(name, args.models_dir, threads=args.threads)
             m, s, y = ev.run(clf, kind)
             curves.append((name, s, y))
