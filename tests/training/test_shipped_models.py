@@ -6,9 +6,16 @@ import numpy as np
 import pytest
 
 from graspd.candidates import SamplingParams, search_hands
-from graspd.classifier import available_models, default_model_name, default_models_dir, load_model, read_card
+from graspd.classifier import (
+    available_models,
+    card_fits_hand,
+    default_model_name,
+    default_models_dir,
+    load_model,
+    read_card,
+)
 from graspd.cloud import ViewpointCloud
-from graspd.hand import HandGeometry
+from graspd.hand import HAND_PRESETS, HandGeometry
 from graspd.images import channel_layout, encode_images
 from graspd.preprocess import PreprocessParams, preprocess
 from graspd.scene import Scene
@@ -53,9 +60,9 @@ def test_shipped_model_card_and_scores(name: str, scene_and_grasps) -> None:
     card = read_card(Path(MODELS) / f"{name}.json")
     assert card["name"] == name
     assert card["channel_layout"] == channel_layout(card["representation"])
-    # the card records the hand the images were made for; palm_depth (the body behind the finger roots) is not
-    # part of a grasp image, so cards made before it existed match the default hand on every image field
-    hand = HandGeometry().to_dict()
+    # the card records the hand the images were made for (a preset); palm_depth (the body behind the finger roots)
+    # is not part of a grasp image, so cards made before it existed match their hand on every image field
+    hand = next(h.to_dict() for h in HAND_PRESETS.values() if card_fits_hand(card, h.to_dict()))
     assert set(hand) - set(card["hand"]) <= {"palm_depth"}
     assert card["hand"] == {k: hand[k] for k in card["hand"]}
     assert card["output"]["range"] == [0.0, 1.0]
