@@ -137,6 +137,7 @@ def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str
              "candidate ECE | s (detect + label, all scenes) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     found: dict[str, float] = {}
     curves = []
+    notes: list[str] = []
     for name in models:
         first, _, full = name.rpartition("+")
         clf = load_model(full, models_dir, threads=threads)
@@ -153,10 +154,10 @@ def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str
                      f"{m['score p@1']:.3f} | {m['score p@5']:.3f} | {m['score p@10']:.3f} | {ece:.3f} | "
                      f"{found[f'{name} {objects} seconds']:.0f} |")
         worst = sorted(r["scenes"], key=lambda s: s.get("service p@1", 1.0))[:3]
-        lines.append("")
-        lines.append(f"{name}: lowest service p@1 scenes: " + "; ".join(
+        notes.append(f"{name}: lowest service p@1 scenes: " + "; ".join(
             f"scene {s['scene']} ({s['kind']}, {s['sensing']}, {s['objects']} objects): {s.get('service p@1', 0):.0f}"
             for s in worst) + "\n")
+    lines += ["", *notes]
     plot_reliability(curves, f"Scores on candidates of {objects}-object scenes", out / f"reliability_{objects}.png")
     lines.append(f"Reliability diagram: `reliability_{objects}.png`.\n")
     return lines, found
