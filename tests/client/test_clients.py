@@ -30,7 +30,7 @@ def test_sync_client_detect(server: Server, krylon: ViewpointCloud) -> None:
         assert np.allclose(np.linalg.norm(g.quat_xyzw, axis=1), 1.0)
         assert np.isnan(g.scores).all() and g.scored is False and g.model is None
         assert len(set(g.ids)) == len(g) and g.timings["total"] > 0
-        assert client.models() == {"default": None, "models": []}
+        assert client.models() == {"default": None, "cascade": None, "models": [], "jobs": []}
 
 
 def test_sync_client_file_upload(server: Server, real_data: Path) -> None:

@@ -86,7 +86,7 @@ def test_health_models_metrics(client: TestClient, body: dict[str, Any]) -> None
     assert client.get("/healthz").json() == {"status": "ok"}
     ready = client.get("/readyz")
     assert ready.status_code == 200 and ready.json()["scoring"] is False
-    assert client.get("/models").json() == {"default": None, "models": []}
+    assert client.get("/models").json() == {"default": None, "cascade": None, "models": [], "jobs": []}
     client.post("/detect", json=body)
     client.post("/detect", json={"cloud": {"points": [[0, 0]]}})
     text = client.get("/metrics").text
