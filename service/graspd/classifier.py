@@ -52,6 +52,21 @@ def card_fits_hand(card: dict[str, Any], hand: dict[str, float]) -> bool:
     return all(abs(float(made_for.get(k, float("nan"))) - float(hand[k])) <= 1e-4 for k in IMAGE_HAND_FIELDS)
 
 
+#: The cascade's cheap first pass (issue 15): scores every candidate so the full model scores only the best.
+DEFAULT_CASCADE_MODEL = "scene3"
+
+
+def cascade_prefilter(model: Any, first: Any | None) -> Any | None:
+    """The first pass to use with `model`: `first` when it is another classifier made for the same hand
+    (card_fits_hand on the images' hand fields), else None (no cascade)."""
+    if first is None or model is None or first is model:
+        return None
+    made_for = dict(getattr(model, "card", {})).get("hand")
+    if not isinstance(made_for, dict) or not card_fits_hand(dict(getattr(first, "card", {})), made_for):
+        return None
+    return first
+
+
 def default_model_name() -> str:
     """Name of the default model (the generic 15-channel classifier)."""
     return DEFAULT_MODEL_NAME

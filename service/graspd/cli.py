@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .classifier import available_models, default_model_name, load_model
+from .classifier import DEFAULT_CASCADE_MODEL, available_models, cascade_prefilter, default_model_name, load_model
 from .cloud import CloudError
 from .cloud_io import read_cloud
 from .detector import DetectionParams, GraspDetector, Scorer
@@ -54,7 +54,8 @@ def _detect(args: argparse.Namespace) -> int:
         except ValueError as exc:
             print(f"graspd detect: {exc}", file=sys.stderr)
             return 2
-    detection = GraspDetector(classifier, hand).detect(cloud, params)
+    prefilter = None if classifier is None or args.no_cascade else _load_prefilter(classifier, args.models_dir)
+    detection = GraspDetector(classifier, hand, prefilter).detect(cloud, params)
     out = detection.to_dict()
     if classifier is None:
         out["note"] = "no classifier: candidates are unscored (the paper's 'no classification' ablation)"
@@ -110,6 +111,14 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _load_prefilter(model: Scorer, models_dir: str | None) -> Scorer | None:
+    """The cascade's first pass for the model (the service's default, DEFAULT_CASCADE_MODEL), if shipped and made
+    for the model's hand."""
+    if DEFAULT_CASCADE_MODEL not in available_models(models_dir) or model.name == DEFAULT_CASCADE_MODEL:
+        return None
+    return cascade_prefilter(model, load_model(DEFAULT_CASCADE_MODEL, models_dir))  # type: ignore[no-any-return]
+
+
 def _load_classifier(name: str | None, models_dir: str | None) -> Scorer | None:
     """The named ONNX classifier, or the default one if it is there (None: run unscored)."""
 
@@ -135,9 +144,12 @@ def build_parser(subcommands: bool = True) -> argparse.ArgumentParser:
     d.add_argument("--max-grasps", type=int, default=100)
     d.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
                    help="gravity direction in the cloud frame; enables the top-grasp utility")
-    d.add_argument("--model", help="classifier name in the models directory (default: the generic 15-channel one)")
+    d.add_argument("--model", help="classifier name in the models directory (default: scene15, trained on "
+                   "cluttered scenes)")
     d.add_argument("--models-dir", help="directory of ONNX models and cards (default: the shipped models/)")
     d.add_argument("--no-classifier", action="store_true", help="skip scoring (the paper's ablation)")
+    d.add_argument("--no-cascade", action="store_true", help="score every candidate with the full model (no first "
+                   "pass: the service's request option cascade false)")
     d.add_argument("--exclude-table", action="store_true",
                    help="override: never sample on the dominant plane (the default samples on objects only)")
     d.add_argument("--environment", choices=("auto", "declared", "none"), default="auto",

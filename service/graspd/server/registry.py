@@ -103,15 +103,10 @@ class ModelRegistry:
         log.info("model added", extra={"model": name})
 
     def prefilter(self, name: str | None) -> Any:
-        """The cascade's first pass for model `name`: the cascade model when it is another model made for the
-        same hand (card_fits_hand on the same image fields), else None."""
-        if name is None or self.cascade is None or name == self.cascade or self.cascade not in self.classifiers:
+        """The cascade's first pass for model `name` (graspd.classifier.cascade_prefilter), or None."""
+        if name is None or self.cascade is None or name == self.cascade:
             return None
-        first = self.classifiers[self.cascade]
-        made_for = dict(getattr(self.classifiers[name], "card", {})).get("hand")
-        if not isinstance(made_for, dict) or not classifier.card_fits_hand(dict(getattr(first, "card", {})), made_for):
-            return None
-        return first
+        return classifier.cascade_prefilter(self.classifiers.get(name), self.classifiers.get(self.cascade))
 
     def detector(self, name: str | None) -> GraspDetector:
         if name not in self._detectors:

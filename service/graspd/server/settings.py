@@ -9,6 +9,7 @@ from typing import Any
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from graspd.classifier import DEFAULT_CASCADE_MODEL
 from graspd.classifier import default_models_dir as models_dir
 
 
@@ -34,10 +35,10 @@ class Settings(BaseSettings):
     models_dir: Path | None = Field(default=None, description="folder of <name>.onnx + <name>.json; None: models/")
     default_model: str | None = Field(default=None, description="model used when a request names none")
     model_threads: int = Field(default=1, ge=0, description="onnxruntime intra-op threads per model")
-    cascade_model: str = Field(default="scene3", max_length=200, description="the cascade's cheap first pass: a "
-                               "model of the models folder that scores every candidate, so that the full model scores "
-                               "only the best (request option cascade); used with every model made for the same hand; "
-                               "empty: no cascade")
+    cascade_model: str = Field(default=DEFAULT_CASCADE_MODEL, max_length=200,
+                               description="the cascade's cheap first pass: a model of the models folder that scores "
+                               "every candidate, so that the full model scores only the best (request option "
+                               "cascade); used with every model made for the same hand; empty: no cascade")
     detect_workers: int = Field(default=0, ge=0, description="detections run at once; 0 = one per CPU core")
     threads: int = Field(default=0, ge=0, description="cores the running detections share (graspd.parallel: a lone "
                          "request uses them all, concurrent ones divide them); 0 = every core of the process")
