@@ -130,8 +130,10 @@ def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str
     lines = [f"## Precision at the top on cluttered scenes ({objects} objects)\n",
              f"{len(views)} scenes (trays, piles, packed rows) of {what}, one view each with the clutter "
              "benchmark's cameras and noise; built in "
-             f"{time.perf_counter() - t0:.0f} s.  `service` = the answer of POST /detect with defaults (selection "
-             "included); `score` = every candidate by classifier score.  Labels: the true meshes (contacts on one "
+             f"{time.perf_counter() - t0:.0f} s.  `service` = what POST /detect answers: the detector run in this "
+             "process with the service's default DetectionParams and the workspace box a robot sends (selection "
+             "included); FIRST+FULL is the service's default cascade, a name without + is the full model alone "
+             "(cascade off); `score` = every candidate by classifier score.  Labels: the true meshes (contacts on one "
              "object within friction cones of mu 0.5, nothing hit on the way in).\n",
              "| model | service p@1 | service p@5 | service p@10 | score p@1 | score p@5 | score p@10 | "
              "candidate ECE | s (detect + label, all scenes) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]

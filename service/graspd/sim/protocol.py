@@ -16,7 +16,7 @@ import numpy as np
 
 from ..grasp import GraspSet
 from ..hand import HandGeometry
-from ..world.cameras import Camera, active_cameras, passive_cameras, side_camera
+from ..world.cameras import Camera, sensing_cameras
 from ..world.noise import DepthNoise
 from .detectors import SimDetector, Workspace
 from .gripper import Attempt, ExecutionParams, Gripper, Outcome
@@ -100,11 +100,7 @@ def feasible(grasps: GraspSet, max_angle_deg: float) -> np.ndarray:
 
 def cameras_for(setting: Setting) -> list[Camera]:
     """The cameras of the setting's sensing strategy."""
-    if setting.sensing == "passive":
-        return passive_cameras()
-    if setting.sensing == "active":
-        return active_cameras()
-    return side_camera()
+    return sensing_cameras(setting.sensing)
 
 
 def run_round(detector: SimDetector, setting: Setting, seed: int,
@@ -114,10 +110,8 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
     rng = np.random.default_rng(seed + 1_000_003)
     world = build_scene(setting.scene, setting.num_objects, seed, setting.hand)
     result = RoundResult(seed=seed, num_objects=len(world.objects))
-    x0, x1, y0, y1 = world.inside_region()
-    margin = 0.02
     # what the cameras keep and the workspace box the robot sends: the scene, tray walls and floor included
-    region: Workspace = (x0 - margin, x1 + margin, y0 - margin, y1 + margin, -0.005, 0.4)
+    region: Workspace = world.workspace()
     workspace = region
     noise = DepthNoise.benchmark() if setting.noise else DepthNoise.none()
     cams = cameras_for(setting)

@@ -132,6 +132,12 @@ class SimWorld:
         half = 0.15
         return (-half, half, -half, half)
 
+    def workspace(self, margin: float = 0.02) -> tuple[float, float, float, float, float, float]:
+        """The box [xmin, xmax, ymin, ymax, zmin, zmax] (m) the cameras keep and a robot sends as its workspace:
+        the play region plus margin, floor and tray walls included, up to 0.4 m."""
+        x0, x1, y0, y1 = self.inside_region()
+        return (x0 - margin, x1 + margin, y0 - margin, y1 + margin, -0.005, 0.4)
+
     def remove_outside(self) -> list[int]:
         """Remove objects whose centre left the tray or workspace (or fell below the floor); their ids."""
         x0, x1, y0, y1 = self.inside_region()

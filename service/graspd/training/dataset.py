@@ -433,13 +433,18 @@ def generate_dataset(out_dir: str | Path, params: GenerationParams, workers: int
         "chunks": chunks,
         "counts": {"total": total, "positive": positive, "negative": total - positive, "by_category": by_category,
                    "target": params.exemplars},
-        "dataset_sha256": hashlib.sha256("".join(c["sha256"] for c in chunks).encode()).hexdigest(),
+        "dataset_sha256": chunks_sha256(chunks),
         "command": command_line(params, str(out)),
     }
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     (out / "timing.json").write_text(json.dumps({"seconds": elapsed, "workers": workers, "exemplars": total,
                                                  "exemplars_per_minute": 60.0 * total / max(elapsed, 1e-9)}))
     return manifest
+
+
+def chunks_sha256(chunks: list[dict[str, Any]]) -> str:
+    """A dataset's dataset_sha256: sha256 of its chunk hashes concatenated in order."""
+    return hashlib.sha256("".join(c["sha256"] for c in chunks).encode()).hexdigest()
 
 
 def _collect(results: Iterator[Any], n: int, t0: float, progress: bool) -> list[Any]:

@@ -26,7 +26,6 @@ than positives, and the highest-scoring ones are what precision at the top depen
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import multiprocessing as mp
 import sys
@@ -42,11 +41,20 @@ from ..detector import DetectionParams, GraspDetector
 from ..grasp import GraspSet
 from ..hand import HAND_PRESETS, HandGeometry, hand_preset
 from ..images import channel_layout, encode_images
-from ..world.cameras import Camera, passive_cameras, side_camera
+from ..world.cameras import sensing_cameras
 from ..world.noise import DepthNoise
 from ..world.objects import TRAINING_URDFS, check_not_held_out
 from ..world.render import MeshScene
-from .dataset import CHUNK_KEYS, DERIVABLE, FORMAT, STORED_REPRESENTATION, _empty_rows, write_npz
+from .dataset import (
+    CHUNK_KEYS,
+    DERIVABLE,
+    FORMAT,
+    STORED_REPRESENTATION,
+    _collect,
+    _empty_rows,
+    chunks_sha256,
+    write_npz,
+)
 from .labels import LabelParams, label_grasps
 
 #: Scene kinds and their share of the scenes: the benchmark's trays and piles, packed rows, lone objects.
@@ -127,11 +135,6 @@ def _choice(mix: tuple[tuple[str, float], ...], rng: np.random.Generator) -> str
     return str(names[int(rng.choice(len(names), p=weights / weights.sum()))])
 
 
-def cameras_of(sensing: str) -> list[Camera]:
-    """The clutter benchmark's cameras for a sensing name (graspd.sim.protocol.cameras_for)."""
-    return passive_cameras() if sensing == "passive" else side_camera()
-
-
 @dataclass
 class SceneView:
     """One view of a scene: the cloud as the service receives it, the request's workspace, the ground
@@ -163,9 +166,7 @@ def scene_views(kind: str, object_ids: list[int], seed: int, views: int, hand: H
     world = build_scene(scene_kind, len(object_ids), seed, hand, object_ids=tuple(int(i) for i in object_ids))
     out: list[SceneView] = []
     try:
-        x0, x1, y0, y1 = world.inside_region()
-        margin = 0.02
-        region = (x0 - margin, x1 + margin, y0 - margin, y1 + margin, -0.005, 0.4)
+        region = world.workspace()
         for v in range(views):
             if not world.objects:
                 break
@@ -176,7 +177,7 @@ def scene_views(kind: str, object_ids: list[int], seed: int, views: int, hand: H
                 if not world.objects:
                     break
             sensing = _choice(sensing_mix, rng)
-            cloud = observe(world.client, cameras_of(sensing), noise, rng, region)
+            cloud = observe(world.client, sensing_cameras(sensing), noise, rng, region)
             static = world.static_meshes()
             posed = [m for _, m in world.object_meshes()]
             graspable = np.r_[np.zeros(len(static), bool), np.ones(len(posed), bool)]
@@ -312,14 +313,11 @@ def generate_scene_dataset(out_dir: str | Path, params: SceneParams, workers: in
     g = params.scenes_per_chunk
     tasks = [(c, specs[a : a + g], params, str(out)) for c, a in enumerate(range(0, len(specs), g))]
     t0 = time.perf_counter()
-    results = []
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(workers) if workers > 1 else _Serial() as pool:
-        for i, res in enumerate(pool.imap_unordered(_generate_chunk, tasks)):
-            results.append(res)
-            if progress:
-                rows = sum(r[3]["rows"] for r in results)
-                print(f"chunk {i + 1}/{len(tasks)}: {rows} rows, {time.perf_counter() - t0:.0f} s", flush=True)
+    if workers <= 1:
+        results = _collect(map(_generate_chunk, tasks), len(tasks), t0, progress)
+    else:
+        with mp.get_context("spawn").Pool(workers) as pool:
+            results = _collect(pool.imap_unordered(_generate_chunk, tasks), len(tasks), t0, progress)
     results.sort(key=lambda r: r[0])
     scenes = [s for r in results for s in r[1]]
     views = [v for r in results for v in r[2]]
@@ -337,7 +335,7 @@ def generate_scene_dataset(out_dir: str | Path, params: SceneParams, workers: in
         "objects": scenes, "views": views, "chunks": chunks,
         "counts": {"total": total, "positive": positive, "negative": total - positive,
                    "by_category": {"other": total}, "target": params.scenes * params.views_per_scene * params.per_view},
-        "dataset_sha256": hashlib.sha256("".join(c["sha256"] for c in chunks).encode()).hexdigest(),
+        "dataset_sha256": chunks_sha256(chunks),
         "command": "python -m graspd.training.scene_data " + " ".join(sys.argv[1:]),
     }
     (out / "manifest.json").write_text(json.dumps(manifest))
@@ -345,19 +343,6 @@ def generate_scene_dataset(out_dir: str | Path, params: SceneParams, workers: in
     (out / "timing.json").write_text(json.dumps({"seconds": seconds, "workers": workers,
                                                  "exemplars_per_minute": 60.0 * total / max(seconds, 1e-9)}))
     return manifest
-
-
-class _Serial:
-    """Pool stand-in for one worker (same call shape, no processes)."""
-
-    def __enter__(self) -> _Serial:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        return None
-
-    def imap_unordered(self, fn: Any, tasks: list[Any]) -> Any:
-        return map(fn, tasks)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -147,6 +147,18 @@ def side_camera(target: tuple[float, float, float] = (0.0, 0.0, 0.03), distance:
     return [Camera(tuple(pos.tolist()), target, fov_deg=45.0, fov_axis="vertical")]
 
 
+def sensing_cameras(sensing: str) -> list[Camera]:
+    """The clutter benchmark's cameras for a sensing strategy: "passive" (two fixed cameras 53 degrees apart),
+    "active" (views along an arc over the tray) or "side" (one camera)."""
+    if sensing == "passive":
+        return passive_cameras()
+    if sensing == "active":
+        return active_cameras()
+    if sensing == "side":
+        return side_camera()
+    raise ValueError(f"sensing must be 'passive', 'active' or 'side', got {sensing!r}")
+
+
 def active_cameras(target: tuple[float, float, float] = (0.0, 0.0, 0.03), radius: float = 0.40,
                    num_views: int = 6, arc_deg: float = 100.0) -> list[Camera]:
     """num_views cameras along an arc of arc_deg over the tray (in the y-z plane, through the zenith),

@@ -11,13 +11,15 @@ from numpy.typing import NDArray
 F64 = NDArray[np.float64]
 
 
-def clean_mesh(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
-    """Merged duplicate vertices, no degenerate triangles, centred on the bounding-box centre."""
+def clean_mesh(mesh: o3d.geometry.TriangleMesh, centre: bool = True) -> o3d.geometry.TriangleMesh:
+    """Merged duplicate vertices, no degenerate triangles, and (centre) centred on the bounding-box centre;
+    centre=False keeps the mesh's own frame (a body pybullet poses)."""
     mesh.merge_close_vertices(1e-7)
     mesh.remove_degenerate_triangles()
     mesh.remove_duplicated_triangles()
     mesh.remove_unreferenced_vertices()
-    mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
+    if centre:
+        mesh.translate(-mesh.get_axis_aligned_bounding_box().get_center())
     mesh.compute_triangle_normals()
     return mesh
 

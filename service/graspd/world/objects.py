@@ -162,12 +162,7 @@ def _urdf_mesh_and_scale(index: int, global_scale: float, held_out_ok: bool
     verts = np.asarray(mesh.vertices) * scale_xyz * global_scale
     if len(mesh.triangles) == 0 or not np.isfinite(verts).all():
         raise ValueError(f"{folder / match.group(1)}: no triangles or non-finite vertices (a broken mesh)")
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), mesh.triangles)
-    mesh.merge_close_vertices(1e-7)
-    mesh.remove_degenerate_triangles()
-    mesh.remove_duplicated_triangles()
-    mesh.remove_unreferenced_vertices()
-    mesh.compute_triangle_normals()
+    mesh = clean_mesh(o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), mesh.triangles), centre=False)
     return mesh, float(scale_xyz[0])
 
 
