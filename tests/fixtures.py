@@ -6,7 +6,10 @@ Importable as `fixtures` (pyproject.toml: [tool.pytest.ini_options] pythonpath =
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import open3d as o3d
 from numpy.typing import NDArray
 
 from graspd.world.meshes import pose_from
@@ -45,3 +48,9 @@ def grasp_angle_deg(rot_a: F64, rot_b: F64) -> float:
         c = (np.trace(rot_a.T @ b) - 1.0) / 2.0
         best = min(best, float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))))
     return best
+
+
+def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> Path:
+    """The mesh written to path (.ply, .stl, .obj by suffix), as a user's mesh file for instance models."""
+    assert o3d.io.write_triangle_mesh(str(path), mesh)
+    return path

@@ -9,10 +9,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import open3d as o3d
 import pytest
 from fastapi.testclient import TestClient
 
+from fixtures import write_mesh
 from graspd.classifier import read_card
 from graspd.cloud import ViewpointCloud
 from graspd.server.app import create_app
@@ -32,11 +32,6 @@ def models_folder(tmp_path: Path, models_and_default: tuple[Path, str]) -> Path:
     for suffix in (".onnx", ".json"):
         shutil.copy(src / f"{name}{suffix}", folder / f"{name}{suffix}")
     return folder
-
-
-def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> Path:
-    assert o3d.io.write_triangle_mesh(str(path), mesh)
-    return path
 
 
 @pytest.fixture

@@ -14,6 +14,7 @@ import pytest
 import torch
 from torch import nn
 
+from fixtures import write_mesh
 from graspd.classifier import OnnxGraspClassifier, default_models_dir, read_card
 from graspd.cli import main as graspd_main
 from graspd.instances import PROGRESS_PREFIX, InstanceError
@@ -26,11 +27,6 @@ from graspd.world.meshes import box_mesh, cylinder_mesh
 
 SHIPPED = default_models_dir()
 TINY = InstanceParams(views=4, per_view=32, epochs=1, max_minutes=0.2, batch_size=32, threads=1)
-
-
-def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> Path:
-    assert o3d.io.write_triangle_mesh(str(path), mesh)
-    return path
 
 
 @pytest.fixture
