@@ -26,6 +26,7 @@ from .parallel import THREADS
 from .preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
 from .scene import ClosingRegionPoints, Scene
 from .selection import SelectionParams, Vec3, feasible_mask, select
+from .warning import DetectionWarning
 
 MAX_NUM_SAMPLES = 20_000
 
@@ -144,6 +145,12 @@ class Detection:
     num_points: int
     hand: HandGeometry = field(default_factory=HandGeometry)
     environment: Environment | None = None
+    warnings: tuple[DetectionWarning, ...] = ()
+
+    def warned(self, *more: DetectionWarning) -> Detection:
+        """This detection with more warnings appended (codes already present are not repeated)."""
+        have = {w.code for w in self.warnings}
+        return replace(self, warnings=self.warnings + tuple(w for w in more if w.code not in have))
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -155,6 +162,7 @@ class Detection:
             "num_points": self.num_points,
             "hand": self.hand.to_dict(),
             "environment": None if self.environment is None else self.environment.to_dict(),
+            "warnings": [w.to_dict() for w in self.warnings],
         }
 
 

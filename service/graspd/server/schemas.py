@@ -29,6 +29,7 @@ from pydantic import (
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
 from graspd.environment import Box, EnvironmentParams, Plane
+from graspd.warning import WARNING_CODES
 from graspd.hand import HAND_PRESETS, HandGeometry
 from graspd.templates import TemplateDetection
 from graspd.templates.demonstration import check_hand_pose
@@ -498,6 +499,13 @@ class EnvironmentOut(BaseModel):
     counts: dict[str, int] = Field(description="points per label (object, support, wall, box, ...)")
 
 
+class WarningOut(BaseModel):
+    """Something the service could not do right, said instead of staying silent (graspd.warning)."""
+
+    code: str = Field(description="stable code: " + "; ".join(f"{k}: {v}" for k, v in WARNING_CODES.items()))
+    message: str = Field(description="what happened and what to do, for a person")
+
+
 class RosStamp(BaseModel):
     sec: int
     nanosec: int
@@ -533,6 +541,9 @@ class DetectResponse(BaseModel):
     num_points: int = Field(description="points after preprocessing")
     hand: dict[str, float] = Field(description="hand geometry used (m)")
     environment: EnvironmentOut | None = Field(None, description="gpd: what the environment stage found")
+    warnings: list[WarningOut] = Field(default_factory=list, description="what the service could not do right "
+                                       "for this request (empty for a correct request); the same on every "
+                                       "transport")
     num_entries: int | None = Field(None, description="templates: library entries matched against")
     header: RosHeader | None = Field(None, description="Zenoh, CDR PointCloud2 input only: its ROS header")
     model_fits_hand: bool | None = Field(None, description="gpd with a model: whether the model was trained on "
@@ -566,7 +577,8 @@ class DetectResponse(BaseModel):
                 grasp["crop"] = crop
         out: dict[str, Any] = {"request_id": request_id, "method": "templates" if templates else "gpd",
                                "grasps": grasps, "timings": timings, "num_candidates": det.num_candidates,
-                               "num_points": det.num_points, "hand": hand.to_dict()}
+                               "num_points": det.num_points, "hand": hand.to_dict(),
+                               "warnings": [w.to_dict() for w in getattr(det, "warnings", ())]}
         if isinstance(det, TemplateDetection):
             for grasp, entry, m in zip(grasps, det.entry_ids.tolist(), det.mismatch.tolist(), strict=True):
                 grasp.update(template_entry=entry, mismatch=m if math.isfinite(m) else None)

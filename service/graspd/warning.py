@@ -1,0 +1,39 @@
+"""Warnings a detection carries instead of staying silent: a stable code and one human sentence each.
+
+Every stage that cannot do the right thing (an unsure environment, a flipped viewpoint, dropped rows, no
+candidates) adds one; every transport sends them unchanged in the response's `warnings`.  A correct request
+warns of nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+#: The codes graspd emits, with what each means (the response schema documents this table).
+WARNING_CODES: dict[str, str] = {
+    "environment_unsure": "the environment stage is unsure what holds the objects (support, walls, container)",
+    "container_as_object": "a large structure that looks like a container or fixture may have been kept as an object",
+    "no_support": "no support surface was found; hands are checked against points only",
+    "unknown_space": "the best grasps put part of the hand into space no camera saw",
+    "viewpoint_flipped": "most surface normals face away from the cameras: the viewpoint is probably wrong",
+    "non_finite_dropped": "rows with NaN or infinite coordinates were dropped",
+    "few_points": "too few points are left after the workspace crop",
+    "model_hand_mismatch": "the model was not trained for the requested hand; scores are less reliable",
+    "no_candidates": "no grasp candidate survived; the stage that removed them is named",
+}
+
+
+@dataclass(frozen=True)
+class DetectionWarning:
+    """One warning: a code from WARNING_CODES and a sentence for a person (what happened, what to do)."""
+
+    code: str
+    message: str
+
+    def __post_init__(self) -> None:
+        if self.code not in WARNING_CODES:
+            raise ValueError(f"unknown warning code {self.code!r}; known: {sorted(WARNING_CODES)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"code": self.code, "message": self.message}
