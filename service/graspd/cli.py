@@ -1,4 +1,12 @@
-"""Command line: `graspd detect CLOUD ...` and the subcommands other modules register."""
+"""Command line: `graspd detect CLOUD ...` and the subcommands other modules register.
+
+Start-up is kept short: this module imports the standard library only, so `graspd --help` and `graspd
+--version` answer without numpy, open3d, onnxruntime, FastAPI or torch (bench/cli.py measures it).  A command
+imports what it needs when it runs; a subcommand of another module (serve, train, templates) is imported
+only when it is named.
+"""
+
+# ruff: noqa: PLC0415 -- the heavy imports live in the commands that need them (fast --help)
 
 from __future__ import annotations
 
@@ -6,29 +14,46 @@ import argparse
 import importlib
 import json
 import sys
+from collections.abc import Collection
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
+from . import __version__
 
-from .classifier import DEFAULT_CASCADE_MODEL, available_models, cascade_prefilter, default_model_name, load_model
-from .cloud import CloudError
-from .cloud_io import read_cloud
-from .detector import DetectionParams, GraspDetector, Scorer
-from .environment import EnvironmentParams
-from .hand import HandGeometry, hand_preset
-from .plot import plot_grasps
-from .preprocess import PreprocessParams, preprocess
-from .viewer import viewer_html
+if TYPE_CHECKING:
+    from .detector import Scorer
 
+#: Subcommands other modules define with register(subparsers): name -> (module, the help line `graspd --help`
+#: shows without importing it; tests/core/test_cli_startup.py keeps the two the same).
+LAZY_SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "train": ("graspd.training.cli", "train + evaluate + export a grasp classifier from a graspd dataset"),
+    "templates": ("graspd.templates.cli", "grasp templates from demonstrations (Herzog et al.)"),
+    "serve": ("graspd.server.cli", "run the grasp-detection service (HTTP + Zenoh)"),
+}
 #: Modules exposing register(subparsers) for further subcommands (serve, train, ...).
-SUBCOMMAND_MODULES: tuple[str, ...] = ("graspd.training.cli", "graspd.templates.cli")
-#: Subcommands defined here: parsed without importing SUBCOMMAND_MODULES.
+SUBCOMMAND_MODULES: tuple[str, ...] = tuple(module for module, _ in LAZY_SUBCOMMANDS.values())
+#: Subcommands defined here.
 BUILTIN_COMMANDS: tuple[str, ...] = ("detect", "demo")
-#: Registered only when importable (the server module needs the service extras).
-OPTIONAL_SUBCOMMAND_MODULES: tuple[str, ...] = ("graspd.server.cli",)
+#: Exit status of a command that cannot run as asked (bad arguments, no usable model).
+EXIT_USAGE = 2
+
+
+class CliError(Exception):
+    """A command cannot run as asked: the message says what is wrong and what to do (printed, exit 2)."""
 
 
 def _detect(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .cloud import CloudError
+    from .cloud_io import read_cloud
+    from .detector import DetectionParams, GraspDetector
+    from .environment import EnvironmentParams
+    from .hand import HandGeometry, hand_preset
+    from .plot import plot_grasps
+    from .preprocess import PreprocessParams, preprocess
+    from .viewer import viewer_html
+
     try:
         viewpoints = np.array(args.viewpoint, np.float32).reshape(-1, 3) if args.viewpoint else None
         cloud = read_cloud(args.cloud, viewpoints=viewpoints)
@@ -47,14 +72,12 @@ def _detect(args: argparse.Namespace) -> int:
     except (CloudError, KeyError, ValueError, OSError) as exc:
         print(f"graspd detect: {exc}", file=sys.stderr)
         return 2
-    classifier = None
-    if not args.no_classifier:
-        try:
-            classifier = _load_classifier(args.model, args.models_dir)
-        except ValueError as exc:
-            print(f"graspd detect: {exc}", file=sys.stderr)
-            return 2
-    prefilter = None if classifier is None or args.no_cascade else _load_prefilter(classifier, args.models_dir)
+    try:
+        classifier = None if args.no_classifier else _load_classifier(args.model, args.models_dir)
+        prefilter = None if classifier is None or args.no_cascade else _load_prefilter(classifier, args.models_dir)
+    except CliError as exc:
+        print(f"graspd detect: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     detection = GraspDetector(classifier, hand, prefilter).detect(cloud, params)
     out = detection.to_dict()
     if classifier is None:
@@ -87,12 +110,19 @@ def _detect(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from .world.scenes import GRAVITY, cluttered_tabletop  # noqa: PLC0415
+    from .detector import DetectionParams, GraspDetector
+    from .plot import plot_grasps
+    from .preprocess import PreprocessParams, preprocess
+    from .world.scenes import GRAVITY, cluttered_tabletop
 
+    try:
+        classifier = None if args.no_classifier else _load_classifier(args.model, args.models_dir)
+    except CliError as exc:
+        print(f"graspd demo: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cloud = cluttered_tabletop(num_objects=args.objects, seed=args.seed)
-    classifier = None if args.no_classifier else _load_classifier(args.model, args.models_dir)
     params = DetectionParams(num_samples=args.samples, exclude_support_plane=True, gravity=GRAVITY,
                              approach_direction=GRAVITY, approach_max_angle_deg=80.0, max_grasps=20)
     detection = GraspDetector(classifier).detect(cloud, params)
@@ -111,28 +141,73 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+_UNSCORED_HINT = "or run unscored with --no-classifier (the paper's 'no classification' ablation)"
+
+
 def _load_prefilter(model: Scorer, models_dir: str | None) -> Scorer | None:
     """The cascade's first pass for the model (the service's default, DEFAULT_CASCADE_MODEL), if shipped and made
-    for the model's hand."""
+    for the model's hand.  CliError when it is there but does not load."""
+    from .classifier import DEFAULT_CASCADE_MODEL, available_models, cascade_prefilter
+
     if DEFAULT_CASCADE_MODEL not in available_models(models_dir) or model.name == DEFAULT_CASCADE_MODEL:
         return None
-    return cascade_prefilter(model, load_model(DEFAULT_CASCADE_MODEL, models_dir))  # type: ignore[no-any-return]
+    first = _checked_model(DEFAULT_CASCADE_MODEL, models_dir, "--no-cascade (score every candidate with the "
+                                                                 "full model)")
+    return cascade_prefilter(model, first)  # type: ignore[no-any-return]
 
 
-def _load_classifier(name: str | None, models_dir: str | None) -> Scorer | None:
-    """The named ONNX classifier, or the default one if it is there (None: run unscored)."""
+def _load_classifier(name: str | None, models_dir: str | None) -> Scorer:
+    """The named ONNX classifier, else the default one (classifier.DEFAULT_MODEL_NAME).  CliError, with what to
+    do, when the models folder is missing or holds no model, when the model is not there, or when it does not
+    load or score: a detection never runs unscored unless --no-classifier asks for it."""
+    from .classifier import available_models, default_model_name, default_models_dir
 
-    if name is None:
-        if default_model_name() not in available_models(models_dir):
-            return None
-        name = default_model_name()
-    return load_model(name, models_dir)
+    folder = Path(models_dir) if models_dir is not None else default_models_dir()
+    where = "--models-dir" if models_dir is not None else "the default models folder (GRASPD_MODELS_DIR, else " \
+        "models/ of the repository)"
+    if name is None or not name.endswith(".onnx"):  # by name: it must be in the folder
+        if not folder.is_dir():
+            raise CliError(f"models folder {folder} ({where}) does not exist: point --models-dir at a folder of "
+                           f"NAME.onnx files with their NAME.json cards (the repository ships them in models/), "
+                           f"{_UNSCORED_HINT}")
+        names = available_models(folder)
+        if not names:
+            raise CliError(f"models folder {folder} ({where}) holds no model (a NAME.onnx with its NAME.json "
+                           f"card): copy the shipped models/ there or train one (graspd train), {_UNSCORED_HINT}")
+        if name is None and default_model_name() not in names:
+            raise CliError(f"the default model {default_model_name()!r} is not in {folder}; it has {names}: choose "
+                           f"one with --model NAME, {_UNSCORED_HINT}")
+    return _checked_model(name or default_model_name(), models_dir, _UNSCORED_HINT)
 
 
-def build_parser(subcommands: bool = True) -> argparse.ArgumentParser:
-    """The parser; subcommands=False leaves out those of SUBCOMMAND_MODULES (their imports: SQLAlchemy,
-    pydantic settings, the template library) for a run of a built-in command."""
+def _checked_model(name: str, models_dir: str | None, instead: str) -> Scorer:
+    """A model loaded and probed on one blank image (it must give one finite probability); CliError naming the
+    model, why it failed and what to do (`instead`: the option that does without it)."""
+    import numpy as np
+
+    from .classifier import ModelError, load_model
+
+    try:
+        model = load_model(name, models_dir)
+        probe = model.score(np.zeros((1, model.channels, model.image_size, model.image_size), np.uint8))
+    except ModelError as exc:
+        raise CliError(f"{exc}: restore the model's .onnx and .json (for example git checkout models/), choose "
+                       f"another with --model NAME, {instead}") from None
+    except Exception as exc:  # onnxruntime raises its own types when a network loads but cannot run
+        raise CliError(f"model {name!r} does not run ({type(exc).__name__}: {exc}): restore its .onnx and "
+                       f".json, choose another with --model NAME, {instead}") from None
+    if probe.shape != (1,) or not np.isfinite(probe).all():
+        raise CliError(f"model {name!r} gives {probe!r} for one blank image, not one probability: restore or "
+                       f"retrain it, choose another with --model NAME, {instead}")
+    return model
+
+
+def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
+    """The parser.  load: the LAZY_SUBCOMMANDS whose modules are imported and registered (True: all of them);
+    the others are listed by name and help line only, so that `graspd --help` and the built-in commands do
+    without their imports (SQLAlchemy, FastAPI, pydantic settings, torch)."""
     parser = argparse.ArgumentParser(prog="graspd", description="Grasp Pose Detection for two-finger hands")
+    parser.add_argument("--version", action="version", version=f"graspd {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     d = sub.add_parser("detect", help="detect grasps in a point cloud file (.pcd, .ply, .npz)")
     d.add_argument("cloud")
@@ -173,24 +248,25 @@ def build_parser(subcommands: bool = True) -> argparse.ArgumentParser:
     demo.add_argument("--models-dir")
     demo.add_argument("--no-classifier", action="store_true")
     demo.set_defaults(func=_demo)
-    if not subcommands:
-        return parser
-    for name in SUBCOMMAND_MODULES:
-        importlib.import_module(name).register(sub)
-    for name in OPTIONAL_SUBCOMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ImportError:
-            continue
-        module.register(sub)
+    for name, (module, help_line) in LAZY_SUBCOMMANDS.items():
+        if load is True or (load is not False and name in load):
+            importlib.import_module(module).register(sub)
+        else:
+            sub.add_parser(name, help=help_line, add_help=False)  # never parsed: main() loads a named one
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     words = sys.argv[1:] if argv is None else argv
-    # `graspd detect` / `graspd demo` need none of the other subcommands' imports (~0.5 s of start-up)
-    builtin = bool(words) and words[0] in BUILTIN_COMMANDS
-    args = build_parser(subcommands=not builtin).parse_args(argv)
+    command = words[0] if words else None
+    load = [command] if command in LAZY_SUBCOMMANDS else []
+    try:
+        parser = build_parser(load)
+    except ImportError as exc:  # e.g. `graspd serve` in an install without the service's dependencies
+        print(f"graspd {command}: cannot import what it needs ({type(exc).__name__}: {exc}); install graspd with "
+              f"its dependencies (make setup, or pip install -e .)", file=sys.stderr)
+        return EXIT_USAGE
+    args = parser.parse_args(argv)
     return int(args.func(args))
 
 

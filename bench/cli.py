@@ -1,0 +1,68 @@
+"""Start-up time of the graspd command line: `graspd --help`, `graspd --version` and, for scale, a bare Python
+and `graspd detect --help` (which imports nothing more either).  Each command runs N times in a fresh process;
+the table gives the median, the fastest and the slowest wall time (s).  Issue 27 asks `graspd --help` to answer
+in at most 1 s on 2 cores.
+
+    python bench/cli.py [--runs 15] [--graspd .venv/bin/graspd]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+#: The target of issue 27 for `graspd --help` (s, median).
+HELP_BUDGET_S = 1.0
+
+
+def wall_times(command: list[str], runs: int) -> list[float]:
+    """Wall-clock seconds of `runs` fresh runs of command (output discarded); RuntimeError if one fails."""
+    out: list[float] = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        proc = subprocess.run(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, check=False)
+        out.append(time.perf_counter() - t)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(command)} exited {proc.returncode}: {proc.stderr.decode()[-500:]}")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=int, default=15, help="fresh processes per command (default 15)")
+    parser.add_argument("--graspd", help="the graspd executable (default: the one beside this Python, else PATH)")
+    args = parser.parse_args(argv)
+    exe = args.graspd or str(Path(sys.executable).with_name("graspd"))
+    if not Path(exe).is_file():
+        exe = shutil.which("graspd") or ""
+    if not exe:
+        print("bench/cli.py: no graspd executable found; pass --graspd PATH (make setup installs one)",
+              file=sys.stderr)
+        return 2
+    commands = {
+        "python -c pass (interpreter alone)": [sys.executable, "-c", "pass"],
+        "graspd --help": [exe, "--help"],
+        "graspd --version": [exe, "--version"],
+        "graspd detect --help": [exe, "detect", "--help"],
+    }
+    print(f"{args.runs} fresh runs each, {os.cpu_count()} cores visible ({len(os.sched_getaffinity(0))} usable)\n")
+    print("| command | median (s) | min (s) | max (s) |")
+    print("|---|---:|---:|---:|")
+    medians: dict[str, float] = {}
+    for name, command in commands.items():
+        times = wall_times(command, args.runs)
+        medians[name] = statistics.median(times)
+        print(f"| `{name}` | {medians[name]:.3f} | {min(times):.3f} | {max(times):.3f} |")
+    verdict = "within" if medians["graspd --help"] <= HELP_BUDGET_S else "OVER"
+    print(f"\n`graspd --help` median {medians['graspd --help']:.3f} s: {verdict} the {HELP_BUDGET_S:g} s budget")
+    return 0 if verdict == "within" else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
