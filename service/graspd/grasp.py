@@ -29,12 +29,39 @@ def rotation_to_quat_xyzw(rotations: F64) -> F64:
     return np.asarray(Rotation.from_matrix(rotations).as_quat(), np.float64)
 
 
+#: How selection combines the ranking terms (the response's ranking_rule says the same to a person).
+RANKING_RULE = ("key = classifier x utility x width x unknown: classifier is the model's probability (1 when "
+                "unscored), utility J(h) of the IJRR paper (top approaches and high grasps first, from the "
+                "support up), width in [0.2, 1] (a grasp whose object fills the opening ranks lower), unknown = "
+                "1 - the share of the hand in space no camera saw; grasps are sorted by key, best first")
+
+
+@dataclass(frozen=True)
+class Ranking:
+    """The terms that ranked M grasps (each (M,), dimensionless): see RANKING_RULE."""
+
+    classifier: F64
+    utility: F64
+    width: F64
+    unknown: F64
+    key: F64
+
+    def __getitem__(self, index: Any) -> Ranking:
+        return Ranking(*(getattr(self, f)[index] for f in ("classifier", "utility", "width", "unknown", "key")))
+
+    def to_dicts(self) -> list[dict[str, float]]:
+        cols = (self.classifier, self.utility, self.width, self.unknown, self.key)
+        return [{"classifier": float(c), "utility": float(u), "width": float(w), "unknown": float(k),
+                 "key": float(y)} for c, u, w, k, y in zip(*cols, strict=True)]
+
+
 @dataclass(frozen=True)
 class GraspSet:
-    """M grasps: positions (M,3), rotations (M,3,3), widths (M,), scores (M,), samples (M,3).
+    """M grasps: positions (M,3), rotations (M,3,3), widths (M,), scores (M,), samples (M,3), and unknown (M,):
+    the share of each open hand and its approach path that lies in space no camera saw (NaN: not checked).
 
     scores are NaN until a classifier has scored the set; widths are the object extent between
-    the fingers along the binormal (m).
+    the fingers along the binormal (m).  ranking: the terms selection ranked them by (None before selection).
     """
 
     positions: F64 = field(default_factory=lambda: _empty(3))
@@ -42,12 +69,24 @@ class GraspSet:
     widths: F64 = field(default_factory=lambda: _empty())
     scores: F64 = field(default_factory=lambda: _empty())
     samples: F64 = field(default_factory=lambda: _empty(3))
+    unknown: F64 | None = None
+    ranking: Ranking | None = None
 
     def __post_init__(self) -> None:
         m = len(self.positions)
-        for name in ("rotations", "widths", "scores", "samples"):
+        if self.unknown is None:
+            object.__setattr__(self, "unknown", np.full(m, np.nan))
+        for name in ("rotations", "widths", "scores", "samples", "unknown"):
             if len(getattr(self, name)) != m:
                 raise ValueError(f"GraspSet.{name} has {len(getattr(self, name))} rows, expected {m}")
+        if self.ranking is not None and len(self.ranking.key) != m:
+            raise ValueError(f"GraspSet.ranking has {len(self.ranking.key)} rows, expected {m}")
+
+    @property
+    def unknown_share(self) -> F64:
+        """unknown as an array (M,) (the field is never None after construction)."""
+        assert self.unknown is not None
+        return self.unknown
 
     def __len__(self) -> int:
         return int(self.positions.shape[0])
@@ -62,6 +101,8 @@ class GraspSet:
             widths=self.widths[index],
             scores=self.scores[index],
             samples=self.samples[index],
+            unknown=self.unknown_share[index],
+            ranking=None if self.ranking is None else self.ranking[index],
         )
 
     @property
@@ -92,6 +133,10 @@ class GraspSet:
     def with_scores(self, scores: NDArray[np.floating]) -> GraspSet:
         return replace(self, scores=np.asarray(scores, np.float64).reshape(-1))
 
+    def with_unknown(self, unknown: NDArray[np.floating]) -> GraspSet:
+        """The set with each hand's share in unseen space (M,) recorded."""
+        return replace(self, unknown=np.asarray(unknown, np.float64).reshape(-1))
+
     def transformed(self, rotation: NDArray[np.floating], translation: NDArray[np.floating]) -> GraspSet:
         """The grasps moved rigidly by p -> R p + t."""
         r = np.asarray(rotation, np.float64)
@@ -113,6 +158,7 @@ class GraspSet:
             widths=np.concatenate([s.widths for s in sets]),
             scores=np.concatenate([s.scores for s in sets]),
             samples=np.concatenate([s.samples for s in sets]),
+            unknown=np.concatenate([s.unknown_share for s in sets]),
         )
 
     def to_dicts(self) -> list[dict[str, Any]]:

@@ -5,17 +5,18 @@ approach direction within a cone.  Clustering follows GPD: two hands agree when 
 within axis_angle_deg and one's position lies within axis_distance of the other's axis line (and
 within max_distance); each cluster keeps its best member (with its own classifier score) and is
 ranked by the sum of its members' scores (or their count when unscored).  That rank is multiplied
-by the utility J(h) of the IJRR paper when a gravity direction is given.
+by the utility J(h) of the IJRR paper when a gravity direction is given, by a width preference and by the share
+of the hand in space the cameras saw (grasp.RANKING_RULE); the terms travel with the grasps (GraspSet.ranking).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .grasp import GraspSet
+from .grasp import GraspSet, Ranking
 from .preprocess import Workspace
 
 Vec3 = tuple[float, float, float]
@@ -145,5 +146,9 @@ def select(grasps: GraspSet, params: SelectionParams, use_selection: bool = True
         # Cluster the best candidates only: pairwise tests are O(n^2) in memory.
         top = np.argsort(-np.nan_to_num(g.scores, nan=0.0), kind="stable")[: params.cluster_max_candidates]
         g, _, rank = cluster(g[np.sort(top)], params)
-    key = rank * utility(g, params, params.table_height) * width_preference(g, params)
-    return g[np.argsort(-np.nan_to_num(key, nan=-np.inf), kind="stable")][: params.max_grasps]
+    util, width = utility(g, params, params.table_height), width_preference(g, params)
+    seen = 1.0 - np.clip(np.nan_to_num(g.unknown_share, nan=0.0), 0.0, 1.0)
+    key = rank * util * width * seen
+    ranked = replace(g, ranking=Ranking(classifier=np.asarray(rank, np.float64), utility=util, width=width,
+                                        unknown=seen, key=key))
+    return ranked[np.argsort(-np.nan_to_num(key, nan=-np.inf), kind="stable")][: params.max_grasps]
