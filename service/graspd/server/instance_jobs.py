@@ -9,10 +9,12 @@ and load again at the next start like any other.
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import importlib.util
 import json
 import logging
+import math
 import os
 import signal
 import subprocess
@@ -20,6 +22,7 @@ import sys
 import threading
 import time
 import uuid
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,8 +33,9 @@ import graspd
 import graspd_client
 from graspd import classifier
 from graspd.instances import BASE_MODELS, parse_progress
+from graspd.world.mesh_file import MeshError, MeshLimits, check_declared_counts
 
-from .problems import Problem
+from .problems import Problem, from_wire
 from .registry import ModelRegistry
 from .settings import Settings
 
@@ -101,6 +105,8 @@ class InstanceJobs:
         self._proc: subprocess.Popen[str] | None = None
         self._closed = False
         self._thread: threading.Thread | None = None
+        self.checks = MeshCheckGate(settings.instance_check_workers, settings.instance_check_queue,
+                                    settings.max_retry_after_s)
 
     # ---- requests ----
 
@@ -308,17 +314,66 @@ class InstanceJobs:
             self._thread.join(timeout)
 
 
+class MeshCheckGate:
+    """At most `workers` mesh checks at once (each a process of ~300-400 MB), at most `queue` more waiting for
+    one; a check beyond that, or one that waited wait_s, gets 503 with Retry-After.  Thread-safe (the route runs
+    the check on a worker thread)."""
+
+    def __init__(self, workers: int, queue: int, retry_after_s: float) -> None:
+        self.workers, self.queue, self.retry_after_s = workers, queue, retry_after_s
+        self._cond = threading.Condition()
+        self.running = 0
+        self.waiting = 0
+
+    def _busy(self, why: str) -> Problem:
+        return Problem(503, f"{why}: {self.workers} mesh check(s) running and {self.waiting} waiting; try later",
+                       None, retry_after=self.retry_after_s)
+
+    @contextlib.contextmanager
+    def slot(self, wait_s: float) -> Iterator[None]:
+        """Hold one of the workers while the with-block runs (waiting at most wait_s s for it)."""
+        with self._cond:
+            if self.running >= self.workers and self.waiting >= self.queue:
+                raise self._busy("too many meshes are being checked")
+            self.waiting += 1
+            try:
+                free = self._cond.wait_for(lambda: self.running < self.workers, wait_s)
+            finally:
+                self.waiting -= 1
+            if not free:
+                raise self._busy(f"no mesh check started within {wait_s:g} s")
+            self.running += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self.running -= 1
+                self._cond.notify()
+
+
+def check_declared(content: bytes, suffix: str, max_bytes: int) -> None:
+    """In this process, before anything is parsed: Problem 422 naming mesh when the file's declared counts
+    cannot be backed by its bytes or exceed the limits (graspd.world.mesh_file.check_declared_counts).  Reads
+    only the bytes already received: no allocation grows with what a header claims."""
+    try:
+        check_declared_counts(content, suffix, MeshLimits(max_bytes=max_bytes))
+    except MeshError as exc:
+        raise from_wire(exc) from None
+
+
 def check_mesh(path: Path, category: str | None, hand: dict[str, float], max_bytes: int,
-               timeout_s: float = 120.0) -> None:
+               timeout_s: float = 120.0, memory_mb: int = 0) -> None:
     """Check an uploaded mesh (graspd.world.mesh_file) in a process of its own, so that a hostile file cannot take
-    the service down; Problem 422 naming the field when the mesh cannot be an instance."""
+    the service down: its address space capped at memory_mb MiB (RLIMIT_AS; 0: none), its CPU time and wall
+    time at timeout_s, one OpenMP thread; Problem 422 naming the field when the mesh cannot be an instance."""
     cmd = [sys.executable, "-m", "graspd.world.mesh_file", str(path), "--category", category or "other",
-           "--hand", json.dumps(hand), "--max-bytes", str(max_bytes)]
-    env = {**os.environ, "PYTHONPATH": _pythonpath()}
+           "--hand", json.dumps(hand), "--max-bytes", str(max_bytes), "--max-memory-mb", str(memory_mb),
+           "--max-cpu-s", str(max(1, math.ceil(timeout_s)))]
+    env = {**os.environ, "PYTHONPATH": _pythonpath(), "OMP_NUM_THREADS": "1", "MALLOC_ARENA_MAX": "2"}
     try:
         done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, env=env, check=False)
     except subprocess.TimeoutExpired:
-        raise Problem(422, f"the mesh could not be read within {timeout_s:g} s", "mesh") from None
+        raise Problem(422, f"the mesh could not be checked within {timeout_s:g} s (simplify it)", "mesh") from None
     lines = done.stdout.strip().splitlines()
     try:
         verdict = json.loads(lines[-1]) if lines else None
@@ -326,7 +381,11 @@ def check_mesh(path: Path, category: str | None, hand: dict[str, float], max_byt
         verdict = None
     if done.returncode != 0 or not isinstance(verdict, dict):
         log.info("mesh check failed", extra={"status": done.returncode, "stderr": done.stderr[-2000:]})
-        raise Problem(422, "the mesh could not be read (not a valid .obj, .stl or .ply surface mesh)", "mesh")
+        if done.returncode in (-signal.SIGXCPU, -signal.SIGKILL):
+            raise Problem(422, f"the mesh could not be checked within {timeout_s:g} s of CPU time (simplify it)",
+                          "mesh")
+        raise Problem(422, "the mesh could not be read (not a valid .obj, .stl or .ply surface mesh, or it needs "
+                           f"more than {memory_mb} MiB to read)", "mesh")
     if not verdict.get("ok"):
         raise Problem(422, str(verdict.get("error")), str(verdict.get("field") or "mesh"))
 

@@ -125,6 +125,15 @@ class Settings(BaseSettings):
     instance_queue: int = Field(default=2, ge=0, description="instance jobs that may wait behind the running one "
                                 "before POST /models answers 503")
     instance_max_mesh_bytes: int = Field(default=16 << 20, gt=0, description="largest mesh upload (bytes)")
+    instance_check_workers: int = Field(default=1, ge=1, le=8, description="uploaded meshes checked at once (each "
+                                        "in a process of its own, ~300-400 MB while it runs)")
+    instance_check_queue: int = Field(default=4, ge=0, description="mesh checks that may wait for a worker; more "
+                                      "get 503 with Retry-After")
+    instance_check_memory_mb: int = Field(default=2048, ge=0, description="address-space limit of a mesh check's "
+                                          "process (RLIMIT_AS, MiB; the libraries alone map ~1.1 GB, a 300k-triangle "
+                                          "mesh peaks at ~1.3 GB; 0: none)")
+    instance_check_timeout_s: float = Field(default=60.0, gt=0, description="a mesh check running (CPU time) or "
+                                            "waiting longer fails: 422 (running) or 503 (waiting) (s)")
     instance_timeout_s: float = Field(default=1800.0, gt=0, description="a training job running longer is "
                                       "stopped and fails (s)")
     shutdown_grace_s: float = Field(default=35.0, ge=0, description="on SIGTERM: time running requests get "

@@ -18,7 +18,7 @@ from graspd.instances import INSTANCE_CATEGORIES, NAME_PATTERN, InstanceError, c
 from graspd.world.mesh_file import MESH_SUFFIXES
 
 from ..deps import Authorized, State
-from ..instance_jobs import InstanceJob, check_mesh
+from ..instance_jobs import InstanceJob, check_declared, check_mesh
 from ..problems import Problem, from_wire
 from ..schemas import ErrorBody, InstanceJobOut, ModelsResponse
 from .detect import read_capped
@@ -139,14 +139,19 @@ async def create_model(request: Request, state: State) -> Any:
             raise Problem(413, f"the mesh has {len(content)} bytes, more than {cap} (GRASPD_INSTANCE_MAX_MESH_BYTES)",
                           "mesh")
 
+        check_declared(content, suffix, cap)  # a lying header: 422 here, before any parser or process runs
+        settings = state.settings
+
         def store_and_check() -> None:
-            work.mkdir(parents=True, exist_ok=True)
-            job.mesh.write_bytes(content)
-            try:
-                check_mesh(job.mesh, category, HAND_PRESETS[hand].to_dict(), state.settings.instance_max_mesh_bytes)
-            except Problem:
-                job.mesh.unlink(missing_ok=True)
-                raise
+            with jobs.checks.slot(settings.instance_check_timeout_s):  # 503 + Retry-After when all are busy
+                work.mkdir(parents=True, exist_ok=True)
+                job.mesh.write_bytes(content)
+                try:
+                    check_mesh(job.mesh, category, HAND_PRESETS[hand].to_dict(), cap,
+                               settings.instance_check_timeout_s, settings.instance_check_memory_mb)
+                except Problem:
+                    job.mesh.unlink(missing_ok=True)
+                    raise
 
         await anyio.to_thread.run_sync(store_and_check)
         try:
