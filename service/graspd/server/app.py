@@ -24,7 +24,7 @@ from graspd.parallel import THREADS
 from .deps import ServiceState
 from .engine import DetectionEngine, dumps
 from .instance_jobs import InstanceJobs
-from .logs import begin_request
+from .logs import MAX_REQUEST_ID, begin_request, valid_request_id
 from .metrics import Metrics
 from .problems import Problem
 from .registry import ModelRegistry
@@ -77,9 +77,12 @@ def problem_response(exc: Problem, headers: Mapping[str, str] | None = None) -> 
 
 class RequestGuard:
     """ASGI middleware around every HTTP request: a request id (the contextvar of graspd.server.logs, so every
-    log line carries it; returned as X-Request-ID), and the last line of defence: an exception escaping the
-    routes becomes a 500 whose body holds no internal text (the log has the traceback), answered without
-    re-raising so that uvicorn keeps the keep-alive connection; a client that went away is logged at INFO."""
+    log line carries it; returned as X-Request-ID and in a detection's body): the client's X-Request-ID when it
+    is valid (logs.valid_request_id: 1 to 128 letters, digits and . _ - : ; = + / @), else one made here (an
+    invalid one is logged and replaced, the response header shows which), and the last line of defence: an
+    exception escaping the routes becomes a 500 whose body holds no internal text (the log has the traceback),
+    answered without re-raising so that uvicorn keeps the keep-alive connection; a client that went away is
+    logged at INFO."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
@@ -88,7 +91,12 @@ class RequestGuard:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        ctx = begin_request()
+        sent = next((v for k, v in scope.get("headers", ()) if k == b"x-request-id"), None)
+        given = valid_request_id(sent.decode("latin-1")) if sent is not None else None
+        ctx = begin_request(given)
+        if sent is not None and given is None:
+            log.info("X-Request-ID refused: 1 to %d letters, digits or . _ - : ; = + / @ are allowed; using a new "
+                     "id", MAX_REQUEST_ID, extra={"path": scope.get("path"), "refused_id": repr(sent[:MAX_REQUEST_ID])})
         started = False
 
         async def send_with_id(message: Message) -> None:

@@ -237,14 +237,18 @@ class DetectionEngine:
             ctx = current_request()
             with THREADS.request():  # concurrent requests share the cores (graspd.parallel)
                 det = self._detect(req, cloud, params, hand, model)
+            # request_id: the client's X-Request-ID, else made here; detection_id (GPD grasp ids) always made here
+            detection_id = ctx.detection_id if ctx is not None else uuid.uuid4().hex[:16]
             if isinstance(det, TemplateDetection):
                 request_id = det.detection_id or uuid.uuid4().hex
-                if ctx is not None:
+                if ctx is not None and ctx.given:
+                    request_id = ctx.id  # the client's id stays; the grasp ids name the detection
+                elif ctx is not None:
                     ctx.id = request_id  # the request's later log lines and X-Request-ID carry the returned id
                 used_hand = self.templates.library.hand
             else:
-                request_id = ctx.id if ctx is not None else uuid.uuid4().hex[:16]
-                self.templates.remember(request_id, cloud, det)
+                request_id = ctx.id if ctx is not None else detection_id
+                self.templates.remember(detection_id, cloud, det)
                 used_hand = det.hand
             if on_detection is not None:
                 on_detection(det, cloud, used_hand)
@@ -263,7 +267,7 @@ class DetectionEngine:
             fits = None if isinstance(det, TemplateDetection) else self.registry.fits(det.model, used_hand)
             return DetectResponse.from_detection(det, request_id=request_id, timings=timings, hand=used_hand,
                                                  crops=crops, header=header or None,
-                                                 model_fits_hand=fits).to_json()
+                                                 model_fits_hand=fits, detection_id=detection_id).to_json()
         finally:
             elapsed = time.perf_counter() - start
             with self._lock:

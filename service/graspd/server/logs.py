@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import sys
 import time
 import uuid
 from contextvars import ContextVar
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 _STANDARD = set(logging.LogRecord("", 0, "", 0, "", None, None).__dict__) | {"message", "asctime"}
@@ -17,20 +18,48 @@ _STANDARD = set(logging.LogRecord("", 0, "", 0, "", None, None).__dict__) | {"me
 _DROPPED = {"color_message"}
 
 
+#: Longest request id a client may choose (X-Request-ID), characters.
+MAX_REQUEST_ID = 128
+#: What a client-chosen request id may hold: letters, digits and . _ - : ; = + / @ (UUIDs, ULIDs, trace ids),
+#: nothing that could break a log line, a header or a JSON string.
+REQUEST_ID_PATTERN = re.compile(r"[A-Za-z0-9._\-:;=+/@]{1," + str(MAX_REQUEST_ID) + "}")
+
+
+def new_id() -> str:
+    """A server-made id: 16 hex digits."""
+    return uuid.uuid4().hex[:16]
+
+
+def valid_request_id(value: str | None) -> str | None:
+    """value when it may serve as a request id (REQUEST_ID_PATTERN: 1 to MAX_REQUEST_ID safe characters),
+    else None (the server makes one)."""
+    if value is None or not REQUEST_ID_PATTERN.fullmatch(value):
+        return None
+    return value
+
+
 @dataclass
 class RequestContext:
-    """The request being served; `id` is what the response returns as request_id (and X-Request-ID).  Mutable:
-    a template detection replaces it with its detection id, seen by the request's later log lines."""
+    """The request being served.  `id` is what the response returns as request_id (and X-Request-ID) and what
+    every log line of the request carries: the client's X-Request-ID when it sent a valid one (`given`), else
+    one made here.  `detection_id` is always made here (16 hex digits, unique): GPD grasp ids are
+    "<detection_id>-<k>", so a client reusing its ids cannot make feedback name another detection's grasp; it
+    equals `id` when the client chose none.  Mutable: a template detection without a client id replaces `id`
+    with its detection id, seen by the request's later log lines."""
 
     id: str
+    given: bool = False
+    detection_id: str = field(default_factory=new_id)
 
 
 _request: ContextVar[RequestContext | None] = ContextVar("graspd_request", default=None)
 
 
-def begin_request() -> RequestContext:
-    """A fresh request id (16 hex digits) for this task's context and the work it hands to threads."""
-    ctx = RequestContext(uuid.uuid4().hex[:16])
+def begin_request(given: str | None = None) -> RequestContext:
+    """The request id for this task's context and the work it hands to threads: given (a client's
+    X-Request-ID, already checked with valid_request_id) or a fresh one (16 hex digits)."""
+    made = new_id()
+    ctx = RequestContext(given, True, made) if given is not None else RequestContext(made, False, made)
     _request.set(ctx)
     return ctx
 

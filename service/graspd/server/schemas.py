@@ -518,9 +518,10 @@ class RosHeader(BaseModel):
     stamp: RosStamp
 
 
-def gpd_grasp_id(request_id: str, k: int) -> str:
-    """The id of the k-th GPD grasp of a detection ("<request id>-<k>"; feedback parses it back)."""
-    return f"{request_id}-{k}"
+def gpd_grasp_id(detection_id: str, k: int) -> str:
+    """The id of the k-th GPD grasp of a detection ("<detection id>-<k>", the detection id 16 hex digits made
+    by the server: the request id unless the client chose its own X-Request-ID; feedback parses it back)."""
+    return f"{detection_id}-{k}"
 
 
 class DetectResponse(BaseModel):
@@ -528,7 +529,9 @@ class DetectResponse(BaseModel):
     that do not apply to a method (environment, num_entries, header, a grasp's crop or template fields) are
     left out of the JSON rather than sent as null."""
 
-    request_id: str
+    request_id: str = Field(description="the request's id: the client's X-Request-ID when it sent a valid one (1 "
+                            "to 128 letters, digits and . _ - : ; = + / @), else one the server made; the "
+                            "X-Request-ID response header and every server log line of the request carry it")
     method: Literal["gpd", "templates"] = Field("gpd", description="the detector that answered")
     grasps: list[GraspOut] = Field(description=RANKING)
     timings: dict[str, float] = Field(description="seconds per stage: decode, queue, preprocess, scene, sample, "
@@ -555,16 +558,17 @@ class DetectResponse(BaseModel):
     @classmethod
     def from_detection(cls, det: Detection | TemplateDetection, *, request_id: str, timings: dict[str, float],
                        hand: HandGeometry, crops: list[dict[str, Any]] | None = None,
-                       header: dict[str, Any] | None = None, model_fits_hand: bool | None = None
-                       ) -> DetectResponse:
+                       header: dict[str, Any] | None = None, model_fits_hand: bool | None = None,
+                       detection_id: str | None = None) -> DetectResponse:
         """The response to a detection, validated against this model (so what is sent cannot drift from what
-        is documented).  Grasp ids are assigned here: gpd "<request id>-<k>", templates the ids the library
-        recorded.  crops: one CropOut-shaped dict per grasp; header: the ROS header of a CDR input (Zenoh).
+        is documented).  Grasp ids are assigned here: gpd "<detection id>-<k>" (detection_id: the server's id
+        of the detection, default request_id), templates the ids the library recorded.  crops: one
+        CropOut-shaped dict per grasp; header: the ROS header of a CDR input (Zenoh).
         Cost at 100 grasps: ~1.2 ms to build, validate (pydantic-core) and serialise (to_json), against ~0.9 ms
         for the unvalidated dicts and orjson this replaced: a fraction of a percent of a detection."""
         g = det.grasps
         templates = isinstance(det, TemplateDetection)
-        ids = det.grasp_ids if isinstance(det, TemplateDetection) else [gpd_grasp_id(request_id, k)
+        ids = det.grasp_ids if isinstance(det, TemplateDetection) else [gpd_grasp_id(detection_id or request_id, k)
                                                                         for k in range(len(g))]
         cols = (ids, g.positions.tolist(), g.approach.tolist(), g.binormal.tolist(), g.axis.tolist(),
                 g.widths.tolist(), g.scores.tolist(), g.samples.tolist(), g.poses.tolist(), g.quat_xyzw.tolist())
