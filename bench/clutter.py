@@ -47,6 +47,7 @@ import numpy as np  # noqa: E402
 
 from graspd.classifier import available_models, default_model_name, load_model, read_card  # noqa: E402
 from graspd.classifier import default_models_dir as models_dir  # noqa: E402
+from graspd.progress import Progress  # noqa: E402
 from graspd.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, TopDownBaseline  # noqa: E402
 from graspd.sim.protocol import RoundResult, Setting, Summary, cameras_for, run_round, summarize  # noqa: E402
 from graspd.sim.sensing import observe, render_rgb  # noqa: E402
@@ -361,13 +362,18 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.perf_counter()
             if done:
                 print(f"{spec}: resuming, {len(seeds) - len(jobs)} of {len(seeds)} rounds recorded", flush=True)
-            if args.jobs > 1:
-                with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-                    for r in pool.map(_one_round, jobs):
+            pool = ProcessPoolExecutor(max_workers=args.jobs) if args.jobs > 1 else None
+            finished = pool.map(_one_round, jobs) if pool is not None else map(_one_round, jobs)
+            succeeded = attempted = 0
+            try:
+                with Progress(len(jobs), spec, "round") as bar:  # a bar on a terminal, a line a minute in a log
+                    for r in finished:
                         done[r.seed] = record_round(log, spec, setting, r)
-            else:
-                for j in jobs:
-                    done[j[-1]] = record_round(log, spec, setting, _one_round(j))
+                        succeeded, attempted = succeeded + r.successes, attempted + r.attempts
+                        bar.update(1, grasps=f"{succeeded}/{attempted} succeeded")
+            finally:
+                if pool is not None:
+                    pool.shutdown()
             results = [done[s] for s in seeds]
             summaries[spec] = summarize(results)
             rounds[spec] = [r.to_dict() for r in results]

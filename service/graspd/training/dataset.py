@@ -44,7 +44,6 @@ import argparse
 import hashlib
 import json
 import multiprocessing as mp
-import sys
 import time
 import zipfile
 from collections.abc import Iterator
@@ -62,6 +61,7 @@ from ..hand import HAND_PRESETS, HandGeometry, hand_preset
 from ..images import channel_layout, encode_images
 from ..plot import gripper_segments
 from ..preprocess import PreprocessParams, preprocess
+from ..progress import Progress
 from ..scene import Scene
 from ..world.cameras import PAPER_CAMERA_SEPARATION_DEG, Camera, random_view
 from ..world.noise import DepthNoise
@@ -448,15 +448,16 @@ def chunks_sha256(chunks: list[dict[str, Any]]) -> str:
 
 
 def _collect(results: Iterator[Any], n: int, t0: float, progress: bool) -> list[Any]:
+    """The n chunk results, in the order they come; progress: a graspd.progress display of the chunks (a bar
+    on a terminal, a line a minute in a log) with the exemplars written and their rate."""
     out = []
     rows = 0
-    for i, r in enumerate(results):
-        out.append(r)
-        rows += r[3]["rows"]
-        if progress:
+    with Progress(n, "dataset chunks", "chunk", mode=None if progress else "off") as bar:
+        for r in results:
+            out.append(r)
+            rows += r[3]["rows"]
             dt = time.perf_counter() - t0
-            print(f"chunk {i + 1}/{n}: {rows} exemplars, {dt:.0f} s, {60 * rows / max(dt, 1e-9):.0f}/min",
-                  file=sys.stderr, flush=True)
+            bar.update(1, exemplars=rows, per_min=round(60 * rows / max(dt, 1e-9)))
     return out
 
 

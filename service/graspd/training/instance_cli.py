@@ -17,6 +17,7 @@ from graspd_client.codec import WireError
 from ..classifier import default_models_dir
 from ..hand import HAND_PRESETS, hand_preset
 from ..instances import INSTANCE_CATEGORIES, progress_line
+from ..progress import Progress
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -54,9 +55,17 @@ def run(args: argparse.Namespace, argv: list[str] | None = None) -> int:
 
     out = sys.stderr if args.progress_json else sys.stdout
 
+    views: list[Progress] = []  # the rendering stage's display (graspd.progress), once it starts
+
     def emit(event: dict[str, Any]) -> None:
         if args.progress_json:
             print(progress_line(event), flush=True)
+        elif event.get("stage") == "dataset":
+            if not views:
+                views.append(Progress(int(event["views"]), f"[{args.name}] rendering and labelling views", "view"))
+            views[0].update(1, exemplars=event["exemplars"])
+            if event["view"] >= event["views"]:
+                views[0].close()
 
     def log(line: str) -> None:
         print(line, file=sys.stderr if args.progress_json else sys.stdout, flush=True)

@@ -21,6 +21,7 @@ from torch import nn
 
 from ..classifier import default_models_dir
 from ..images import REPRESENTATIONS
+from ..progress import Progress
 from .augment import augment
 from .config import TrainConfig
 from .dataset import derive_images, read_manifest, sha256_file
@@ -300,26 +301,30 @@ def train(config: TrainConfig, out_dir: str | Path, log: Any = print,
         net.train()
         total, seen = 0.0, 0
         out_of_time = False
-        for a in range(0, len(order), config.batch_size):
-            idx = order[a : a + config.batch_size]
-            # cosine learning-rate decay over the run: over the steps, or over the time budget if that ends first
-            progress = step / total_steps
-            if limit_s is not None:
-                progress = max(progress, elapsed() / limit_s)
-            if progress >= 1.0:
-                out_of_time = True
-                break
-            for group in opt.param_groups:
-                group["lr"] = float(config.learning_rate * 0.5 * (1.0 + np.cos(np.pi * progress)))
-            step += 1
-            x = _to_tensor(batch_images(idx))
-            y = torch.from_numpy(batch_labels(idx).astype(np.int64))
-            opt.zero_grad(set_to_none=True)
-            loss = loss_fn(net(x), y)
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-            seen += len(idx)
+        # the epoch's batches: a bar on a terminal, a line a minute in a log (graspd.progress)
+        with Progress(-(-len(order) // config.batch_size), f"[{config.name}] epoch {epoch + 1}/{config.epochs}",
+                      "batch") as bar:
+            for a in range(0, len(order), config.batch_size):
+                idx = order[a : a + config.batch_size]
+                # cosine learning-rate decay over the run: over the steps, or over the time budget if that ends first
+                progress = step / total_steps
+                if limit_s is not None:
+                    progress = max(progress, elapsed() / limit_s)
+                if progress >= 1.0:
+                    out_of_time = True
+                    break
+                for group in opt.param_groups:
+                    group["lr"] = float(config.learning_rate * 0.5 * (1.0 + np.cos(np.pi * progress)))
+                step += 1
+                x = _to_tensor(batch_images(idx))
+                y = torch.from_numpy(batch_labels(idx).astype(np.int64))
+                opt.zero_grad(set_to_none=True)
+                loss = loss_fn(net(x), y)
+                loss.backward()
+                opt.step()
+                total += loss.item() * len(idx)
+                seen += len(idx)
+                bar.update(1, loss=round(total / seen, 4))
         if seen == 0:  # the time budget ran out at the end of the previous epoch
             stopped = "time_limit"
             break

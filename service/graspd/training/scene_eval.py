@@ -23,6 +23,7 @@ import numpy as np
 from ..detector import DetectionParams, GraspDetector, Scorer, cascade_mask
 from ..hand import HandGeometry
 from ..images import encode_images
+from ..progress import track
 from ..world.objects import HELD_OUT_URDFS
 from .labels import label_grasps
 from .scene_data import SceneParams, SceneView, scene_spec, scene_views
@@ -85,7 +86,7 @@ def evaluate_scenes(scorer: Scorer, views: list[SceneView], hand: HandGeometry |
     labels_params = SceneParams().labels
     per_scene = []
     all_scores, all_labels = [], []
-    for i, view in enumerate(views):
+    for i, view in enumerate(track(views, f"scenes ({scorer.name if scorer is not None else 'unscored'})", "scene")):
         p = DetectionParams(num_samples=num_samples, workspace=view.workspace, seed=seed + i)
         answer = det.detect(view.cloud, p, h)
         served = label_grasps(view.truth, answer.grasps[:max(TOP_K)], h, labels_params, view.graspable).grasp
