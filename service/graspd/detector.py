@@ -22,6 +22,7 @@ from .environment import Environment, EnvironmentParams, Label, hand_hits_enviro
 from .grasp import GraspSet
 from .hand import HandGeometry
 from .images import encode_batches
+from .occlusion import MAX_UNKNOWN_SHARE, UNKNOWN_SPACE_MODES, UnknownSpace, unknown_share
 from .parallel import THREADS
 from .preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
 from .scene import ClosingRegionPoints, Scene
@@ -55,7 +56,9 @@ class DetectionParams:
     rounds of early_stop_round and stop once 2 x max_grasps candidates in distinct 2 cm cells score at least
     min_score (else 0.5); deterministic for a seed.  cascade (with a detector that has a prefilter): a cheap
     first pass scores every candidate and only the best cascade_keep fraction (at least cascade_min) are
-    encoded and scored by the full model; the rest are dropped."""
+    encoded and scored by the full model; the rest are dropped.  unknown_space "avoid" (default): a hand with more
+    than max_unknown of its fingers, palm or approach path in space no camera saw (behind a seen surface from
+    every camera) is treated as colliding; "allow" checks the seen points only, as GPD does."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -86,6 +89,8 @@ class DetectionParams:
     cascade: bool = True
     cascade_keep: float = 0.3
     cascade_min: int = 200
+    unknown_space: UnknownSpace = "avoid"
+    max_unknown: float = MAX_UNKNOWN_SHARE
     sample_points: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -104,6 +109,10 @@ class DetectionParams:
         if not 0.0 < self.cascade_keep <= 1.0 or self.cascade_min < 1:
             raise ValueError(f"cascade_keep must be in (0, 1] and cascade_min >= 1, got {self.cascade_keep}, "
                              f"{self.cascade_min}")
+        if self.unknown_space not in UNKNOWN_SPACE_MODES:
+            raise ValueError(f"unknown_space must be one of {UNKNOWN_SPACE_MODES}, got {self.unknown_space!r}")
+        if not 0.0 <= self.max_unknown <= 1.0:
+            raise ValueError(f"max_unknown must be in [0, 1], got {self.max_unknown}")
         if not 0.0 <= self.width_margin <= 0.1:
             raise ValueError(f"width_margin must be in [0, 0.1] m, got {self.width_margin}")
 
@@ -230,6 +239,15 @@ class GraspDetector:
         t = time.perf_counter()
         rng = np.random.default_rng(p.seed)
         grasps = select(candidates, sel, use_selection=p.use_selection, rng=rng)
+        warnings = list(env.warnings)
+        if p.unknown_space == "allow" and len(grasps):
+            top = grasps[:10]
+            share = unknown_share(scene.unobserved, top.positions, top.rotations, h, p.approach_distance)
+            if (share > p.max_unknown).any():
+                warnings.append(DetectionWarning(
+                    "unknown_space", f"{int((share > p.max_unknown).sum())} of the top {len(top)} grasps put "
+                    f"up to {100 * float(share.max()):.0f}% of the hand into space no camera saw (unknown_space "
+                    "is 'allow'); a hidden neighbour may be there"))
         lap("select")
         timings["total"] = time.perf_counter() - t0
         return Detection(
@@ -241,6 +259,7 @@ class GraspDetector:
             num_points=len(prep.cloud),
             hand=h,
             environment=env,
+            warnings=tuple(warnings),
         )
 
     def prepare(self, cloud: ViewpointCloud, p: DetectionParams, h: HandGeometry,
@@ -269,7 +288,7 @@ class GraspDetector:
                                   num_finger_placements=p.num_finger_placements, frame_radius=p.frame_radius,
                                   seed=p.seed, sample_pool=pool, sample_indices=_nearest(scene, p),
                                   clear_behind=h.palm_depth + p.approach_distance if modelled else None,
-                                  obstacles=None if plane is None else env.labels != Label.SUPPORT,
+                                  obstacles=None if plane is None else ~env.closed_form_mask(prepared.points),
                                   support=plane, support_clearance=env.clearance)
         return Prepared(cloud=prepared, environment=env, scene=scene, sampling=sampling,
                         selection=p.selection(h, env))
@@ -282,7 +301,14 @@ class GraspDetector:
         cands, region = search_hands(prep.scene, h, sampling)
         feasible = feasible_mask(cands, replace(prep.selection, min_score=None))
         if prep.environment.mode != "none":
-            feasible &= ~environment_conflicts(cands, region, prep.environment, h, p.approach_distance)
+            feasible[feasible] = ~environment_conflicts(cands[feasible], region.subset(feasible),
+                                                        prep.environment, h, p.approach_distance)
+        if p.unknown_space == "avoid" and feasible.any():
+            share = np.full(len(cands), np.nan)
+            share[feasible] = unknown_share(prep.scene.unobserved, cands.positions[feasible],
+                                            cands.rotations[feasible], h, p.approach_distance)
+            feasible &= ~(share > p.max_unknown)
+            cands = cands.with_unknown(share)
         return cands[feasible], region.subset(feasible)
 
 

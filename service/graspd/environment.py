@@ -1,24 +1,34 @@
 """Step 2 of the pipeline: the environment model, which tells the objects from what holds them.
 
-Per request, on the preprocessed cloud: the support surface (the dominant plane the objects stand on,
-oriented toward the cameras; a tray's or bin's floor), container walls (planar patches that stand on the
-support and are longer than anything the hand could lift, modelled as boxes), and static geometry the
-caller declares (a support plane, boxes).  Candidates are sampled on object points only, their closing
-region must hold no environment point, and no part of the hand or its approach path may enter the
-environment (see hand_hits_environment).  Everything is in the cloud frame, metres.
+Per request, on the preprocessed cloud, from the cameras and geometry alone (no container's dimensions):
+- "up": against gravity when given, else the normal of the dominant plane, oriented toward the cameras;
+- support levels: large up-facing planes at any height (the table; a container's floor raised above it; a
+  platform's top), each larger than anything the hand could lift.  The lowest is `support` (a half-space the
+  hand stays above, in closed form); each raised level is a solid slab down to the level below it;
+- walls: near-vertical planar patches longer than any graspable object that rise from a level (tray, bin,
+  box and shelf walls, either face; two-wall corners), modelled as boxes down to the lowest support;
+- rims: long, thin horizontal lines of points above a level (thin sheet walls seen from above), modelled as
+  thin walls down to the lowest support;
+- what the caller declares (a support plane, boxes), which overrides what is found.
+Every surface is reported (kind, plane, extent, confidence), and when the stage is unsure it says so in
+`warnings`.  Candidates are sampled on object points only, their closing region must hold no environment
+point, and no part of the hand or its approach path may enter the environment (see hand_hits_environment).
+Everything is in the cloud frame, metres.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import ConvexHull, QhullError
 
 from .cloud import ViewpointCloud
 from .hand import HandGeometry
+from .warning import DetectionWarning
 
 F64 = NDArray[np.float64]
 EnvironmentMode = Literal["auto", "declared", "none"]
@@ -96,6 +106,9 @@ class EnvironmentParams:
     wall_min_length (m): a wall patch is at least this long (None: 1.5 x the hand's outer diameter).
     wall_thickness (m): how far behind its visible face a wall is assumed solid.
     clearance (m): the least height of any part of the hand above the support.
+    max_levels: at most this many support levels (table, container floor, platform top); a level above
+    another must cover level_min_fill of its footprint (1 cm cells), so rims at one height are no level.
+    rim_min_length (m): a rim line is at least this long (None: wall_min_length).
     """
 
     mode: EnvironmentMode = "auto"
@@ -112,16 +125,48 @@ class EnvironmentParams:
     ransac_points: int = 6000
     ransac_iterations: int = 200
     clearance: float = 0.003
+    max_levels: int = 4
+    level_min_points: int = 60
+    level_min_fill: float = 0.3
+    wall_base_gap: float = 0.04
+    rim_min_length: float | None = None
+    rim_width: float = 0.006
 
     def __post_init__(self) -> None:
         if self.mode not in ENVIRONMENT_MODES:
             raise ValueError(f"environment.mode must be one of {ENVIRONMENT_MODES}, got {self.mode!r}")
 
 
+SurfaceKind = Literal["support", "floor", "platform", "wall", "rim", "declared"]
+
+
+@dataclass(frozen=True)
+class Surface:
+    """One piece of environment the stage found or was given: its kind, plane (normal toward the free side),
+    the solid box the hand must not enter (None for the lowest support, a half-space), the extent of its
+    points (m, the two in-plane spans, 2nd-98th percentile), how many points it holds and a confidence in
+    [0, 1] (how clearly it passed the tests that made it environment)."""
+
+    kind: SurfaceKind
+    plane: Plane
+    box: Box | None
+    extent: tuple[float, float]
+    num_points: int
+    confidence: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "plane": self.plane.to_dict(),
+                "box": None if self.box is None else self.box.to_dict(),
+                "extent": [float(self.extent[0]), float(self.extent[1])], "num_points": int(self.num_points),
+                "confidence": float(self.confidence)}
+
+
 @dataclass(frozen=True)
 class Environment:
-    """The environment found in one cloud: a label per point (Label), the support plane, wall boxes,
-    declared boxes and "up" (unit, cloud frame; None when nothing says which way is up)."""
+    """The environment found in one cloud: a label per point (Label), the lowest support plane (a half-space),
+    wall boxes (walls, rims and raised support levels: every solid the hand must not enter), declared boxes,
+    "up" (unit, cloud frame; None when nothing says which way is up), every surface found with its kind and
+    confidence, an overall confidence in [0, 1] and the warnings of an unsure stage."""
 
     labels: NDArray[np.int8]
     support: Plane | None = None
@@ -130,6 +175,10 @@ class Environment:
     up: F64 | None = None
     mode: str = "auto"
     clearance: float = 0.003
+    surfaces: tuple[Surface, ...] = ()
+    confidence: float = 1.0
+    warnings: tuple[DetectionWarning, ...] = ()
+    support_distance: float = 0.006
 
     @staticmethod
     def empty(num_points: int, mode: str = "none") -> Environment:
@@ -149,6 +198,14 @@ class Environment:
     def active(self) -> bool:
         return self.support is not None or bool(self.obstacles)
 
+    def closed_form_mask(self, points: NDArray[np.floating]) -> NDArray[np.bool_]:
+        """Support points the lowest support's half-space stands for (the hand search tests the plane in
+        closed form instead of them): SUPPORT points within support_distance of it, or below it."""
+        mask = self.labels == Label.SUPPORT
+        if self.support is None:
+            return np.zeros(len(self.labels), bool)
+        return np.asarray(mask & (self.support.distance(points) <= self.support_distance))
+
     def counts(self) -> dict[str, int]:
         """Points per label, by label name in lower case."""
         n = np.bincount(self.labels.astype(np.int64), minlength=len(Label))
@@ -163,6 +220,8 @@ class Environment:
             "boxes": [b.to_dict() for b in self.boxes],
             "up": None if self.up is None else self.up.tolist(),
             "counts": self.counts(),
+            "surfaces": [f.to_dict() for f in self.surfaces],
+            "confidence": float(self.confidence),
         }
 
 
@@ -248,18 +307,138 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
     return None
 
 
+def _min_area_rectangle(xy: F64) -> tuple[F64, F64, F64]:
+    """The smallest rectangle around 2-D points (N,2): centre (2,), unit axes (2,2) as rows and half sizes (2,)
+    (rotating calipers over the convex hull's edges; a container's floor at any yaw)."""
+    pts = np.unique(np.round(xy, 4), axis=0)
+    try:
+        hull = pts[ConvexHull(pts).vertices] if len(pts) >= 3 else pts
+    except (QhullError, ValueError):
+        hull = pts
+    if len(hull) < 2:
+        return (hull.mean(axis=0) if len(hull) else np.zeros(2)), np.eye(2), np.zeros(2)
+    edges = np.diff(np.vstack([hull, hull[:1]]), axis=0)
+    angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
+    best: tuple[float, F64, F64, F64] | None = None
+    for a in angles:
+        axes = np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])
+        local = hull @ axes.T
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        area = float(np.prod(hi - lo))
+        if best is None or area < best[0]:
+            best = (area, ((lo + hi) / 2.0) @ axes, axes, (hi - lo) / 2.0)
+    assert best is not None
+    return best[1], best[2], best[3]
+
+
+@dataclass(frozen=True)
+class Level:
+    """A support level: its plane (normal up), height along up (m), the 2-D footprint of its points in the
+    plane axes (centre, axes rows, half sizes; m), spans (m) and point count."""
+
+    plane: Plane
+    height: float
+    centre: F64
+    axes: F64
+    half: F64
+    spans: tuple[float, float]
+    num_points: int
+    fill: float
+
+
+def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, min_extent: float
+                ) -> list[Level]:
+    """Support levels, lowest first: up-facing planes (normal within 15 degrees of up) whose points span
+    min_extent in both in-plane directions.  Candidate heights are the peaks of a histogram of up-facing
+    points' heights; each peak is refined by a least-squares plane, so a level may tilt a little from up."""
+    h = points @ up
+    upf = (normals @ up) > np.cos(np.radians(25.0))
+    if upf.sum() < params.level_min_points:
+        return []
+    bin_w = params.plane_distance
+    hu = h[upf]
+    lo = float(hu.min()) - bin_w
+    counts = np.bincount(((hu - lo) / bin_w).astype(np.int64))
+    smooth = counts + np.concatenate([[0], counts[:-1]]) + np.concatenate([counts[1:], [0]])
+    axes2 = _in_plane_axes(up)
+    levels: list[Level] = []
+    for _ in range(2 * params.max_levels + 2):
+        if len(levels) >= params.max_levels or smooth.max() < params.level_min_points:
+            break
+        b = int(np.argmax(smooth))
+        centre_h = lo + (b + 0.5) * bin_w
+        smooth[max(0, b - 3): b + 4] = 0  # this peak is spent, whatever it turns out to be
+        window = upf & (np.abs(h - centre_h) <= 2.0 * bin_w)
+        if window.sum() < params.level_min_points:
+            continue
+        sub = points[window]
+        c = sub.mean(axis=0)
+        _, _, vt = np.linalg.svd(sub - c, full_matrices=False)
+        normal = vt[-1] if float(vt[-1] @ up) > 0.0 else -vt[-1]
+        if float(normal @ up) < np.cos(np.radians(15.0)):
+            normal = up
+        plane = Plane(normal, -float(normal @ c))
+        inliers = upf & (np.abs(plane.distance(points)) <= params.plane_distance)
+        if inliers.sum() < params.level_min_points:
+            continue
+        xy = points[inliers] @ axes2.T
+        spans = (_robust_span(xy[:, 0]), _robust_span(xy[:, 1]))
+        centre, axes, half = _min_area_rectangle(xy[::max(1, len(xy) // 4000)])
+        if min(spans) < min_extent or 2.0 * float(half.min()) < min_extent:
+            continue
+        # how much of its footprint the level covers (1 cm cells): a raised level is a filled surface, not a
+        # ring of rims or scattered object tops at one height
+        cell = 0.01
+        occupied = np.unique(np.floor(((xy - centre) @ axes.T + half) / cell).astype(np.int64), axis=0)
+        fill = len(occupied) / max(float(np.prod(np.ceil(2.0 * half / cell))), 1.0)
+        height = float(c @ up)
+        if any(abs(height - lv.height) < 2.0 * params.support_distance for lv in levels):
+            continue
+        levels.append(Level(plane, height, centre, axes, half, spans, int(inliers.sum()), float(fill)))
+    levels.sort(key=lambda lv: lv.height)
+    return levels[:1] + [lv for lv in levels[1:] if lv.fill >= params.level_min_fill]
+
+
+def _in_footprint(points: F64, level: Level, up: F64, grow: float) -> NDArray[np.bool_]:
+    """Whether each point (N,3) lies over the level's footprint grown by grow (m), at any height."""
+    local = (points @ _in_plane_axes(up).T - level.centre) @ level.axes.T
+    return np.asarray(np.all(np.abs(local) <= level.half + grow, axis=1))
+
+
+def _level_box(level: Level, up: F64, bottom: float, grow: float) -> Box:
+    """The solid under a raised level: its footprint grown by grow (m), from height bottom up to just below the
+    level's surface (fingers may touch a floor, as they touch the table)."""
+    a2 = _in_plane_axes(up)
+    ax3 = level.axes @ a2  # (2,3): the footprint's axes in the cloud frame
+    top = level.height - 0.002
+    centre = (level.centre @ a2) + up * ((top + bottom) / 2.0)
+    rotation = np.stack([ax3[0], ax3[1], np.cross(ax3[0], ax3[1])], axis=1)
+    if float(rotation[:, 2] @ up) < 0.0:
+        rotation[:, 1] *= -1.0
+        rotation[:, 2] *= -1.0
+    return Box(centre, rotation, np.array([level.half[0] + grow, level.half[1] + grow, (top - bottom) / 2.0]))
+
+
 def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: EnvironmentParams,
-               min_length: float, rng: np.random.Generator) -> tuple[Box, ...]:
-    """Wall boxes: near-vertical planar patches standing on the support, at least min_length long.
+               min_length: float, rng: np.random.Generator, candidates: NDArray[np.bool_] | None = None,
+               level_heights: tuple[float, ...] = (0.0,)) -> list[tuple[Box, Plane, float, int, float, bool]]:
+    """Walls: near-vertical planar patches at least min_length long, among the candidate points.
 
     Each box spans the patch's longest gap-free run along the support, from below the support to a little
-    above the patch's top, and from just in front of the visible face to wall_thickness behind it."""
+    above the patch's top, and from just in front of the visible face to the far face when the wall's other
+    side is seen (its parallel, opposite-facing points), else wall_thickness behind it.  Returns (box, plane,
+    length, points, top height, stands) per wall: stands is whether its foot is within wall_base_gap of a
+    support level (level_heights: heights above the support, m); a patch that does not stand is still a
+    solid larger than anything graspable, and lowers the stage's confidence."""
     up = support.normal
     height = support.distance(points)
     # only points on steep surfaces can belong to a wall: RANSAC then never wastes rounds on object tops
     steep = np.abs(normals @ up) < 0.5
-    remaining = points[(height > params.support_distance) & steep]
-    walls: list[Box] = []
+    pool = (height > params.support_distance) & steep
+    if candidates is not None:
+        pool &= candidates
+    remaining = points[pool]
+    walls: list[tuple[Box, Plane, float, int, float, bool]] = []
     min_points = 30
     for _ in range(params.wall_rounds):
         if len(remaining) < min_points or len(walls) >= params.max_walls:
@@ -282,55 +461,218 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         runs = _runs(patch @ along, gap=0.04, min_count=10)
         if not runs or max(b - a for a, b in runs) < min_length:
             continue
+        longest = max(b - a for a, b in runs)
         # the longest gap-free run makes it a wall; objects in front may hide parts of it, so it spans all runs
         s0, s1 = min(a for a, _ in runs), max(b for _, b in runs)
         run = patch[(patch @ along >= s0) & (patch @ along <= s1)]
         h = support.distance(run)
-        if float(h.min()) > 0.03:
-            continue  # does not stand on the support (a shelf edge, a lid)
-        # the visible face points toward the cameras, so the wall's body lies behind it
+        foot = float(np.percentile(h, 1.0))
+        stands = any(abs(foot - lv) <= params.wall_base_gap or foot <= lv + params.wall_base_gap
+                     for lv in level_heights)
         face = float(np.median(run @ across))
-        front, back = params.plane_distance + 0.002, params.wall_thickness
+        # the wall's other face: steep points just behind this one, facing the other way (a wall seen from both
+        # sides, or a thin sheet): the box ends there instead of wall_thickness behind
+        behind = (points @ across) - face
+        strip = ((points @ along >= s0) & (points @ along <= s1) & steep & (behind < -params.plane_distance)
+                 & (behind > -params.wall_thickness - 0.01) & ((normals @ across) < -0.7))
+        back = params.wall_thickness
+        if strip.sum() >= 20:
+            back = min(back, float(-np.percentile(behind[strip], 10.0)) + 0.003)
+        front = params.plane_distance + 0.002
         base, top = -0.02, float(np.percentile(h, 99.0)) + 0.01
         centre = (along * (s0 + s1) / 2.0 + across * (face + (front - back) / 2.0)
                   + up * ((base + top) / 2.0 - support.offset))
         rotation = np.stack([across, along, up], axis=1)
         half = np.array([(front + back) / 2.0, (s1 - s0) / 2.0 + 0.01, (top - base) / 2.0])
-        walls.append(Box(centre, rotation, half))
-    return tuple(walls)
+        walls.append((Box(centre, rotation, half), Plane(across, -face), longest, len(run), top - 0.01, stands))
+    return walls
+
+
+def find_rims(points: F64, support: Plane, params: EnvironmentParams, min_length: float,
+              rng: np.random.Generator, candidates: NDArray[np.bool_]) -> list[tuple[Box, F64, F64, float, int]]:
+    """Rims: long, thin, horizontal lines of points above the support (a thin wall's top seen from above, its
+    faces unseen), each at least min_length gap-free with nothing else at its height beside it.  Returns (box
+    down to the support, point on the line, direction, length, points) per rim."""
+    up = support.normal
+    h = support.distance(points)
+    idx = np.flatnonzero(candidates & (h > 0.015))
+    rims: list[tuple[Box, F64, F64, float, int]] = []
+    if len(idx) < 20:
+        return rims
+    sub = idx if len(idx) <= 1500 else rng.choice(idx, 1500, replace=False)
+    axes2 = _in_plane_axes(up)
+    for _ in range(3):
+        if len(sub) < 20:
+            break
+        pairs = rng.integers(0, len(sub), size=(150, 2))
+        a, b = points[sub[pairs[:, 0]]], points[sub[pairs[:, 1]]]
+        dh = (b - a) @ up
+        d2 = (b - a) @ axes2.T  # (K,2)
+        length = np.linalg.norm(d2, axis=1)
+        ok = (length > 0.05) & (np.abs(dh) < 0.01)
+        if not ok.any():
+            break
+        dirs = d2[ok] / length[ok, None]
+        origin = a[ok] @ axes2.T
+        heights = a[ok] @ up
+        pxy = points[sub] @ axes2.T
+        ph = points[sub] @ up
+        off = np.abs((pxy[None, :, 0] - origin[:, None, 0]) * dirs[:, None, 1]
+                     - (pxy[None, :, 1] - origin[:, None, 1]) * dirs[:, None, 0])
+        band = (off <= params.rim_width) & (np.abs(ph[None, :] - heights[:, None]) <= 0.01)
+        k = int(np.argmax(band.sum(axis=1)))
+        d3 = dirs[k] @ axes2
+        o3 = a[ok][k]
+        # verify on every candidate point
+        rel = points[idx] - o3
+        t = rel @ d3
+        lateral = rel - np.outer(t, d3) - np.outer(rel @ up, up)
+        off_all = np.linalg.norm(lateral, axis=1)
+        same_h = np.abs(rel @ up) <= 0.01
+        on = same_h & (off_all <= params.rim_width)
+        beside = same_h & (off_all > 2 * params.rim_width) & (off_all <= 0.03)
+        sub = np.setdiff1d(sub, idx[on])
+        if on.sum() < 15:
+            continue
+        runs = _runs(t[on], gap=0.03, min_count=10)
+        if not runs:
+            continue
+        s0, s1 = max(runs, key=lambda r: r[1] - r[0])
+        length_run = s1 - s0
+        near_run = (t >= s0) & (t <= s1)
+        if length_run < min_length or (beside & near_run).sum() > 0.3 * (on & near_run).sum():
+            continue
+        top = float(np.percentile(h[idx[on & near_run]], 90.0)) + 0.01
+        across = np.cross(up, d3)
+        centre = o3 + d3 * (s0 + s1) / 2.0 + up * ((top - 0.02) / 2.0 - float(support.distance(o3[None])[0]))
+        rotation = np.stack([across, d3, up], axis=1)
+        half = np.array([params.rim_width + 0.004, length_run / 2.0 + 0.01, (top + 0.02) / 2.0])
+        rims.append((Box(centre, rotation, half), o3, d3, float(length_run), int((on & near_run).sum())))
+    return rims
 
 
 def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: EnvironmentParams | None = None,
                       gravity: tuple[float, float, float] | None = None, seed: int | None = 0) -> Environment:
-    """Label every point of a preprocessed cloud as object, support, wall or declared, and say which way is up
-    (against gravity when given, else the support's normal)."""
+    """Label every point of a preprocessed cloud as object, support, wall or declared, say which way is up
+    (against gravity when given, else the dominant plane's normal toward the cameras), report every surface
+    found and warn when unsure."""
     p = params or EnvironmentParams()
     n = len(cloud)
     if p.mode == "none":
         return Environment.empty(n, "none")
     pts = cloud.points.astype(np.float64)
+    cams = cloud.viewpoints.astype(np.float64)
+    normals = np.zeros_like(pts) if cloud.normals is None else cloud.normals.astype(np.float64)
     g = None if gravity is None else np.asarray(gravity, np.float64) / max(float(np.linalg.norm(gravity)), 1e-12)
     rng = np.random.default_rng(seed if seed is not None else 0)
-    support = p.support
-    if support is None and p.mode == "auto" and n >= 3:
-        min_extent = p.min_support_extent if p.min_support_extent is not None else 1.5 * hand.max_aperture
-        support = find_support(pts, cloud.viewpoints.astype(np.float64), p, min_extent, g, rng)
+    min_extent = p.min_support_extent if p.min_support_extent is not None else 1.5 * hand.max_aperture
     labels = np.zeros(n, np.int8)
-    walls: tuple[Box, ...] = ()
+    surfaces: list[Surface] = []
+    warnings: list[DetectionWarning] = []
+    walls: list[Box] = []
+    support = p.support
+    up: F64 | None = -g if g is not None else None
+    levels: list[Level] = []
+    if p.mode == "auto" and n >= 3 and support is None:
+        if up is None:  # no gravity: up is the dominant plane's normal, toward the cameras
+            dominant = find_support(pts, cams, p, min_extent, None, rng)
+            up = None if dominant is None else dominant.normal
+        levels = [] if up is None else find_levels(pts, normals, up, p, min_extent)
+        if levels:
+            support = levels[0].plane
+        else:  # no level square to up (gravity off from the table's normal): the largest upright plane
+            support = find_support(pts, cams, p, min_extent, g, rng)
     if support is not None:
         d = support.distance(pts)
         labels[d <= p.support_distance] = Label.SUPPORT
+        if up is None:
+            up = support.normal
         if p.mode == "auto":
+            spans = _plane_spans(pts, labels == Label.SUPPORT, support.normal)
+            surfaces.append(Surface("support", support, None, spans, int((labels == Label.SUPPORT).sum()),
+                                    _ratio_conf(min(spans), min_extent)))
+            level_heights = [0.0]
+            for lv in levels[1:]:
+                assert up is not None
+                lv_h = lv.height - levels[0].height  # above the lowest support (m)
+                slab = _level_box(lv, up, levels[0].height - 0.01, 0.005)
+                # the level's own points and its sides: over its footprint, from its surface down to the support
+                dl = lv.plane.distance(pts)
+                on = _in_footprint(pts, lv, up, 0.01) & (dl <= p.support_distance) & (dl >= -lv_h - 0.005)
+                labels[on] = Label.SUPPORT
+                walls.append(slab)
+                level_heights.append(lv_h)
+                # a floor has walls around it; a platform stands clear (named once the walls are known)
+                surfaces.append(Surface("floor", lv.plane, slab, lv.spans, int(on.sum()),
+                                        _ratio_conf(min(lv.spans), min_extent)))
             min_length = p.wall_min_length if p.wall_min_length is not None else 1.5 * hand.hand_outer_diameter
-            normals = np.zeros_like(pts) if cloud.normals is None else cloud.normals.astype(np.float64)
-            walls = find_walls(pts, normals, cloud.viewpoints.astype(np.float64), support, p, min_length, rng)
-            for wall in walls:
-                labels[(labels == Label.OBJECT) & wall.contains(pts, margin=0.003)] = Label.WALL
+            found = find_walls(pts, normals, cams, support, p, min_length, rng, labels == Label.OBJECT,
+                               tuple(level_heights))
+            for box, plane, length, count, top, stands in found:
+                labels[(labels == Label.OBJECT) & box.contains(pts, margin=0.003)] = Label.WALL
+                walls.append(box)
+                conf = _ratio_conf(length, min_length) * (1.0 if stands else 0.4)
+                surfaces.append(Surface("wall", plane, box, (length, top), count, conf))
+                if not stands:
+                    warnings.append(DetectionWarning(
+                        "environment_unsure", f"a vertical surface {length:.2f} m long does not stand on any "
+                        "support level found; it is treated as environment (too large to grasp), but the "
+                        "support may be wrong: declare the support or the container in the request"))
+            rim_length = p.rim_min_length if p.rim_min_length is not None else min_length
+            for box, origin, direction, length, count in find_rims(pts, support, p, rim_length, rng,
+                                                                    labels == Label.OBJECT):
+                labels[(labels == Label.OBJECT) & box.contains(pts, margin=0.003)] = Label.WALL
+                walls.append(box)
+                across = np.cross(support.normal, direction)
+                surfaces.append(Surface("rim", Plane(across, -float(across @ origin)), box, (length, 0.0), count,
+                                        _ratio_conf(length, rim_length)))
+            surfaces = _name_levels(surfaces)
+    elif p.mode == "auto" and n >= 3:
+        warnings.append(DetectionWarning(
+            "no_support", "no support surface (a table, a container floor) was found in the cloud: grasps are "
+            "checked against the seen points only; send more of the scene, gravity, or a declared support"))
     for box in p.boxes:
         labels[box.contains(pts)] = Label.DECLARED
-    up = -g if g is not None else (None if support is None else support.normal)
-    return Environment(labels=labels, support=support, walls=walls, boxes=tuple(p.boxes), up=up, mode=p.mode,
-                       clearance=p.clearance)
+        surfaces.append(Surface("declared", Plane(box.rotation[:, 2], -float(box.rotation[:, 2] @ box.centre)),
+                                box, (2.0 * float(box.half_extents[0]), 2.0 * float(box.half_extents[1])),
+                                int(box.contains(pts).sum()), 1.0))
+    if p.mode == "declared" and p.support is not None:
+        surfaces.insert(0, Surface("support", p.support, None, (0.0, 0.0),
+                                   int((labels == Label.SUPPORT).sum()), 1.0))
+    found_conf = [s.confidence for s in surfaces if s.kind != "declared"]
+    confidence = 0.0 if (p.mode == "auto" and support is None) else min(found_conf, default=1.0)
+    if p.mode == "auto" and support is not None and confidence < 0.5 and not warnings:
+        weakest = min((s for s in surfaces if s.kind != "declared"), key=lambda s: s.confidence)
+        warnings.append(DetectionWarning(
+            "environment_unsure", f"the {weakest.kind} found is barely distinct from an object (confidence "
+            f"{weakest.confidence:.2f}); declare the support or the container in the request if grasps look "
+            "wrong"))
+    up_out = -g if g is not None else (None if support is None else support.normal)
+    return Environment(labels=labels, support=support, walls=tuple(walls), boxes=tuple(p.boxes), up=up_out,
+                       mode=p.mode, clearance=p.clearance, surfaces=tuple(surfaces), confidence=float(confidence),
+                       warnings=tuple(warnings), support_distance=p.support_distance)
+
+
+def _ratio_conf(value: float, threshold: float) -> float:
+    """Confidence that a measure passed its threshold clearly: 0 at 0.8 x threshold, 1 at 1.5 x or more."""
+    if threshold <= 0.0:
+        return 1.0
+    return float(np.clip((value / threshold - 0.8) / 0.7, 0.0, 1.0))
+
+
+def _plane_spans(points: F64, mask: NDArray[np.bool_], normal: F64) -> tuple[float, float]:
+    """The robust in-plane spans (m) of the masked points."""
+    local = points[mask] @ _in_plane_axes(normal).T
+    if len(local) == 0:
+        return (0.0, 0.0)
+    return (_robust_span(local[:, 0]), _robust_span(local[:, 1]))
+
+
+def _name_levels(surfaces: list[Surface]) -> list[Surface]:
+    """A raised level with walls or rims standing on or around it is a container's floor; one without is a
+    platform."""
+    has_walls = any(s.kind in ("wall", "rim") for s in surfaces)
+    return [replace(s, kind="platform") if s.kind == "floor" and not has_walls else s for s in surfaces]
 
 
 def _box_corners_min(plane: Plane, centres: F64, rotations: F64, half: F64) -> F64:
