@@ -101,7 +101,7 @@ def test_anonymous_peer_refused_on_every_queryable(guarded: tuple[TestClient, st
             err = _error(replies[0])
             assert err["status"] == 401 and err["field"] == "attachment", (key, err)
             assert set(err) >= {"error", "field", "detail"}
-    metrics = http.get("/metrics").text
+    metrics = http.get("/metrics", headers=HEADERS).text
     assert 'graspd_requests_total{outcome="unauthorized",transport="zenoh"} 2.0' in metrics
     assert 'graspd_requests_total{outcome="ok",transport="zenoh"}' not in metrics  # no detection ran
 
@@ -147,7 +147,7 @@ def test_wildcard_query_reaches_no_writer_or_detector(guarded: tuple[TestClient,
     assert len(errors) == len(KEYS) - 1 and {e["status"] for e in errors} == {400}  # all but instance info
     assert {e["field"] for e in errors} == {"key_expr"}
     assert _counts(http) == (0, 0, 0)
-    assert 'outcome="ok",transport="zenoh"' not in http.get("/metrics").text
+    assert 'outcome="ok",transport="zenoh"' not in http.get("/metrics", headers=HEADERS).text
 
 
 def test_token_accepted_via_the_client(guarded: tuple[TestClient, str], krylon: ViewpointCloud,
@@ -162,7 +162,7 @@ def test_token_accepted_via_the_client(guarded: tuple[TestClient, str], krylon: 
     with ZenohGraspClient(connect=[endpoint], timeout=10) as anon:
         assert anon.instances() == []  # the info queryable refuses too; discovery just finds nothing
     assert TOKEN not in caplog.text
-    assert 'graspd_requests_total{outcome="ok",transport="zenoh"} 1.0' in http.get("/metrics").text
+    assert 'graspd_requests_total{outcome="ok",transport="zenoh"} 1.0' in http.get("/metrics", headers=HEADERS).text
 
 
 def test_stream_without_the_token_is_dropped(guarded: tuple[TestClient, str], krylon: ViewpointCloud,
@@ -201,7 +201,7 @@ def test_stream_without_the_token_is_dropped(guarded: tuple[TestClient, str], kr
         assert done.wait(30)
         sub.undeclare()
     assert "grasps" in got[0] and len(got[0]["grasps"]) > 0
-    metrics = http.get("/metrics").text
+    metrics = http.get("/metrics", headers=HEADERS).text
     assert 'graspd_requests_total{outcome="unauthorized",transport="zenoh-stream"} 100.0' in metrics
     warnings = [r for r in caplog.records if r.levelno == logging.WARNING and "without the token" in r.getMessage()]
     assert len(warnings) == 1  # rate-limited, not one line per dropped cloud
@@ -431,4 +431,4 @@ def test_example_secure_deployment_end_to_end(make_settings: Callable[..., Setti
                 client_config(connect=[f"tcp/127.0.0.1:{port}"])
             with zenoh.open(config) as session:
                 assert _replies(session, "graspd/library", attachment=zenoh_token_attachment(TOKEN)) == [], conf
-        assert 'graspd_requests_total{outcome="ok",transport="zenoh"} 1.0' in http.get("/metrics").text
+        assert 'graspd_requests_total{outcome="ok",transport="zenoh"} 1.0' in http.get("/metrics", headers=HEADERS).text

@@ -23,12 +23,13 @@ from graspd.parallel import THREADS
 
 from .deps import ServiceState
 from .engine import DetectionEngine, dumps
+from .guards import HealthFastPath, UploadRateGuard
 from .instance_jobs import InstanceJobs
 from .logs import MAX_REQUEST_ID, begin_request, valid_request_id
 from .metrics import Metrics
 from .problems import Problem
 from .registry import ModelRegistry
-from .routers import detect, health, metrics, models, viewer
+from .routers import detect, docs, health, metrics, models, viewer
 from .schemas import DetectRequest
 from .settings import Settings, available_cores
 from .templates_api import REQUEST_MODELS
@@ -165,9 +166,15 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
             await asyncio.to_thread(state.jobs.close)
             engine.close(wait=True)
 
-    app = FastAPI(title="graspd", version=__version__, description=DESCRIPTION, lifespan=lifespan)
+    # /docs, /redoc and /openapi.json: routers.docs (offline assets, the token unless GRASPD_PUBLISH_DOCS)
+    app = FastAPI(title="graspd", version=__version__, description=DESCRIPTION, lifespan=lifespan,
+                  docs_url=None, redoc_url=None, openapi_url=None)
     app.add_middleware(RequestGuard)
-    for r in (detect.router, health.router, models.router, metrics.router, templates_router, viewer.router):
+    app.add_middleware(UploadRateGuard, min_bytes_per_s=settings.http_min_upload_rate,
+                       grace_s=settings.http_upload_grace_s)
+    app.add_middleware(HealthFastPath)  # outermost: /healthz never waits on anything
+    for r in (detect.router, health.router, models.router, metrics.router, templates_router, viewer.router,
+              docs.router):
         app.include_router(r)
 
     @app.exception_handler(Problem)

@@ -49,6 +49,9 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(default=64 << 20, gt=0, description="request size cap (bytes); larger gets 413")
     token: SecretStr | None = Field(default=None, description="bearer token required on /detect, /models and the "
                                      "template routes, and as the attachment of every Zenoh query and streamed cloud")
+    publish_docs: bool = Field(default=False, description="with a token set, serve /docs, /redoc and /openapi.json "
+                               "to anyone (without one they are public anyway)")
+    publish_metrics: bool = Field(default=False, description="with a token set, serve /metrics to anyone")
     log_level: str = "INFO"
     log_json: bool = True
     zenoh_enabled: bool = True
@@ -61,6 +64,9 @@ class Settings(BaseSettings):
                                       "multicast, which fill in only the keys it leaves at Zenoh's defaults")
     zenoh_allow_anonymous: bool = Field(default=False, description="let Zenoh listen or connect beyond loopback "
                                         "with no token and no authentication in zenoh_config (trusted networks)")
+    zenoh_admin_space: bool = Field(default=False, description="with a token set, keep the Zenoh admin space "
+                                    "(@/<zid>/**: endpoints, peers, metrics) when zenoh_config enables it; off by "
+                                    "default, since any peer reaching the session could read it without the token")
     zenoh_stream_token: bool = Field(default=True, description="with a token set, streamed clouds need it as "
                                      "their attachment too; false for zenoh-bridge-ros2dds, which cannot attach "
                                      "one (then guard <prefix>/cloud with zenoh_config's access control)")
@@ -106,8 +112,17 @@ class Settings(BaseSettings):
                                          "arrive within this (s), or the connection closes (slow clients)")
     http_body_timeout_s: float = Field(default=60.0, gt=0, description="the whole request body must arrive "
                                        "within this (s), or 408 and the connection closes (slow clients)")
-    http_max_connections: int = Field(default=256, ge=1, description="open HTTP connections at most; more are "
-                                      "answered 503 by uvicorn")
+    http_min_upload_rate: float = Field(default=16_384.0, ge=0, description="request bodies must arrive at this "
+                                        "average rate after http_upload_grace_s, or 408 and the connection closes "
+                                        "(bytes/s; 0: off)")
+    http_upload_grace_s: float = Field(default=5.0, gt=0, description="time a request body may take before the "
+                                       "minimum upload rate applies (s)")
+    http_max_connections_per_peer: int = Field(default=64, ge=1, description="open HTTP connections of one client "
+                                               "address at most; one more closes that address's oldest connection "
+                                               "still waiting for its request headers, or is refused")
+    http_max_connections: int = Field(default=256, ge=1, description="open HTTP connections at most; one more "
+                                      "closes the oldest connection still waiting for its request headers, or is "
+                                      "refused when none is (graspd.server.runner)")
     http_max_header_bytes: int = Field(default=64 << 10, ge=1024, description="request line and headers at "
                                        "most (bytes)")
     instance_training: bool = Field(default=True, description="POST /models may train instance models (a "

@@ -95,6 +95,11 @@ def zenoh_config(settings: Settings) -> Any:
     for key in SETTINGS_KEYS:
         if conf.get_json(key) == default.get_json(key):
             conf.insert_json5(key, json.dumps(ours[key]))
+    if settings.token is not None and not settings.zenoh_admin_space and _json(conf, "adminspace/enabled") is True:
+        # the admin space (@/<zid>/**: endpoints, peers, metrics) answers any peer, token or not
+        log.warning("GRASPD_ZENOH_CONFIG enables the Zenoh admin space; turned off because a token is set "
+                    "(GRASPD_ZENOH_ADMIN_SPACE=true keeps it)")
+        conf.insert_json5("adminspace/enabled", "false")
     return conf
 
 
