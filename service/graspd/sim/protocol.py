@@ -18,17 +18,20 @@ from ..grasp import GraspSet
 from ..hand import HandGeometry
 from ..world.cameras import Camera, sensing_cameras
 from ..world.noise import DepthNoise
+from .containers import scene_container, style_ranges
 from .detectors import SimDetector, Workspace
 from .gripper import Attempt, ExecutionParams, Gripper, Outcome
 from .sensing import observe
-from .world import build_scene
+from .world import SimWorld, build_scene
 
 SENSINGS = ("passive", "active", "side")
 
 
 @dataclass(frozen=True)
 class Setting:
-    """One benchmark configuration: scene kind and size, sensing, grasp choice and hand."""
+    """One benchmark configuration: scene kind and size, sensing, grasp choice and hand.  Scene "container"
+    names a container style (graspd.sim.containers.STYLES) and the split whose parameter ranges it is drawn
+    from ("held_out" or "training"); each round's container follows from its seed (scene_container)."""
 
     scene: str = "pour"
     num_objects: int = 10
@@ -38,8 +41,14 @@ class Setting:
     max_approach_angle_deg: float = 80.0  # feasible approaches lie within this angle of straight down
     max_attempts: int = 30
     hand: HandGeometry = field(default_factory=HandGeometry)
+    container: str | None = None
+    container_split: str = "held_out"
 
     def __post_init__(self) -> None:
+        if (self.scene == "container") != (self.container is not None):
+            raise ValueError("scene 'container' needs a container style, and only it takes one")
+        if self.container is not None:
+            style_ranges(self.container, self.container_split)  # raises for an unknown style or split
         if self.sensing not in SENSINGS:
             raise ValueError(f"sensing must be one of {SENSINGS}, got {self.sensing!r}")
         if self.choice not in ("best", "random"):
@@ -103,12 +112,19 @@ def cameras_for(setting: Setting) -> list[Camera]:
     return sensing_cameras(setting.sensing)
 
 
+def setting_scene(setting: Setting, seed: int) -> SimWorld:
+    """The settled scene of a setting's round `seed` (its container, if any, drawn from the seed too)."""
+    container = None if setting.container is None else scene_container(setting.container, seed,
+                                                                         setting.container_split)
+    return build_scene(setting.scene, setting.num_objects, seed, setting.hand, container=container)
+
+
 def run_round(detector: SimDetector, setting: Setting, seed: int,
               execution: ExecutionParams | None = None) -> RoundResult:
     """One round of the protocol with scene, noise and choices all drawn from seed."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed + 1_000_003)
-    world = build_scene(setting.scene, setting.num_objects, seed, setting.hand)
+    world = setting_scene(setting, seed)
     result = RoundResult(seed=seed, num_objects=len(world.objects))
     # what the cameras keep and the workspace box the robot sends: the scene, tray walls and floor included
     region: Workspace = world.workspace()
