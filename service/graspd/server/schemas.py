@@ -30,6 +30,7 @@ from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
 from graspd.environment import Box, EnvironmentParams, Plane
 from graspd.warning import WARNING_CODES
+from graspd.grasp import RANKING_RULE
 from graspd.hand import HAND_PRESETS, HandGeometry
 from graspd.templates import TemplateDetection
 from graspd.templates.demonstration import check_hand_pose
@@ -456,6 +457,19 @@ class CropOut(BaseModel):
     in_image: bool = Field(description="whether that point projects inside the image (in front of the camera)")
 
 
+class RankingOut(BaseModel):
+    """The terms a GPD grasp was ranked by (dimensionless; DetectResponse.ranking_rule says how they combine)."""
+
+    classifier: float | None = Field(description="the classifier term: the model's probability (1 when unscored); "
+                                     "with clustering, the sum of the cluster members' scores")
+    utility: float | None = Field(description="utility J(h) of the IJRR paper in [0, 1]: top approaches and high "
+                                  "grasps first, from the support up (1 when up is unknown)")
+    width: float | None = Field(description="width preference in [0.2, 1]: lower when the object fills the opening")
+    unknown: float | None = Field(description="1 - the share of the hand and its approach path in space no camera "
+                                  "saw (1: all seen)")
+    key: float | None = Field(description="the product of the terms: grasps are sorted by it, best first")
+
+
 class GraspOut(BaseModel):
     """One grasp (gpd_ros GraspConfig), cloud frame, metres."""
 
@@ -475,6 +489,8 @@ class GraspOut(BaseModel):
     template_entry: int | None = Field(None, description="templates: the library entry whose grasp this is")
     mismatch: float | None = Field(None, description="templates: eq. 2 mismatch m of the best match (lower is "
                                    "better)")
+    ranking: RankingOut | None = Field(None, description="gpd with selection: the terms that ranked this grasp "
+                                       "(the response's ranking_rule says how they combine)")
 
 
 class PlaneOut(BaseModel):
@@ -554,6 +570,8 @@ class DetectResponse(BaseModel):
                                          "depth, height).  false: the hand and the model differ and the scores "
                                          "are less reliable (train one on a dataset of that hand: python -m "
                                          "graspd.training.dataset --hand NAME, then graspd train)")
+    ranking_rule: str | None = Field(None, description="gpd with selection: how each grasp's ranking terms combine "
+                                     "into the key it was sorted by")
 
     @classmethod
     def from_detection(cls, det: Detection | TemplateDetection, *, request_id: str, timings: dict[str, float],
@@ -590,6 +608,10 @@ class DetectResponse(BaseModel):
         else:
             env = det.environment
             out.update(model=det.model, scored=det.scored, environment=None if env is None else env.to_dict())
+            if g.ranking is not None:  # the terms selection ranked by (graspd.grasp.Ranking); NaN goes as null
+                for grasp, terms in zip(grasps, g.ranking.to_dicts(), strict=True):
+                    grasp["ranking"] = {k: v if math.isfinite(v) else None for k, v in terms.items()}
+                out["ranking_rule"] = RANKING_RULE
         if header is not None:
             out["header"] = header
         if model_fits_hand is not None:
