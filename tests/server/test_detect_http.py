@@ -41,13 +41,13 @@ def test_ids_unique_across_requests(client: TestClient, body: dict[str, Any]) ->
 def test_pcd_upload_matches_json(client: TestClient, krylon_path: Path, krylon: ViewpointCloud,
                                  small_body: Callable) -> None:
     data = krylon_path.read_bytes()
-    raw = client.post("/detect?num_samples=60", content=data,
+    raw = client.post("/detect?num_samples=60&viewpoint=0.5,0,0.3", content=data,
                       headers={"Content-Type": "application/octet-stream"})
     assert raw.status_code == 200, raw.text
     js = client.post("/detect", json=small_body(krylon)).json()
     assert [g["position"] for g in raw.json()["grasps"]] == [g["position"] for g in js["grasps"]]
     # curl --data-binary sends application/x-www-form-urlencoded unless told otherwise: sniffed as PCD
-    curl = client.post("/detect?num_samples=60&viewpoint=0,0,0", content=data,
+    curl = client.post("/detect?num_samples=60&viewpoint=0.5,0,0.3", content=data,
                        headers={"Content-Type": "application/x-www-form-urlencoded"})
     assert curl.status_code == 200 and len(curl.json()["grasps"]) == len(js["grasps"])
 
@@ -56,7 +56,7 @@ def test_ply_upload(client: TestClient, krylon: ViewpointCloud, tmp_path: Path) 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(krylon.points.astype(np.float64)))
     path = tmp_path / "krylon.ply"
     o3d.io.write_point_cloud(str(path), pcd)
-    r = client.post("/detect?num_samples=60&viewpoint=0,0,0", content=path.read_bytes(),
+    r = client.post("/detect?num_samples=60&viewpoint=0.5,0,0.3", content=path.read_bytes(),
                     headers={"Content-Type": "application/ply"})
     assert r.status_code == 200, r.text
     assert len(r.json()["grasps"]) > 0

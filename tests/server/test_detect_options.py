@@ -87,7 +87,7 @@ def test_upload_query_parameters_match_the_json_body(client: TestClient, krylon_
     options = {"gravity": [0.0, -1.0, 0.0], "exclude_support_plane": True, "use_classifier": False,
                "min_aperture": 0.01, "max_aperture": 0.06}
     js = grasps(client, small_body(krylon, **options))
-    query = "num_samples=60&gravity=0,-1,0&exclude_support_plane=true&use_classifier=false" \
+    query = "num_samples=60&viewpoint=0.5,0,0.3&gravity=0,-1,0&exclude_support_plane=true&use_classifier=false" \
             "&min_aperture=0.01&max_aperture=0.06"
     raw = client.post(f"/detect?{query}", content=krylon_path.read_bytes(),
                       headers={"Content-Type": "application/octet-stream"})

@@ -358,6 +358,11 @@ class DetectRequest(BaseModel):
     cascade: bool = Field(True, description="with the service's cascade model (GRASPD_CASCADE_MODEL, made for the "
                           "request's hand): a cheap first pass scores every candidate and the full model only the "
                           "best 30% (at least 200); false: the full model scores every candidate")
+    unknown_space: Literal["avoid", "allow"] = Field(
+        "avoid", description="space no camera saw (behind a seen surface from every camera): 'avoid' treats a "
+        "hand with more than 3% of its fingers, palm or approach path there as colliding (a neighbour seen only in "
+        "part may be there); 'allow' checks the seen points only, as GPD does, and warns when the best grasps "
+        "reach into unseen space")
     min_aperture: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False,
                                        description="drop grasps whose width (object extent between the fingers) "
                                        "is below this (m)")
@@ -442,6 +447,7 @@ class DetectRequest(BaseModel):
                 approach_distance=self.approach_distance,
                 early_stop=self.early_stop,
                 cascade=self.cascade,
+                unknown_space=self.unknown_space,
                 seed=self.seed,
             )
         except ValueError as exc:
@@ -504,15 +510,35 @@ class BoxOut(BaseModel):
     half_extents: Vec3Out = Field(description="half sizes along the box axes (m)")
 
 
+class SurfaceOut(BaseModel):
+    """One surface of the environment (graspd.environment.Surface)."""
+
+    kind: Literal["support", "floor", "platform", "wall", "rim", "declared"] = Field(
+        description="support: the lowest support (a half-space the hand stays above); floor: a container's floor "
+        "above it; platform: a raised top with no walls; wall: a vertical face longer than any graspable object; "
+        "rim: a thin wall's top seen as a long line; declared: a box of the request")
+    plane: PlaneOut = Field(description="its plane, the normal toward the free side")
+    box: BoxOut | None = Field(description="the solid the hand must not enter; null for the lowest support")
+    extent: list[float] = Field(description="support, floor, platform: the two in-plane spans of its points (m); "
+                                "wall: length and top height above the support (m); rim: length (m) and 0")
+    num_points: int = Field(description="points labelled as this surface")
+    confidence: float = Field(description="how clearly it passed the tests that made it environment, in [0, 1]")
+
+
 class EnvironmentOut(BaseModel):
     """What the environment stage found (method gpd)."""
 
     mode: str = Field(description="auto, declared or none")
     support: PlaneOut | None = Field(description="the support plane, null when none was found or declared")
-    walls: list[BoxOut] = Field(description="container walls found in the cloud")
+    walls: list[BoxOut] = Field(description="solids found in the cloud that the hand must not enter: walls, rims "
+                                "and raised floors or platforms (see surfaces for which is which)")
     boxes: list[BoxOut] = Field(description="boxes the request declared")
     up: Vec3Out | None = Field(description="unit up direction (cloud frame), null when unknown")
     counts: dict[str, int] = Field(description="points per label (object, support, wall, box, ...)")
+    surfaces: list[SurfaceOut] = Field(default_factory=list, description="every surface found or declared")
+    confidence: float = Field(1.0, description="how sure the stage is of what holds the objects, in [0, 1]: the "
+                              "least confidence of its surfaces, 0 when no support was found (then warnings say "
+                              "so)")
 
 
 class WarningOut(BaseModel):
