@@ -127,9 +127,10 @@ def _setting_key(spec: str, setting: Setting) -> str:
     return f"{spec}/{setting.num_objects}"
 
 
-def load_rounds(log: Path, spec: str, setting: Setting) -> dict[int, RoundResult]:
-    """Rounds of this setting already recorded in log (one JSON object per line), by seed."""
-    out: dict[int, RoundResult] = {}
+def load_rows(log: Path, spec: str, setting: Setting) -> dict[int, dict[str, Any]]:
+    """The rows of this setting already recorded in log (one JSON object per line: "setting", "round" and any
+    extra fields record_round was given), by seed."""
+    out: dict[int, dict[str, Any]] = {}
     if not log.exists():
         return out
     key = _setting_key(spec, setting)
@@ -139,15 +140,21 @@ def load_rounds(log: Path, spec: str, setting: Setting) -> dict[int, RoundResult
         except json.JSONDecodeError:
             continue  # a line cut by an interrupted run
         if row.get("setting") == key:
-            out[int(row["round"]["seed"])] = RoundResult(**row["round"])
+            out[int(row["round"]["seed"])] = row
     return out
 
 
-def record_round(log: Path, spec: str, setting: Setting, result: RoundResult) -> RoundResult:
-    """Append one finished round to log (the checkpoint a rerun resumes from)."""
+def load_rounds(log: Path, spec: str, setting: Setting) -> dict[int, RoundResult]:
+    """Rounds of this setting already recorded in log (one JSON object per line), by seed."""
+    return {seed: RoundResult(**row["round"]) for seed, row in load_rows(log, spec, setting).items()}
+
+
+def record_round(log: Path, spec: str, setting: Setting, result: RoundResult, **extra: Any) -> RoundResult:
+    """Append one finished round to log (the checkpoint a rerun resumes from); extra: more JSON fields of the
+    row (bench/containers.py: the round's precision@k check)."""
     log.parent.mkdir(parents=True, exist_ok=True)
     with log.open("a") as f:
-        f.write(json.dumps({"setting": _setting_key(spec, setting), "round": result.to_dict()}) + "\n")
+        f.write(json.dumps({"setting": _setting_key(spec, setting), "round": result.to_dict(), **extra}) + "\n")
     return result
 
 
