@@ -10,9 +10,11 @@ serves drop_page_html() and answers the dropped cloud with viewer_html().
 from __future__ import annotations
 
 import base64
+import hashlib
 import html
 import json
 import re
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -69,6 +71,37 @@ def gripper_wireframes(grasps: GraspSet, hand: HandGeometry) -> NDArray[np.float
     return grasps.positions[:, None, None, :] + np.einsum("mij,abj->mabi", grasps.rotations, local)
 
 
+def grasp_objects(points: NDArray[np.floating], labels: NDArray[np.integer], samples: NDArray[np.floating],
+                  voxel: float = 0.005, eps: float = 0.015, min_points: int = 20,
+                  reach: float = 0.02) -> NDArray[np.int16]:
+    """The object each grasp is on, for the viewer's object filter: the object points (environment label OBJECT),
+    down-sampled to `voxel` (m), split into clusters by DBSCAN (neighbours within eps m; clusters of at least
+    min_points voxels, numbered largest first from 0), and each grasp's sample point given the cluster of its
+    nearest object voxel within reach m, else -1.  (M,) int16."""
+    import open3d as o3d  # noqa: PLC0415  (only the page needs it)
+    from scipy.spatial import cKDTree  # noqa: PLC0415
+
+    out = np.full(len(samples), -1, np.int16)
+    obj = np.asarray(points, np.float64)[np.asarray(labels) == Label.OBJECT]
+    if len(obj) == 0 or len(samples) == 0:
+        return out
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(obj)).voxel_down_sample(voxel)
+    down = np.asarray(pc.points)
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        cluster = np.asarray(pc.cluster_dbscan(eps=eps, min_points=1))
+    ids, counts = np.unique(cluster[cluster >= 0], return_counts=True)
+    order = ids[np.argsort(-counts, kind="stable")][counts[np.argsort(-counts, kind="stable")] >= min_points]
+    order = order[:100]  # at most 100 objects in the filter
+    rank = np.full(int(cluster.max()) + 1 if len(cluster) else 0, -1, np.int16)
+    rank[order] = np.arange(len(order), dtype=np.int16)
+    keep = cluster >= 0
+    if not keep.any() or not len(order):
+        return out
+    dist, nearest = cKDTree(down[keep]).query(np.asarray(samples, np.float64), k=1)
+    found = rank[cluster[keep][nearest]]
+    return np.where(dist <= reach, found, -1).astype(np.int16)
+
+
 def _scene(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | None, top: int, max_points: int,
            gravity: tuple[float, float, float] | None) -> tuple[dict[str, Any], list[str], list[str]]:
     """(the page's data: points, lines, camera; legend rows (HTML); grasp rows (HTML)) of viewer_html."""
@@ -114,6 +147,7 @@ def _scene(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | Non
     g = detection.grasps[: max(top, 0)]
     rows: list[str] = []
     bar: dict[str, Any] = {}
+    objects = np.zeros(0, np.int16)
     tags = np.zeros((0, 3))
     if len(g):
         values, vmin, vmax, bar_label = score_colours(g.scores)
@@ -124,6 +158,7 @@ def _scene(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | Non
             np.repeat(order.astype(np.int16), wire.shape[1]))
         tags = g.positions - (h.palm_depth + 0.01) * g.approach - centre  # rank numbers behind the palms
         bar = {"label": bar_label, "lo": vmin, "hi": vmax}
+        objects = grasp_objects(cloud.points, labels, g.samples) if labelled else np.full(len(g), -1, np.int16)
         for k in range(len(g)):
             score = "unscored" if np.isnan(g.scores[k]) else f"{g.scores[k]:.3f}"
             width = f"{1000 * g.widths[k]:.0f}"
@@ -142,18 +177,24 @@ def _scene(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | Non
         "tags": np.round(tags, 5).tolist(), "labelled": LABELLED_RANKS,
         "eye": (frames.eye - centre).tolist(), "up": frames.up.tolist(), "across": frames.across.tolist(),
         "extent": max(extent, 1e-3), "bar": bar,
+        "scores": [None if np.isnan(v) else round(float(v), 6) for v in g.scores],  # per rank, for the filters
+        "objects": objects.tolist(),  # per rank: the object (grasp_objects) or -1
     }
     return data, legend, rows
 
 
 def viewer_html(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | None = None, *,
                 top: int = 50, max_points: int = 150_000, title: str = "",
-                gravity: tuple[float, float, float] | None = None) -> str:
+                gravity: tuple[float, float, float] | None = None,
+                warnings: Sequence[Mapping[str, Any]] = ()) -> str:
     """One self-contained HTML page drawing cloud (the preprocessed cloud detection.environment labelled, cloud
     frame, m) coloured by label, the environment and the top ranked grasps of detection as gripper wireframes, with
     a side list of them (rank, score, width; hover or click a row to highlight its gripper).  At most max_points
     points are drawn (object points first), sent as base64 float32.  It fetches nothing: it works offline, from
-    file:// or served."""
+    file:// or served.  warnings (each {code, message}, the response's) are listed above the grasps; the filters
+    (least score, top k, object) hide grippers and rows in the page.  Its script runs under VIEWER_CSP (a meta
+    tag in the page; the service also sends it as a header): every text in it is escaped, only the hashed
+    script runs."""
     data, legend, rows = _scene(cloud, detection, hand, top, max_points, gravity)
     n = len(detection.grasps[: max(top, 0)])
     bar = data["bar"]
@@ -163,7 +204,20 @@ def viewer_html(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry 
     table = "" if not rows else (
         '<table id="grasps"><thead><tr><th>#</th><th>score</th><th>mm</th></tr></thead><tbody>'
         + "".join(rows) + "</tbody></table>")
+    notes = "".join(f'<li><b>{html.escape(str(w.get("code", "")))}</b>: {html.escape(str(w.get("message", "")))}'
+                    "</li>" for w in warnings)
+    n_objects = max(data["objects"], default=-1) + 1
+    filters = "" if not n else (
+        '<div id="filters"><label>least score <input id="min-score" type="number" min="0" max="1" step="0.05" '
+        f'value=""></label><label>top <input id="top-k" type="number" min="1" max="{n}" value="{n}"></label>'
+        '<label>object <select id="object"><option value="-1">all</option>'
+        + "".join(f'<option value="{k}">object {k + 1} ({data["objects"].count(k)} grasps)</option>'
+                  for k in range(n_objects))
+        + '</select></label><div id="shown"></div></div>')
     parts = {
+        "CSP": VIEWER_CSP_META,
+        "WARNINGS": f'<ul id="warnings">{notes}</ul>' if notes else "",
+        "FILTERS": filters,
         "TITLE": html.escape(title or f"{len(detection.grasps)} grasps"),
         "ID": PLOT_ID,
         "LEGEND": "".join(legend)
@@ -176,8 +230,28 @@ def viewer_html(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry 
     return re.sub(r"@@(\w+)@@", lambda m: parts[m.group(1)], _PAGE)
 
 
+def script_hash(script: str) -> str:
+    """The CSP source of an inline script: 'sha256-<base64 of the SHA-256 of its UTF-8 text>'."""
+    return "'sha256-" + base64.b64encode(hashlib.sha256(script.encode("utf-8")).digest()).decode("ascii") + "'"
+
+
+def content_security_policy(*scripts: str, connect: bool = False, frame: bool = True) -> str:
+    """A strict policy: nothing loads from anywhere, only the given inline scripts run (by hash), styles inline
+    (the pages' style attributes; no script), images from data: only, no plugins, no base or form targets,
+    fetch to this origin only when connect, and (as a header; a meta tag cannot) never framed by anyone."""
+    fetches = "'self'" if connect else "'none'"
+    parts = ["default-src 'none'", f"script-src {' '.join(script_hash(x) for x in scripts)}",
+             "style-src 'unsafe-inline'", "img-src data:", "object-src 'none'", "base-uri 'none'",
+             "form-action 'none'", f"connect-src {fetches}"]
+    if frame:
+        parts.append("frame-ancestors 'none'")
+    return "; ".join(parts)
+
+
 _PAGE = r"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>@@TITLE@@</title>
+<html lang="en"><head><meta charset="utf-8">
+<meta http-equiv="Content-Security-Policy" content="@@CSP@@">
+<meta name="referrer" content="no-referrer"><title>@@TITLE@@</title>
 <style>
 html, body { margin: 0; height: 100%; overflow: hidden; font: 12px sans-serif; color: #202020; background: #fff; }
 body { display: flex; }
@@ -200,6 +274,11 @@ button { font-size: 11px; margin-bottom: 4px; }
 #scene { position: relative; flex: 1; min-width: 0; height: 100%; }
 #scene canvas { position: absolute; left: 0; top: 0; width: 100%; height: 100%; }
 #labels { pointer-events: none; }
+#warnings { list-style: none; padding: 4px; margin: 0 0 6px; font-size: 11px; background: #fff4d6;
+  border: 1px solid #e0b040; overflow-wrap: anywhere; }
+#filters label { display: block; font-size: 11px; margin: 2px 0; }
+#filters input, #filters select { width: 70px; font-size: 11px; }
+#shown { font-size: 10px; color: #666; margin: 2px 0 6px; }
 #tip { position: absolute; display: none; pointer-events: none; background: rgba(255,255,255,0.9);
   border: 1px solid #999; padding: 2px 4px; font-size: 11px; }
 </style></head>
@@ -207,7 +286,7 @@ button { font-size: 11px; margin-bottom: 4px; }
 <div id="panel"><h1>@@TITLE@@</h1>
 <button id="reset" type="button">reset view</button>
 <div class="help">drag: orbit; wheel: zoom; right- or shift-drag: pan</div>
-<ul>@@LEGEND@@</ul>@@BAR@@@@TABLE@@</div>
+@@WARNINGS@@<ul>@@LEGEND@@</ul>@@BAR@@@@FILTERS@@@@TABLE@@</div>
 <div id="scene"><canvas id="@@ID@@"></canvas><canvas id="labels"></canvas><div id="tip"></div></div>
 <script type="application/json" id="graspd-data">@@DATA@@</script>
 <script>
@@ -224,6 +303,8 @@ function bytes(s) {
 const P = new Float32Array(bytes(D.points)), L = new Uint8Array(bytes(D.labels));
 const S = new Float32Array(bytes(D.segs)), SC = new Uint8Array(bytes(D.segColours));
 const SR = new Int16Array(bytes(D.segRanks));
+const NG = D.scores.length, visible = new Uint8Array(NG).fill(1);  // ranks the filters let through
+let setVisible = null;
 const T1 = performance.now();
 const scene = document.getElementById("scene"), over = document.getElementById("labels");
 const tip = document.getElementById("tip");
@@ -307,9 +388,9 @@ if (gl) {
     "varying vec3 c; void main() { gl_Position = m * vec4(p, 1.0); int i = int(l + 0.5);" +
     "c = i == 0 ? k[0] : i == 1 ? k[1] : i == 2 ? k[2] : k[3]; gl_PointSize = i == 0 ? 1.5 * s : s; }", FS);
   const lp = prog("attribute vec3 a; attribute vec3 b; attribute vec2 e; attribute vec3 q; attribute float r;" +
-    "uniform mat4 m; uniform vec2 vp; uniform float h; uniform float s; varying vec3 c; void main() {" +
-    "vec4 ca = m * vec4(a, 1.0), cb = m * vec4(b, 1.0); vec4 o = e.x < 0.5 ? ca : cb;" +
-    "if (ca.w <= 0.0 || cb.w <= 0.0) { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); c = q; return; }" +
+    "attribute float v; uniform mat4 m; uniform vec2 vp; uniform float h; uniform float s; varying vec3 c;" +
+    "void main() { vec4 ca = m * vec4(a, 1.0), cb = m * vec4(b, 1.0); vec4 o = e.x < 0.5 ? ca : cb;" +
+    "if (v < 0.5 || ca.w <= 0.0 || cb.w <= 0.0) { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); c = q; return; }" +
     "vec2 d = (cb.xy / cb.w - ca.xy / ca.w) * vp; float n = length(d); d = n > 1e-6 ? d / n : vec2(1.0, 0.0);" +
     "float on = (h < -0.5 || r < -0.5) ? 1.0 : (abs(r - h) < 0.5 ? 2.0 : 0.0);" +
     "float w = s * (r < -0.5 ? 1.5 : on > 1.5 ? 4.5 : 2.2);" +
@@ -339,6 +420,14 @@ if (gl) {
                    buf(VE, gl.getAttribLocation(lp, "e"), 2, gl.FLOAT, false),
                    buf(VC, gl.getAttribLocation(lp, "q"), 3, gl.UNSIGNED_BYTE, true),
                    buf(VR, gl.getAttribLocation(lp, "r"), 1, gl.FLOAT, false)];
+  const VV = new Float32Array(ns * 6).fill(1), vvBuf = gl.createBuffer(), vvLoc = gl.getAttribLocation(lp, "v");
+  setVisible = () => {
+    for (let i = 0; i < ns; i++) VV.fill(SR[i] < 0 || visible[SR[i]] ? 1 : 0, i * 6, i * 6 + 6);
+    gl.bindBuffer(gl.ARRAY_BUFFER, vvBuf); gl.bufferData(gl.ARRAY_BUFFER, VV, gl.DYNAMIC_DRAW);
+  };
+  setVisible();
+  segAttr.push(() => { gl.bindBuffer(gl.ARRAY_BUFFER, vvBuf); gl.enableVertexAttribArray(vvLoc);
+                       gl.vertexAttribPointer(vvLoc, 1, gl.FLOAT, false, 0, 0); });
   const colours = new Float32Array([].concat(...D.colours).map(v => v / 255));
   drawGL = (m) => {
     gl.viewport(0, 0, canvas.width, canvas.height);
@@ -357,7 +446,7 @@ if (gl) {
       gl.uniform1f(gl.getUniformLocation(lp, "h"), hl);
       gl.uniform1f(gl.getUniformLocation(lp, "s"), dpr);
       gl.drawArrays(gl.TRIANGLES, 0, ns * 6);
-      for (let i = 0; i < 5; i++) gl.disableVertexAttribArray(i);
+      for (let i = 0; i < 6; i++) gl.disableVertexAttribArray(i);
     }
   };
 }
@@ -383,6 +472,7 @@ function draw2D(m) {  // the same picture without depth test: environment, then 
     const b = project(m, [S[6 * i + 3], S[6 * i + 4], S[6 * i + 5]]);
     if (!a[2] || !b[2]) continue;
     const r = SR[i], dim = hl >= 0 && r >= 0 && r !== hl;
+    if (r >= 0 && !visible[r]) continue;
     ctx.strokeStyle = dim ? "#e0c8c8" : "rgb(" + SC[3 * i] + "," + SC[3 * i + 1] + "," + SC[3 * i + 2] + ")";
     ctx.lineWidth = r < 0 ? 1.5 : r === hl ? 4.5 : 2.2;
     ctx.beginPath(); ctx.moveTo(a[0], a[1]); ctx.lineTo(b[0], b[1]); ctx.stroke();
@@ -398,7 +488,7 @@ function frame() {
   ctx.font = "bold 11px sans-serif"; ctx.textAlign = "center"; ctx.textBaseline = "middle";
   ctx.lineWidth = 3; ctx.strokeStyle = "#fff"; ctx.fillStyle = "#000";
   D.tags.forEach((t, k) => {  // the first ranks' numbers, or only the highlighted one's
-    if (hl >= 0 ? k !== hl : k >= D.labelled) return;
+    if (!visible[k] || (hl >= 0 ? k !== hl : k >= D.labelled)) return;
     const q = project(v.m, t);
     if (q[2]) { ctx.strokeText(String(k + 1), q[0], q[1]); ctx.fillText(String(k + 1), q[0], q[1]); }
   });
@@ -423,6 +513,27 @@ function highlight(k) {
   if (k === hl) return;
   hl = k; rows.forEach(r => r.classList.toggle("on", +r.dataset.rank === k)); redraw();
 }
+// the filters: least score (unscored grasps hidden once it is set), the first k ranks, one object
+const minIn = document.getElementById("min-score"), topIn = document.getElementById("top-k");
+const objIn = document.getElementById("object"), shownEl = document.getElementById("shown");
+function applyFilters() {
+  const lo = minIn && minIn.value !== "" ? +minIn.value : null;
+  const top = topIn && topIn.value !== "" ? Math.max(1, +topIn.value) : NG;
+  const obj = objIn ? +objIn.value : -1;
+  let n = 0;
+  for (let k = 0; k < NG; k++) {
+    const sc = D.scores[k];
+    visible[k] = k < top && (lo === null || (sc !== null && sc >= lo)) && (obj < 0 || D.objects[k] === obj) ? 1 : 0;
+    n += visible[k];
+  }
+  rows.forEach(r => { r.hidden = !visible[+r.dataset.rank]; });
+  if (shownEl) shownEl.textContent = n + " of " + NG + " grasps shown";
+  if (pinned >= 0 && !visible[pinned]) pinned = -1;
+  if (setVisible) setVisible();
+  hl = -2; highlight(pinned);
+}
+for (const el of [minIn, topIn]) if (el) el.addEventListener("input", applyFilters);
+if (objIn) objIn.addEventListener("change", applyFilters);
 rows.forEach(r => {
   const k = +r.dataset.rank;
   r.addEventListener("mouseenter", () => highlight(k));
@@ -455,6 +566,7 @@ canvas.addEventListener("pointermove", e => {
   const box = canvas.getBoundingClientRect(), m = view().m;
   let best = -1, bd = 12;
   D.tags.forEach((t, k) => {
+    if (!visible[k]) return;
     const q = project(m, t), d = Math.hypot(q[0] - (e.clientX - box.left), q[1] - (e.clientY - box.top));
     if (q[2] && d < bd) { bd = d; best = k; }
   });
@@ -472,58 +584,122 @@ document.getElementById("reset").addEventListener("click", () => {
   cam = home(); pinned = -1; highlight(-1); redraw();
 });
 window.addEventListener("resize", redraw);
+applyFilters();
 })();
 </script>
 </body></html>
 """
 
 
-def drop_page_html(post_url: str = "/viewer") -> str:
-    """A small page for GET /viewer: a person drops (or picks) a .pcd / .ply / .npz cloud; it is POSTed as the
-    multipart field "file" to post_url, whose answer (a viewer_html page) is shown in the page.  No script is
-    fetched from anywhere."""
-    url_js = json.dumps(post_url).replace("</", "<\\/")  # a JS string literal that cannot close the script
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>graspd viewer</title>
+def _inline_script(page: str) -> str:
+    """The text of the one executable inline <script> of a page template (what its CSP hash covers)."""
+    start = page.index("<script>\n") + len("<script>")
+    return page[start:page.index("</script>", start)]
+
+
+#: The viewer page's script (its hash is the only script source of its policy).
+VIEWER_SCRIPT = _inline_script(_PAGE.replace("@@ID@@", PLOT_ID))
+assert "@@" not in VIEWER_SCRIPT, "the viewer script must not depend on the page's data"
+#: The viewer page's Content-Security-Policy: as a header (the service) and as a meta tag (saved files; a meta tag
+#: cannot carry frame-ancestors).
+VIEWER_CSP = content_security_policy(VIEWER_SCRIPT)
+VIEWER_CSP_META = content_security_policy(VIEWER_SCRIPT, frame=False)
+
+_DROP_PAGE = r"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><meta name="referrer" content="no-referrer"><title>graspd viewer</title>
 <style>
-body {{ font-family: sans-serif; margin: 0; display: flex; flex-direction: column; height: 100vh; }}
-#drop {{ margin: 12px; padding: 18px; border: 2px dashed #888; border-radius: 8px; text-align: center; }}
-#drop.over {{ background: #eef4ff; border-color: #1f4e9c; }}
-#status {{ color: #444; margin: 0 12px; min-height: 1.2em; }}
-iframe {{ flex: 1; border: 0; width: 100%; }}
+body { font-family: sans-serif; margin: 0; display: flex; flex-direction: column; height: 100vh; }
+#bar { display: flex; flex-wrap: wrap; gap: 12px; align-items: center; margin: 12px 12px 0; }
+#drop { flex: 1; min-width: 260px; padding: 18px; border: 2px dashed #888; border-radius: 8px; text-align: center; }
+#drop.over { background: #eef4ff; border-color: #1f4e9c; }
+#status { color: #444; margin: 6px 12px; min-height: 1.2em; overflow-wrap: anywhere; }
+#warnings { margin: 0 12px; padding: 0; list-style: none; color: #7a4b00; overflow-wrap: anywhere; }
+iframe { flex: 1; border: 0; width: 100%; }
 </style></head>
-<body>
+<body data-post="@@POST@@">
+<div id="bar">
 <div id="drop">Drop a point cloud (.pcd, .ply, .npz) here, or <input type="file" id="pick"
  accept=".pcd,.ply,.npz"></div>
+<label>token <input type="password" id="token" autocomplete="off" size="24"
+ placeholder="when the server sets GRASPD_TOKEN"></label>
+</div>
 <div id="status"></div>
-<iframe id="view" title="detected grasps"></iframe>
+<ul id="warnings"></ul>
+<iframe id="view" title="detected grasps" sandbox="allow-scripts" referrerpolicy="no-referrer"></iframe>
 <script>
-const postUrl = {url_js};
+"use strict";
+(function () {
+const postUrl = document.body.dataset.post;
 const drop = document.getElementById("drop"), status = document.getElementById("status");
-async function send(file) {{
-  status.textContent = "detecting grasps in " + file.name + " ...";
+const warnList = document.getElementById("warnings"), token = document.getElementById("token");
+function say(text) { status.textContent = text; }
+function showWarnings(list) {
+  warnList.replaceChildren();
+  for (const w of list) {
+    const li = document.createElement("li");
+    li.textContent = "warning " + String(w.code) + ": " + String(w.message);
+    warnList.appendChild(li);
+  }
+}
+async function send(file) {
+  say("detecting grasps in " + file.name + " ...");
+  showWarnings([]);
   const form = new FormData();
   form.append("file", file, file.name);
-  try {{
-    const reply = await fetch(postUrl, {{ method: "POST", body: form }});
+  const headers = {};
+  if (token.value) headers["Authorization"] = "Bearer " + token.value;
+  try {
+    const reply = await fetch(postUrl, { method: "POST", body: form, headers: headers, credentials: "omit",
+                                         referrerPolicy: "no-referrer" });
     const text = await reply.text();
-    if (!reply.ok) {{ status.textContent = "error " + reply.status + ": " + text.slice(0, 400); return; }}
-    const view = document.getElementById("view");
-    if (view.dataset.url) URL.revokeObjectURL(view.dataset.url);
-    view.dataset.url = URL.createObjectURL(new Blob([text], {{ type: "text/html" }}));
-    view.src = view.dataset.url;
-    status.textContent = file.name;
-  }} catch (err) {{ status.textContent = "failed: " + err; }}
-}}
-drop.addEventListener("dragover", e => {{ e.preventDefault(); drop.classList.add("over"); }});
+    if (!reply.ok) {
+      let why = text.slice(0, 400);
+      try {
+        const e = JSON.parse(text);
+        why = e.error + (e.field ? " (" + e.field + ")" : "");
+      } catch (err) { /* not JSON: its text */ }
+      say("error " + reply.status + ": " + why);
+      return;
+    }
+    let warnings = [];
+    try { warnings = JSON.parse(reply.headers.get("X-Graspd-Warnings") || "[]"); } catch (err) { warnings = []; }
+    showWarnings(Array.isArray(warnings) ? warnings : []);
+    // the answer is shown in a sandboxed frame: its own opaque origin, no access to this page or the token
+    document.getElementById("view").srcdoc = text;
+    say(file.name);
+  } catch (err) { say("failed: " + err); }
+}
+drop.addEventListener("dragover", e => { e.preventDefault(); drop.classList.add("over"); });
 drop.addEventListener("dragleave", () => drop.classList.remove("over"));
-drop.addEventListener("drop", e => {{
+drop.addEventListener("drop", e => {
   e.preventDefault(); drop.classList.remove("over");
   if (e.dataTransfer.files.length) send(e.dataTransfer.files[0]);
-}});
-document.getElementById("pick").addEventListener("change", e => {{
+});
+document.getElementById("pick").addEventListener("change", e => {
   if (e.target.files.length) send(e.target.files[0]);
-}});
+});
+document.body.setAttribute("data-ready", "1");
+})();
 </script>
 </body></html>
 """
+#: The drop page's script and policy: it may fetch from this origin (POST /viewer); the sandboxed frame showing the
+#: answer inherits the policy, so the viewer script's hash is in it too.
+DROP_SCRIPT = _inline_script(_DROP_PAGE)
+DROP_CSP = content_security_policy(DROP_SCRIPT, VIEWER_SCRIPT, connect=True)
+
+
+def security_headers(csp: str) -> dict[str, str]:
+    """The headers of an HTML page of the service: its policy, no MIME sniffing, never framed, no referrer."""
+    return {"Content-Security-Policy": csp, "X-Content-Type-Options": "nosniff", "X-Frame-Options": "DENY",
+            "Referrer-Policy": "no-referrer", "Cross-Origin-Opener-Policy": "same-origin",
+            "Cache-Control": "no-store"}
+
+
+def drop_page_html(post_url: str = "/viewer") -> str:
+    """A small page for GET /viewer: a person gives the token (kept in the page's memory only, sent as the bearer
+    header) and drops (or picks) a .pcd / .ply / .npz cloud; it is POSTed as the multipart field "file" to
+    post_url, and the answer (a viewer_html page) is shown in a sandboxed frame (allow-scripts only: an opaque
+    origin that cannot reach this page, its token or the service), with the response's warnings listed above.
+    Its only script is constant (the URL is an escaped attribute), so DROP_CSP holds its hash."""
+    return _DROP_PAGE.replace("@@POST@@", html.escape(post_url, quote=True))

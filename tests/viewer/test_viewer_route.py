@@ -35,7 +35,7 @@ def krylon_pcd(real_data: Path) -> bytes:
 def test_get_viewer_is_the_drop_page(client: TestClient) -> None:
     r = client.get("/viewer")
     assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
-    assert 'const postUrl = "/viewer"' in r.text and 'form.append("file"' in r.text
+    assert 'data-post="/viewer"' in r.text and 'form.append("file"' in r.text
 
 
 def test_post_viewer_draws_the_detection(client: TestClient, krylon_pcd: bytes) -> None:

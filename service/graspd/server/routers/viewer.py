@@ -5,6 +5,7 @@ the query parameters of a /detect upload) detected by the engine and answered as
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import time
 from collections.abc import AsyncGenerator
@@ -21,7 +22,7 @@ from graspd.detector import Detection
 from graspd.hand import HandGeometry
 from graspd.preprocess import PreprocessParams, preprocess
 from graspd.templates import TemplateDetection
-from graspd.viewer import drop_page_html, viewer_html
+from graspd.viewer import DROP_CSP, VIEWER_CSP, drop_page_html, security_headers, viewer_html
 
 from ..deps import Authorized, State
 from ..problems import Problem
@@ -59,8 +60,9 @@ async def multipart_file(headers: Headers, body: bytes, field: str = "file") -> 
         await form.close()
 
 
-def _page(captured: dict[str, Any], name: str) -> str:
-    """The viewer page of a finished detection (on a worker thread: encoding the page takes a while)."""
+def _page(captured: dict[str, Any], name: str, warnings: list[dict[str, Any]]) -> str:
+    """The viewer page of a finished detection (on a worker thread: encoding the page takes a while), listing the
+    response's warnings."""
     det: Detection | TemplateDetection = captured["det"]
     if not isinstance(det, Detection):
         raise Problem(422, "the viewer draws method \"gpd\" detections", "method")
@@ -72,14 +74,27 @@ def _page(captured: dict[str, Any], name: str) -> str:
     title = (f"{name}: {len(det.grasps)} grasps from {det.num_candidates} candidates, "
              f"model {det.model or 'none (unscored)'}")
     return viewer_html(shown, det, hand, top=VIEW_TOP, max_points=VIEW_MAX_POINTS, title=title,
-                       gravity=params.gravity)
+                       gravity=params.gravity, warnings=warnings)
+
+
+def _warnings(answer: bytes) -> list[dict[str, Any]]:
+    """The warnings ({code, message}) of a detection's JSON answer."""
+    try:
+        body = json.loads(answer)
+    except ValueError:
+        return []
+    found = body.get("warnings") if isinstance(body, dict) else None
+    return [{"code": str(w.get("code", "")), "message": str(w.get("message", ""))}
+            for w in (found if isinstance(found, list) else []) if isinstance(w, dict)]
 
 
 @router.get("/viewer", response_class=HTMLResponse, summary="A page to drop a point cloud on and see its grasps",
-            description="Static page (no data): a dropped .pcd/.ply is POSTed to /viewer and the answer shown.  "
-                        "With GRASPD_TOKEN set, POST /viewer needs the bearer token, which the page cannot send.")
+            description="Static page (no data): a dropped .pcd/.ply is POSTed to /viewer with the token typed into "
+                        "the page (kept in its memory only) and the answer shown in a sandboxed frame, with the "
+                        "response's warnings.  Sent with a strict Content-Security-Policy (only its own hashed "
+                        "scripts run, nothing loads from elsewhere, never framed), nosniff and no referrer.")
 async def viewer_page() -> HTMLResponse:
-    return HTMLResponse(drop_page_html("/viewer"))
+    return HTMLResponse(drop_page_html("/viewer"), headers=security_headers(DROP_CSP))
 
 
 @router.post(
@@ -123,10 +138,13 @@ async def viewer(request: Request, state: State) -> HTMLResponse:
         def keep(det: Detection | TemplateDetection, cloud: ViewpointCloud, hand: HandGeometry) -> None:
             captured.update(det=det, cloud=cloud, hand=hand)
 
-        await state.engine.run_admitted(parse, {"read": time.perf_counter() - t0}, keep)
-        page = await asyncio.to_thread(_page, captured, name)
+        answer = await state.engine.run_admitted(parse, {"read": time.perf_counter() - t0}, keep)
+        warnings = _warnings(answer)
+        page = await asyncio.to_thread(_page, captured, name, warnings)
         status = 200
-        return HTMLResponse(page)
+        headers = security_headers(VIEWER_CSP)
+        headers["X-Graspd-Warnings"] = json.dumps(warnings, ensure_ascii=True)  # the drop page lists them
+        return HTMLResponse(page, headers=headers)
     except Problem as exc:
         status, problem = exc.status, exc
         raise
