@@ -24,6 +24,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 from scipy.spatial import ConvexHull, QhullError
 
 from .cloud import ViewpointCloud
@@ -137,7 +138,7 @@ class EnvironmentParams:
             raise ValueError(f"environment.mode must be one of {ENVIRONMENT_MODES}, got {self.mode!r}")
 
 
-SurfaceKind = Literal["support", "floor", "platform", "wall", "rim", "declared"]
+SurfaceKind = Literal["support", "floor", "platform", "board", "wall", "rim", "declared"]
 
 
 @dataclass(frozen=True)
@@ -367,7 +368,7 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
             break
         b = int(np.argmax(smooth))
         centre_h = lo + (b + 0.5) * bin_w
-        smooth[max(0, b - 3): b + 4] = 0  # this peak is spent, whatever it turns out to be
+        smooth[max(0, b - 1): b + 2] = 0  # this peak is spent, whatever it turns out to be
         window = upf & (np.abs(h - centre_h) <= 2.0 * bin_w)
         if window.sum() < params.level_min_points:
             continue
@@ -382,6 +383,14 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
         if inliers.sum() < params.level_min_points:
             continue
         xy = points[inliers] @ axes2.T
+        # one connected surface (1 cm cells, gaps of a cell bridged): objects' tops at one height are islands
+        ij = np.floor((xy - xy.min(axis=0)) / 0.01).astype(np.int64)
+        grid = np.zeros(tuple(ij.max(axis=0) + 1), bool)
+        grid[ij[:, 0], ij[:, 1]] = True
+        parts, count = ndimage.label(ndimage.binary_dilation(grid), structure=np.ones((3, 3), bool))
+        if count > 1:
+            cell_part = parts[ij[:, 0], ij[:, 1]]
+            xy = xy[cell_part == int(np.argmax(np.bincount(cell_part)[1:])) + 1]
         spans = (_robust_span(xy[:, 0]), _robust_span(xy[:, 1]))
         centre, axes, half = _min_area_rectangle(xy[::max(1, len(xy) // 4000)])
         if min(spans) < min_extent or 2.0 * float(half.min()) < min_extent:
@@ -392,7 +401,7 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
         occupied = np.unique(np.floor(((xy - centre) @ axes.T + half) / cell).astype(np.int64), axis=0)
         fill = len(occupied) / max(float(np.prod(np.ceil(2.0 * half / cell))), 1.0)
         height = float(c @ up)
-        if any(abs(height - lv.height) < 2.0 * params.support_distance for lv in levels):
+        if any(abs(height - lv.height) < 0.7 * params.support_distance for lv in levels):
             continue
         levels.append(Level(plane, height, centre, axes, half, spans, int(inliers.sum()), float(fill)))
     levels.sort(key=lambda lv: lv.height)
@@ -595,15 +604,21 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
             for lv in levels[1:]:
                 assert up is not None
                 lv_h = lv.height - levels[0].height  # above the lowest support (m)
-                slab = _level_box(lv, up, levels[0].height - 0.01, 0.005)
-                # the level's own points and its sides: over its footprint, from its surface down to the support
                 dl = lv.plane.distance(pts)
-                on = _in_footprint(pts, lv, up, 0.01) & (dl <= p.support_distance) & (dl >= -lv_h - 0.005)
+                # seen points well under the level, inside its footprint: it is a board with room beneath (a
+                # shelf's ceiling), not a solid down to the table
+                beneath = _in_footprint(pts, lv, up, -0.02) & (dl < -0.02) & (labels == Label.OBJECT)
+                board = int(beneath.sum()) >= 30
+                depth = min(lv_h, max(0.02, -float(np.max(dl[beneath])) - 0.005)) if board else lv_h
+                slab = _level_box(lv, up, lv.height - depth - (0.0 if board else 0.01), 0.005)
+                # the level's own points and its sides: over its footprint, from its surface down the slab
+                on = _in_footprint(pts, lv, up, 0.01) & (dl <= p.support_distance) & (dl >= -depth - 0.005)
                 labels[on] = Label.SUPPORT
                 walls.append(slab)
-                level_heights.append(lv_h)
+                if not board:
+                    level_heights.append(lv_h)
                 # a floor has walls around it; a platform stands clear (named once the walls are known)
-                surfaces.append(Surface("floor", lv.plane, slab, lv.spans, int(on.sum()),
+                surfaces.append(Surface("board" if board else "floor", lv.plane, slab, lv.spans, int(on.sum()),
                                         _ratio_conf(min(lv.spans), min_extent)))
             min_length = p.wall_min_length if p.wall_min_length is not None else 1.5 * hand.hand_outer_diameter
             found = find_walls(pts, normals, cams, support, p, min_length, rng, labels == Label.OBJECT,

@@ -513,9 +513,10 @@ class BoxOut(BaseModel):
 class SurfaceOut(BaseModel):
     """One surface of the environment (graspd.environment.Surface)."""
 
-    kind: Literal["support", "floor", "platform", "wall", "rim", "declared"] = Field(
+    kind: Literal["support", "floor", "platform", "board", "wall", "rim", "declared"] = Field(
         description="support: the lowest support (a half-space the hand stays above); floor: a container's floor "
-        "above it; platform: a raised top with no walls; wall: a vertical face longer than any graspable object; "
+        "above it; platform: a raised top with no walls; board: a raised board with room beneath it (a shelf's "
+        "ceiling); wall: a vertical face longer than any graspable object; "
         "rim: a thin wall's top seen as a long line; declared: a box of the request")
     plane: PlaneOut = Field(description="its plane, the normal toward the free side")
     box: BoxOut | None = Field(description="the solid the hand must not enter; null for the lowest support")
