@@ -20,8 +20,8 @@ from graspd.server.uploads import QUERY_PARAMS, openapi_parameters
 from graspd.templates import TemplateDetection
 from graspd_client import wire
 
-GPD_KEYS = {"request_id", "method", "grasps", "timings", "model", "scored", "num_candidates", "num_points", "hand",
-            "environment"}
+GPD_KEYS = {"request_id", "method", "frame", "grasps", "timings", "model", "scored", "num_candidates", "num_points",
+            "hand", "environment", "warnings"}
 TEMPLATE_KEYS = GPD_KEYS - {"environment"} | {"num_entries"}
 
 
@@ -43,7 +43,7 @@ def test_gpd_response_matches_the_detection() -> None:
     expected = det.to_dict()
     for k, g in enumerate(expected["grasps"]):
         g.update(id=f"0123456789abcdef-{k}", crop=crops[k])
-    assert out == {"request_id": "0123456789abcdef", "method": "gpd", **expected, "timings": timings}
+    assert out == {"request_id": "0123456789abcdef", "method": "gpd", "frame": "cloud", **expected, "timings": timings}
     assert set(out) == GPD_KEYS
 
 
@@ -59,7 +59,8 @@ def test_template_response_matches_the_detection() -> None:
                                                    hand=hand).to_json())
     expected = det.to_dict()
     expected.pop("detection_id")
-    assert out == {"request_id": "d1", **expected, "model": None, "scored": True, "hand": hand.to_dict()}
+    assert out == {"request_id": "d1", **expected, "frame": "cloud", "model": None, "scored": True, "hand": hand.to_dict(),
+                   "warnings": []}
     assert set(out) == TEMPLATE_KEYS and out["grasps"][2]["mismatch"] is None
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from graspd.cloud import CloudError, ViewpointCloud
+from graspd.inputs import finite_rows
 from graspd.ros.types import CLOUD_INDEXED, CLOUD_SAMPLES, CLOUD_SOURCES, POINTCLOUD2, Header
 
 #: Most points a cloud may declare (the /detect cap, graspd.server.schemas.MAX_POINTS).
@@ -52,6 +53,10 @@ class CloudMessage:
     sample_indices: NDArray[np.int64] | None = None  # (K,) rows of cloud.points (CloudIndexed)
     samples: NDArray[np.float64] | None = None  # (K, 3) positions in header.frame_id, m (CloudSamples)
     msg_type: str = POINTCLOUD2
+    #: Rows the message declared (width x height, an organised cloud's NaN pixels included) and how many of them
+    #: were dropped for a NaN or infinite coordinate or normal (graspd.inputs: the warning non_finite_dropped).
+    received: int = 0
+    dropped: int = 0
 
     @property
     def sample_points(self) -> NDArray[np.float64] | None:
@@ -210,10 +215,13 @@ def _read_cloud_sources(r: _Reader, prefix: str) -> tuple[_RawCloud, NDArray[np.
 
 
 def _finite_rows(raw: _RawCloud) -> NDArray[np.bool_]:
-    keep: NDArray[np.bool_] = np.asarray(np.isfinite(raw.points).all(axis=1), bool)
-    if raw.normals is not None:
-        keep &= np.isfinite(raw.normals).all(axis=1)
-    return keep
+    """Rows to keep: finite point and normal (graspd.inputs.finite_rows, the one rule of every entrance)."""
+    return finite_rows(raw.points, raw.normals)
+
+
+def _dropped(keep: NDArray[np.bool_]) -> int:
+    """The dropped field of a CloudMessage: rows not kept."""
+    return int(len(keep) - np.count_nonzero(keep))
 
 
 def _viewpoint_cloud(raw: _RawCloud, camera_source: NDArray[np.int64] | None, view_points: NDArray[np.float64],
@@ -254,8 +262,9 @@ def decode_pointcloud2(payload: bytes | bytearray | memoryview,
     r = _Reader(payload)
     raw = _read_pointcloud2(r, "")
     vps = np.asarray(viewpoints, np.float64).reshape(-1, 3)
-    cloud = _viewpoint_cloud(raw, None, vps, _finite_rows(raw), "")
-    return CloudMessage(cloud, raw.header, msg_type=POINTCLOUD2)
+    keep = _finite_rows(raw)
+    cloud = _viewpoint_cloud(raw, None, vps, keep, "")
+    return CloudMessage(cloud, raw.header, msg_type=POINTCLOUD2, received=len(keep), dropped=_dropped(keep))
 
 
 def decode_cloud_sources(payload: bytes | bytearray | memoryview) -> CloudMessage:
@@ -263,8 +272,9 @@ def decode_cloud_sources(payload: bytes | bytearray | memoryview) -> CloudMessag
     (camera positions, header.frame_id, m); normals kept when the cloud has normal_x/y/z."""
     r = _Reader(payload)
     raw, src, vps = _read_cloud_sources(r, "")
-    cloud = _viewpoint_cloud(raw, src, vps, _finite_rows(raw), "")
-    return CloudMessage(cloud, raw.header, msg_type=CLOUD_SOURCES)
+    keep = _finite_rows(raw)
+    cloud = _viewpoint_cloud(raw, src, vps, keep, "")
+    return CloudMessage(cloud, raw.header, msg_type=CLOUD_SOURCES, received=len(keep), dropped=_dropped(keep))
 
 
 def decode_cloud_indexed(payload: bytes | bytearray | memoryview) -> CloudMessage:
@@ -283,7 +293,8 @@ def decode_cloud_indexed(payload: bytes | bytearray | memoryview) -> CloudMessag
     cloud = _viewpoint_cloud(raw, src, vps, keep, "cloud_sources.")
     new_row = np.cumsum(keep, dtype=np.int64) - 1
     kept = indices[keep[indices]] if nidx else indices
-    return CloudMessage(cloud, raw.header, sample_indices=new_row[kept], msg_type=CLOUD_INDEXED)
+    return CloudMessage(cloud, raw.header, sample_indices=new_row[kept], msg_type=CLOUD_INDEXED,
+                        received=len(keep), dropped=_dropped(keep))
 
 
 def decode_cloud_samples(payload: bytes | bytearray | memoryview) -> CloudMessage:
@@ -295,8 +306,10 @@ def decode_cloud_samples(payload: bytes | bytearray | memoryview) -> CloudMessag
     samples = r.array("f8", nsamples, "samples", 3).astype(np.float64).reshape(-1, 3)
     if not (np.abs(samples) <= MAX_COORD).all():
         raise RosDecodeError("samples", f"must be finite, within {MAX_COORD:g} m")
-    cloud = _viewpoint_cloud(raw, src, vps, _finite_rows(raw), "cloud_sources.")
-    return CloudMessage(cloud, raw.header, samples=samples, msg_type=CLOUD_SAMPLES)
+    keep = _finite_rows(raw)
+    cloud = _viewpoint_cloud(raw, src, vps, keep, "cloud_sources.")
+    return CloudMessage(cloud, raw.header, samples=samples, msg_type=CLOUD_SAMPLES, received=len(keep),
+                        dropped=_dropped(keep))
 
 
 DECODERS: dict[str, Callable[[bytes | bytearray | memoryview], CloudMessage]] = {

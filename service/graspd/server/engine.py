@@ -14,6 +14,7 @@ import uuid
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import replace
 from typing import Any, TypeVar
 
 import numpy as np
@@ -227,7 +228,8 @@ class DetectionEngine:
             timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
             try:
                 hand = req.hand_geometry()
-                cloud = req.to_cloud()
+                given = req.to_input()  # in the frame detection runs in; non-finite rows dropped (graspd.inputs)
+                cloud = given.cloud
                 params = req.to_params()
             except WireError as exc:
                 raise from_wire(exc) from None
@@ -238,6 +240,10 @@ class DetectionEngine:
             with THREADS.request():  # concurrent requests share the cores (graspd.parallel)
                 det = self._detect(req, cloud, params, hand, model)
             # request_id: the client's X-Request-ID, else made here; detection_id (GPD grasp ids) always made here
+            input_warnings = given.warnings  # the input's own (non-finite rows dropped), first
+            if isinstance(det, Detection):
+                det = replace(det, warnings=(*input_warnings, *det.warnings))
+                input_warnings = ()
             detection_id = ctx.detection_id if ctx is not None else uuid.uuid4().hex[:16]
             if isinstance(det, TemplateDetection):
                 request_id = det.detection_id or uuid.uuid4().hex
@@ -267,7 +273,8 @@ class DetectionEngine:
             fits = None if isinstance(det, TemplateDetection) else self.registry.fits(det.model, used_hand)
             return DetectResponse.from_detection(det, request_id=request_id, timings=timings, hand=used_hand,
                                                  crops=crops, header=header or None,
-                                                 model_fits_hand=fits, detection_id=detection_id).to_json()
+                                                 model_fits_hand=fits, detection_id=detection_id,
+                                                 frame=given.frame, warnings=input_warnings).to_json()
         finally:
             elapsed = time.perf_counter() - start
             with self._lock:

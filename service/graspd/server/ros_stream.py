@@ -22,10 +22,12 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import PrivateAttr
 
-from graspd.cloud import ViewpointCloud
+from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
+from graspd.frames import frame_name, to_robot
 from graspd.grasp import GraspSet
 from graspd.hand import HandGeometry
+from graspd.inputs import CloudInput, apply_frames, no_finite_point
 from graspd.ros import (
     CloudMessage,
     Header,
@@ -87,27 +89,47 @@ def resolve_keys(prefix: str, given: Mapping[str, str], defaults: Mapping[str, s
 
 class StreamRequest(DetectRequest):
     """A DetectRequest whose cloud was decoded from a ROS message: the engine runs it like any other, on the
-    decoded ViewpointCloud (normals kept) and sampling at the message's sample points when it has them."""
+    decoded ViewpointCloud (normals kept; in the robot frame with camera poses) and sampling at the message's
+    sample points when it has them."""
 
-    _decoded: ViewpointCloud | None = PrivateAttr(default=None)
+    _decoded: CloudInput | None = PrivateAttr(default=None)
     _sample_points: NDArray[np.float64] | None = PrivateAttr(default=None)
 
-    def to_cloud(self) -> ViewpointCloud:
-        return self._decoded if self._decoded is not None else super().to_cloud()
+    def to_input(self) -> CloudInput:
+        return self._decoded if self._decoded is not None else super().to_input()
 
     def to_params(self) -> DetectionParams:
         params = super().to_params()
         return params if self._sample_points is None else replace(params, sample_points=self._sample_points)
 
 
+#: Stream options that are not DetectRequest fields: where a PointCloud2's camera is (viewpoints, or camera_poses
+#: with points_frame, as in a request's cloud) and the ROS frame names (camera_frame_id: the frame_id a
+#: camera-frame cloud must carry, none: any; robot_frame_id: the frame the camera poses map into, which the ROS
+#: outputs and the JSON answer's header name).
+CLOUD_OPTIONS = ("viewpoints", "camera_poses", "points_frame")
+FRAME_ID_OPTIONS = ("camera_frame_id", "robot_frame_id")
+DEFAULT_ROBOT_FRAME_ID = "base_link"
+
+
 @dataclass(frozen=True)
 class StreamOptions:
     """The detection options of streamed clouds and CDR queries: a validated DetectRequest (its cloud a
-    placeholder), the camera positions a PointCloud2 is seen from, and the JSON they were set from."""
+    placeholder), the camera positions a PointCloud2 is seen from (or the camera poses, graspd.frames), the ROS
+    frame names, and the JSON they were set from."""
 
     request: DetectRequest
     viewpoints: NDArray[np.float64]
     source: dict[str, Any]
+    camera_poses: NDArray[np.float64] | None = None
+    points_frame: str | None = None
+    camera_frame_id: str | None = None
+    robot_frame_id: str | None = None
+
+    @property
+    def output_frame_id(self) -> str:
+        """The frame_id of the outputs of a camera-frame cloud moved into the robot frame."""
+        return self.robot_frame_id or DEFAULT_ROBOT_FRAME_ID
 
     def to_json(self) -> bytes:
         """What GET <prefix>/config answers: the options in force (settings, then the last accepted put)."""
@@ -127,15 +149,30 @@ def parse_options(payload: bytes | str | dict[str, Any], base: Mapping[str, Any]
     for name in NOT_OPTIONS:
         if name in obj:
             raise Problem(422, f"{name!r} is not a stream option (the cloud comes in the message)", name)
-    merged = {**base, **obj}
-    vps = merged.pop("viewpoints", np.asarray(viewpoints, np.float64).tolist())
+    merged = {k: v for k, v in {**base, **obj}.items() if not (k in CLOUD_OPTIONS[1:] and v is None)}
+    source = dict(merged)
+    ids: dict[str, str] = {}
+    for name in FRAME_ID_OPTIONS:
+        value = merged.pop(name, None)
+        if value is not None and (not isinstance(value, str) or not 0 < len(value) <= 256):
+            raise Problem(422, "a ROS frame name (1 to 256 characters) expected", name)
+        if value is not None:
+            ids[name] = value
+    cloud: dict[str, Any] = {"points": _PLACEHOLDER_POINTS}
+    for name in CLOUD_OPTIONS[1:]:
+        if name in merged:
+            cloud[name] = merged.pop(name)
+    vps = merged.pop("viewpoints", None)
+    if vps is not None or "camera_poses" not in cloud:  # camera poses replace the settings' viewpoint
+        cloud["viewpoints"] = np.asarray(viewpoints, np.float64).tolist() if vps is None else vps
     try:
-        req = parse_model(DetectRequest, {**merged, "cloud": {"points": _PLACEHOLDER_POINTS, "viewpoints": vps}})
+        req = parse_model(DetectRequest, {**merged, "cloud": cloud})
     except Problem as exc:
-        if exc.field is not None and exc.field.startswith("cloud.viewpoints"):
-            raise Problem(exc.status, exc.message, "viewpoints" + exc.field[len("cloud.viewpoints"):]) from None
+        if exc.field is not None and exc.field.startswith("cloud."):  # the stream option is named without cloud.
+            raise Problem(exc.status, exc.message, exc.field[len("cloud."):]) from None
         raise
-    return StreamOptions(req, np.asarray(req.cloud.viewpoints, np.float64), {k: v for k, v in merged.items()})
+    return StreamOptions(req, np.asarray(req.cloud.viewpoints, np.float64), source, req.cloud.poses(),
+                         req.cloud.points_frame, ids.get("camera_frame_id"), ids.get("robot_frame_id"))
 
 
 def decode_input(payload: bytes, name: str, options: StreamOptions) -> CloudMessage:
@@ -150,11 +187,42 @@ def decode_input(payload: bytes, name: str, options: StreamOptions) -> CloudMess
         raise Problem(422, f"not a usable {INPUT_TYPES[name]}: {exc}", exc.field) from None
     pts = msg.cloud.points
     if len(pts) == 0:
-        raise Problem(422, "no finite point in the cloud; send at least one point", _DATA_FIELD[name])
+        raise Problem(422, no_finite_point(msg.received) if msg.received else
+                      "empty cloud (0 points); send at least one point", _DATA_FIELD[name])
     if float(np.abs(pts).max()) > MAX_COORDINATE:
         raise Problem(422, f"coordinates beyond +-{MAX_COORDINATE:g} m; send metres in a local frame",
                       _DATA_FIELD[name])
-    return msg
+    return in_robot_frame(msg, options)
+
+
+def in_robot_frame(msg: CloudMessage, options: StreamOptions) -> CloudMessage:
+    """The message as detection sees it: unchanged without camera poses in the options; with them, its cloud in
+    the robot frame (graspd.inputs.apply_frames: a camera-frame cloud is moved by the poses, camera_source picking
+    the pose; samples of a CloudSamples by the first pose) and its header naming the frame the grasps will be in
+    (robot_frame_id, default base_link, for a camera-frame cloud).  Problem 422 naming header.frame_id when the
+    cloud's frame is not the one the options say (camera_frame_id for points_frame camera, robot_frame_id for
+    robot; either checked only when set): the pose would be applied to the wrong cloud."""
+    poses = options.camera_poses
+    if poses is None:
+        return msg
+    camera = options.points_frame == "camera"
+    expected = options.camera_frame_id if camera else options.robot_frame_id
+    got = msg.header.frame_id
+    if expected is not None and got and got.lstrip("/") != expected.lstrip("/"):
+        setting = "camera_frame_id" if camera else "robot_frame_id"
+        raise Problem(422, f"the cloud is in frame {got!r}, the stream's camera pose is for {expected!r} "
+                      f"(points_frame {options.points_frame!r}); set {setting} and camera_poses on the config key "
+                      "to match the camera", "header.frame_id")
+    try:
+        cloud, _frame = apply_frames(msg.cloud, poses, options.points_frame)
+    except CloudError as exc:
+        field = "camera_source" if exc.field.endswith("camera_source") else exc.field
+        raise Problem(422, exc.message, field) from None
+    samples = msg.samples
+    if camera and samples is not None and len(samples):
+        samples = to_robot(samples, np.zeros(len(samples), np.int64), poses[:1])[0].astype(np.float64)
+    header = Header(options.output_frame_id, msg.header.stamp) if camera else msg.header
+    return replace(msg, cloud=cloud, samples=samples, header=header)
 
 
 def stream_request(msg: CloudMessage, options: StreamOptions) -> StreamRequest:
@@ -165,7 +233,7 @@ def stream_request(msg: CloudMessage, options: StreamOptions) -> StreamRequest:
     fields["cloud"] = Cloud.model_construct(points=cloud.points, viewpoints=cloud.viewpoints.astype(np.float64),
                                             camera_source=cloud.camera_source)
     req = StreamRequest.model_construct(_fields_set=options.request.model_fields_set, **fields)
-    req._decoded = cloud
+    req._decoded = CloudInput(cloud, frame_name(options.camera_poses), msg.dropped, msg.received)
     req._sample_points = msg.sample_points
     return req
 

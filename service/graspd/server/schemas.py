@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import binascii
 import math
+from collections.abc import Sequence
 from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
@@ -19,6 +20,7 @@ from pydantic import (
     ConfigDict,
     Field,
     PlainValidator,
+    PrivateAttr,
     StrictBool,
     ValidationInfo,
     WithJsonSchema,
@@ -29,11 +31,13 @@ from pydantic import (
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
 from graspd.environment import Box, EnvironmentParams, Plane
-from graspd.warning import WARNING_CODES
+from graspd.frames import check_points_frame, pose_matrix
 from graspd.grasp import RANKING_RULE
 from graspd.hand import HAND_PRESETS, HandGeometry
+from graspd.inputs import CloudInput, apply_frames, finite_rows, keep_finite
 from graspd.templates import TemplateDetection
 from graspd.templates.demonstration import check_hand_pose
+from graspd.warning import WARNING_CODES, DetectionWarning
 from graspd_client import wire
 from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
 
@@ -87,23 +91,61 @@ def _array(shape: tuple[int | None, ...], kind: str, dtype: str, finite: bool, d
                      WithJsonSchema({**ENCODED_ARRAY_SCHEMA, "description": description})]
 
 
-Points = _array((None, 3), "f", "float32", True,
-                "cloud points (N,3), metres, in the caller's frame; float32 or float64; finite")
+Points = _array((None, 3), "f", "float32", False,
+                "cloud points (N,3), metres, in the caller's frame (or each camera's, points_frame 'camera'); "
+                "float32 or float64; rows with a NaN or infinite coordinate are dropped and counted (warning "
+                "non_finite_dropped), a cloud with no finite row is refused")
+Normals = _array((None, 3), "f", "float32", False,
+                 "optional unit surface normals (N,3), one per point, pointing toward the camera that saw it; rows "
+                 "that are not finite are dropped with their points")
 Viewpoints = _array((None, 3), "f", "float64", True,
                     "camera positions (K,3), metres, same frame as the points")
 CameraSource = _array((None,), "i", "int64", False,
-                      "per-point camera index (N,) into viewpoints; default 0 for every point")
+                      "per-point camera index (N,) into viewpoints (or camera_poses); default 0 for every point")
 RGBImage = _array((None, None, 3), "i", "uint8", False, "RGB image (H,W,3) uint8, row-major, top row first")
 Matrix4 = _array((4, 4), "f", "float64", True, "4x4 homogeneous transform, row-major")
 
 
+def _camera_pose(value: Any) -> np.ndarray:
+    """One checked camera-to-robot transform (4,4) (graspd.frames.pose_matrix; its WireError names the sub-field
+    relative to this pose: "" or ".quat_xyzw", ...)."""
+    return pose_matrix(value, "")
+
+
+CameraPose = Annotated[np.ndarray, PlainValidator(_camera_pose), WithJsonSchema({
+    "description": "camera-to-robot transform: a 4x4 row-major matrix or {\"position\": [x, y, z], "
+                   "\"quat_xyzw\": [x, y, z, w]} (metres; a proper rotation: orthonormal, determinant +1)",
+    "oneOf": [
+        {"type": "array", "title": "Matrix4", "items": {"type": "array", "items": {"type": "number"},
+                                                        "minItems": 4, "maxItems": 4}, "minItems": 4, "maxItems": 4},
+        {"type": "object", "title": "PositionQuaternion", "additionalProperties": False,
+         "required": ["position", "quat_xyzw"],
+         "properties": {"position": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+                        "quat_xyzw": {"type": "array", "items": {"type": "number"}, "minItems": 4,
+                                      "maxItems": 4}}}]})]
+
+
 class Cloud(BaseModel):
-    """Points seen by one or more cameras; viewpoints are the camera positions (metres)."""
+    """Points seen by one or more cameras, and where the cameras were: viewpoints (camera positions in the
+    cloud's frame, metres), or camera_poses (camera-to-robot transforms) with points_frame (graspd.frames)."""
 
     model_config = ConfigDict(extra="forbid")
     points: Points  # type: ignore[valid-type]
     viewpoints: Viewpoints = Field(default_factory=lambda: np.zeros((1, 3)))  # type: ignore[valid-type]
+    camera_poses: list[CameraPose] | None = Field(  # type: ignore[valid-type]
+        None, min_length=1, max_length=wire.MAX_VIEWPOINTS,
+        description="one camera-to-robot transform per camera (ROS: the TF transform of the camera's frame into "
+        "the base frame).  Replaces viewpoints: the cameras' positions are the translations; detection runs in the "
+        "robot frame and the grasps come back in it (the response's frame is 'robot')")
+    points_frame: Literal["camera", "robot"] | None = Field(
+        None, description="with camera_poses, required: 'camera' (each point in the frame of the camera that saw "
+        "it, camera_source picking the camera; graspd moves it into the robot frame) or 'robot' (already in the "
+        "robot frame).  Every other geometric field of the request (workspace, gravity, approach, environment, "
+        "crops.camera_pose) is then in the robot frame")
     camera_source: CameraSource | None = None  # type: ignore[valid-type]
+    normals: Normals | None = None  # type: ignore[valid-type]
+    _dropped: int = PrivateAttr(default=0)
+    _received: int = PrivateAttr(default=0)
 
     @field_validator("points")
     @classmethod
@@ -112,7 +154,8 @@ class Cloud(BaseModel):
             raise ValueError("empty cloud (0 points); send at least one point")
         if len(v) > MAX_POINTS:
             raise ValueError(f"{len(v)} points exceeds the limit of {MAX_POINTS}")
-        if np.abs(v).max() > MAX_COORDINATE:
+        finite = v[finite_rows(v)]  # the others are dropped (model validator): the bound is on what is kept
+        if len(finite) and np.abs(finite).max() > MAX_COORDINATE:
             raise ValueError(f"coordinates beyond +-{MAX_COORDINATE:g} m; send metres in a local frame")
         return v.astype(np.float32, copy=False)
 
@@ -128,22 +171,62 @@ class Cloud(BaseModel):
     def _camera_source(cls, v: np.ndarray | None, info: ValidationInfo) -> np.ndarray | None:
         if v is None:
             return None
-        pts, vps = info.data.get("points"), info.data.get("viewpoints")
+        pts, poses = info.data.get("points"), info.data.get("camera_poses")
+        refs, what = (poses, "camera pose") if poses is not None else (info.data.get("viewpoints"), "viewpoint")
         if pts is not None and len(v) != len(pts):
             raise ValueError(f"one index per point expected ({len(pts)}), got {len(v)}")
-        if vps is not None and len(v) and (v.min() < 0 or v.max() >= len(vps)):
-            raise ValueError(f"indices must lie in [0, {len(vps) - 1}] (one per viewpoint), "
+        if refs is not None and len(v) and (v.min() < 0 or v.max() >= len(refs)):
+            raise ValueError(f"indices must lie in [0, {len(refs) - 1}] (one per {what}), "
                              f"got values in [{v.min()}, {v.max()}]")
         return v.astype(np.int32)
 
-    def to_cloud(self) -> ViewpointCloud:
-        """The detector's ViewpointCloud (points float32, viewpoints, one camera index per point)."""
+    @field_validator("normals")
+    @classmethod
+    def _normals(cls, v: np.ndarray | None, info: ValidationInfo) -> np.ndarray | None:
+        pts = info.data.get("points")
+        if v is not None and pts is not None and v.shape != pts.shape:
+            raise ValueError(f"one normal per point expected, shape {pts.shape}, got {v.shape}")
+        return v
+
+    @model_validator(mode="after")
+    def _frames_and_finite(self) -> Cloud:
+        """Frames are consistent (graspd.frames.check_points_frame; poses replace viewpoints), then rows with a
+        NaN or infinite coordinate are dropped and counted (graspd.inputs.keep_finite; none left: cloud.points)."""
+        check_points_frame(self.points_frame, self.camera_poses is not None, ".points_frame")
+        if self.camera_poses is not None and "viewpoints" in self.model_fields_set:
+            raise WireError(".viewpoints", "give camera_poses or viewpoints, not both (with camera poses the "
+                            "viewpoints are the cameras' positions in the robot frame)")
+        self._received = len(self.points)
+        keep, self._dropped = keep_finite(self.points, self.normals, ".points")
+        if keep is not None:
+            self.points = np.asarray(self.points)[keep]
+            self.camera_source = None if self.camera_source is None else self.camera_source[keep]
+            self.normals = None if self.normals is None else self.normals[keep]
+        return self
+
+    def poses(self) -> np.ndarray | None:
+        """The camera poses as one (K,4,4) array, None without them."""
+        return None if self.camera_poses is None else np.stack(self.camera_poses)
+
+    def to_input(self) -> CloudInput:
+        """The detector's cloud in the frame detection runs in (graspd.inputs.apply_frames), with the count of
+        non-finite rows dropped."""
+        poses = self.poses()
         try:
-            return ViewpointCloud(points=self.points, viewpoints=np.asarray(self.viewpoints, np.float32),
-                                  camera_source=(np.zeros(0, np.int32) if self.camera_source is None
-                                                 else self.camera_source))
+            viewpoints = (np.zeros((len(poses), 3), np.float32) if poses is not None
+                          else np.asarray(self.viewpoints, np.float32))
+            cloud = ViewpointCloud(points=self.points, viewpoints=viewpoints,
+                                   camera_source=(np.zeros(0, np.int32) if self.camera_source is None
+                                                  else self.camera_source), normals=self.normals)
+            moved, frame = apply_frames(cloud, poses, self.points_frame)
         except CloudError as exc:  # the validators above check what ViewpointCloud does; kept as a 422
-            raise WireError("cloud", str(exc)) from None
+            raise WireError(exc.field or "cloud", exc.message) from None
+        return CloudInput(moved, frame, self._dropped, self._received or len(self.points))
+
+    def to_cloud(self) -> ViewpointCloud:
+        """The detector's ViewpointCloud (points float32, viewpoints, one camera index per point), in the frame
+        detection runs in (the robot frame with camera_poses)."""
+        return self.to_input().cloud
 
 
 Length = Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)]
@@ -415,9 +498,14 @@ class DetectRequest(BaseModel):
         """The requested hand, None for the detector's own."""
         return None if self.hand is None else self.hand.geometry()
 
+    def to_input(self) -> CloudInput:
+        """The detector's cloud in the frame detection runs in, that frame's name and the non-finite rows dropped
+        (graspd.inputs): its warnings go into the response."""
+        return self.cloud.to_input()
+
     def to_cloud(self) -> ViewpointCloud:
-        """The detector's ViewpointCloud of the request's cloud."""
-        return self.cloud.to_cloud()
+        """The detector's ViewpointCloud of the request's cloud (in the robot frame with camera_poses)."""
+        return self.to_input().cloud
 
     def workspace_bounds(self) -> tuple[float, float, float, float, float, float] | None:
         ws = self.workspace
@@ -576,6 +664,10 @@ class DetectResponse(BaseModel):
                             "to 128 letters, digits and . _ - : ; = + / @), else one the server made; the "
                             "X-Request-ID response header and every server log line of the request carry it")
     method: Literal["gpd", "templates"] = Field("gpd", description="the detector that answered")
+    frame: Literal["robot", "cloud"] = Field("cloud", description="the frame every position and direction of "
+                                             "this answer is in: 'robot' when the request gave camera_poses "
+                                             "(the robot frame they map into), else 'cloud' (the frame of the "
+                                             "cloud as sent)")
     grasps: list[GraspOut] = Field(description=RANKING)
     timings: dict[str, float] = Field(description="seconds per stage: decode, queue, preprocess, scene, sample, "
                                       "encode, score, select, crops; detect (the detector's wall time, stages "
@@ -604,11 +696,13 @@ class DetectResponse(BaseModel):
     def from_detection(cls, det: Detection | TemplateDetection, *, request_id: str, timings: dict[str, float],
                        hand: HandGeometry, crops: list[dict[str, Any]] | None = None,
                        header: dict[str, Any] | None = None, model_fits_hand: bool | None = None,
-                       detection_id: str | None = None) -> DetectResponse:
+                       detection_id: str | None = None, frame: str = "cloud",
+                       warnings: Sequence[DetectionWarning] = ()) -> DetectResponse:
         """The response to a detection, validated against this model (so what is sent cannot drift from what
         is documented).  Grasp ids are assigned here: gpd "<detection id>-<k>" (detection_id: the server's id
         of the detection, default request_id), templates the ids the library recorded.  crops: one
-        CropOut-shaped dict per grasp; header: the ROS header of a CDR input (Zenoh).
+        CropOut-shaped dict per grasp; header: the ROS header of a CDR input (Zenoh); frame: the frame the grasps
+        are in (graspd.frames); warnings: those of the input (graspd.inputs), before the detection's own.
         Cost at 100 grasps: ~1.2 ms to build, validate (pydantic-core) and serialise (to_json), against ~0.9 ms
         for the unvalidated dicts and orjson this replaced: a fraction of a percent of a detection."""
         g = det.grasps
@@ -625,9 +719,10 @@ class DetectResponse(BaseModel):
             for grasp, crop in zip(grasps, crops, strict=True):
                 grasp["crop"] = crop
         out: dict[str, Any] = {"request_id": request_id, "method": "templates" if templates else "gpd",
-                               "grasps": grasps, "timings": timings, "num_candidates": det.num_candidates,
+                               "frame": frame, "grasps": grasps, "timings": timings,
+                               "num_candidates": det.num_candidates,
                                "num_points": det.num_points, "hand": hand.to_dict(),
-                               "warnings": [w.to_dict() for w in getattr(det, "warnings", ())]}
+                               "warnings": [w.to_dict() for w in (*warnings, *getattr(det, "warnings", ()))]}
         if isinstance(det, TemplateDetection):
             for grasp, entry, m in zip(grasps, det.entry_ids.tolist(), det.mismatch.tolist(), strict=True):
                 grasp.update(template_entry=entry, mismatch=m if math.isfinite(m) else None)

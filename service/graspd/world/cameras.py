@@ -169,3 +169,46 @@ def active_cameras(target: tuple[float, float, float] = (0.0, 0.0, 0.03), radius
         pos = np.asarray(target) + radius * (pos - target) / np.linalg.norm(pos - target)
         cams.append(Camera(tuple(pos.tolist()), target, fov_deg=55.0, fov_axis="vertical"))
     return cams
+
+
+# ---- pixels <-> points with explicit pinhole intrinsics (depth images from a driver, ROS CameraInfo K) ----
+
+
+def camera_intrinsics(cam: Camera) -> tuple[float, float, float, float]:
+    """(fx, fy, cx, cy) of a Camera in the OpenCV / ROS CameraInfo convention (pixel centres at integer
+    coordinates, u = fx x/z + cx): Camera.project puts pixel i's centre at i + 0.5, so cx = width/2 - 0.5."""
+    f = cam.focal_px
+    return f, f, cam.width / 2.0 - 0.5, cam.height / 2.0 - 0.5
+
+
+def camera_pose(cam: Camera) -> F64:
+    """The camera-to-world transform (4,4) of a Camera's optical frame (x right, y down, z forward)."""
+    pose = np.eye(4)
+    pose[:3, :3] = cam.rotation()
+    pose[:3, 3] = cam.position
+    return pose
+
+
+def backproject(depth: NDArray[np.floating], fx: float, fy: float, cx: float, cy: float) -> NDArray[np.float32]:
+    """Points (H,W,3) in the camera's optical frame (x right, y down, z forward; m) of a depth image (H,W) of
+    z-depths in metres: x = (u - cx) z / fx, y = (v - cy) z / fy with u, v the pixel's column and row (pixel centres
+    at integer coordinates: the OpenCV / ROS CameraInfo convention, the inverse of Camera.project with
+    camera_intrinsics).  Pixels without depth (0, NaN) give rows with z 0 or NaN: the caller drops them."""
+    z = np.asarray(depth, np.float32)
+    if z.ndim != 2:
+        raise ValueError(f"a depth image (H, W) expected, got shape {z.shape}")
+    v, u = np.indices(z.shape, dtype=np.float32)
+    return np.stack([(u - np.float32(cx)) * z / np.float32(fx), (v - np.float32(cy)) * z / np.float32(fy), z], axis=-1)
+
+
+def depth_image(cam: Camera, points: NDArray[np.floating]) -> NDArray[np.float32]:
+    """The depth image (height, width) of z-depths (m) a Camera records of world points: each point goes to the
+    pixel it projects into (Camera.project), the nearest one wins; pixels with no point are 0 (no depth), as
+    drivers write them.  With noise-free points from graspd.world.render this is the camera's depth image."""
+    uvz = cam.project(np.asarray(points, np.float64))
+    u, v, z = np.floor(uvz[:, 0]).astype(np.int64), np.floor(uvz[:, 1]).astype(np.int64), uvz[:, 2]
+    ok = (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+    image = np.full(cam.height * cam.width, np.inf)
+    np.minimum.at(image, v[ok] * cam.width + u[ok], z[ok])
+    image[~np.isfinite(image)] = 0.0
+    return image.reshape(cam.height, cam.width).astype(np.float32)
