@@ -21,7 +21,8 @@ from typing import TYPE_CHECKING
 from . import __version__
 
 if TYPE_CHECKING:
-    from .detector import Scorer
+    from .cloud import ViewpointCloud
+    from .detector import Detection, DetectionParams, Scorer
 
 #: Subcommands other modules define with register(subparsers): name -> (module, the help line `graspd --help`
 #: shows without importing it; tests/core/test_cli_startup.py keeps the two the same).
@@ -78,7 +79,7 @@ def _detect(args: argparse.Namespace) -> int:
     except CliError as exc:
         print(f"graspd detect: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    detection = GraspDetector(classifier, hand, prefilter).detect(cloud, params)
+    detection = _checked(GraspDetector(classifier, hand, prefilter).detect(cloud, params), cloud, params, classifier)
     out = detection.to_dict()
     if classifier is None:
         out["note"] = "no classifier: candidates are unscored (the paper's 'no classification' ablation)"
@@ -125,7 +126,7 @@ def _demo(args: argparse.Namespace) -> int:
     cloud = cluttered_tabletop(num_objects=args.objects, seed=args.seed)
     params = DetectionParams(num_samples=args.samples, exclude_support_plane=True, gravity=GRAVITY,
                              approach_direction=GRAVITY, approach_max_angle_deg=80.0, max_grasps=20)
-    detection = GraspDetector(classifier).detect(cloud, params)
+    detection = _checked(GraspDetector(classifier).detect(cloud, params), cloud, params, classifier)
     result = detection.to_dict()
     if classifier is None:
         result["note"] = "no classifier in models/: candidates are unscored (the paper's 'no classification' ablation)"
@@ -139,6 +140,21 @@ def _demo(args: argparse.Namespace) -> int:
     print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates in {t['total']:.2f} s "
           f"(model: {detection.model or 'none'}); wrote {out / 'grasps.png'} and {out / 'grasps.json'}")
     return 0
+
+
+def _checked(detection: Detection, cloud: ViewpointCloud, params: DetectionParams,
+             classifier: Scorer | None) -> Detection:
+    """The detection with the service's request-level warnings (graspd.sanity.check_detection, the same as on
+    every transport), each also printed on stderr."""
+    from .classifier import card_fits_hand
+    from .sanity import check_detection
+
+    card = getattr(classifier, "card", None)
+    fits = None if card is None else card_fits_hand(dict(card), detection.hand.to_dict())
+    detection = detection.warned(*check_detection(detection, cloud.points, cloud.viewpoints, params.workspace, fits))
+    for w in detection.warnings:
+        print(f"warning {w.code}: {w.message}", file=sys.stderr)
+    return detection
 
 
 _UNSCORED_HINT = "or run unscored with --no-classifier (the paper's 'no classification' ablation)"

@@ -25,6 +25,7 @@ from graspd.cloud import ViewpointCloud
 from graspd.detector import Detection, DetectionParams
 from graspd.hand import HandGeometry
 from graspd.parallel import THREADS
+from graspd.sanity import check_detection
 from graspd.templates import TemplateDetection
 from graspd_client.codec import WireError
 
@@ -239,11 +240,11 @@ class DetectionEngine:
             ctx = current_request()
             with THREADS.request():  # concurrent requests share the cores (graspd.parallel)
                 det = self._detect(req, cloud, params, hand, model)
-            # request_id: the client's X-Request-ID, else made here; detection_id (GPD grasp ids) always made here
             input_warnings = given.warnings  # the input's own (non-finite rows dropped), first
             if isinstance(det, Detection):
                 det = replace(det, warnings=(*input_warnings, *det.warnings))
                 input_warnings = ()
+            # request_id: the client's X-Request-ID, else made here; detection_id (GPD grasp ids) always made here
             detection_id = ctx.detection_id if ctx is not None else uuid.uuid4().hex[:16]
             if isinstance(det, TemplateDetection):
                 request_id = det.detection_id or uuid.uuid4().hex
@@ -268,9 +269,11 @@ class DetectionEngine:
             self.metrics.candidates.observe(det.num_candidates)
             self.metrics.grasps.observe(len(det.grasps))
             self.metrics.points.observe(det.num_points)
+            fits = None if isinstance(det, TemplateDetection) else self.registry.fits(det.model, used_hand)
+            if isinstance(det, Detection):  # the request-level checks (graspd.sanity), after the detector's own
+                det = det.warned(*check_detection(det, cloud.points, cloud.viewpoints, params.workspace, fits))
             timings["total"] = time.perf_counter() - enqueued + before
             self.metrics.observe_timings(timings)
-            fits = None if isinstance(det, TemplateDetection) else self.registry.fits(det.model, used_hand)
             return DetectResponse.from_detection(det, request_id=request_id, timings=timings, hand=used_hand,
                                                  crops=crops, header=header or None,
                                                  model_fits_hand=fits, detection_id=detection_id,
