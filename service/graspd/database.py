@@ -159,6 +159,40 @@ def redact_text(text: str, url: str | None = None) -> str:
     return _DSN_PASSWORD.sub(lambda m: f"{m['key']}{m['eq']}{MASK}", out)
 
 
+#: Text that locates a server or a file: IPv4 / bracketed IPv6 addresses (with a port), "port N", absolute paths.
+_ADDRESS = re.compile(r"\[[0-9A-Fa-f:.]+\](?::\d+)?|\b\d{1,3}(?:\.\d{1,3}){3}(?::\d+)?")
+_PORT = re.compile(r"(?i)\bport\s*[=:]?\s*\d+")
+_PATH = re.compile(r"(?<![\w.])/(?:[\w.+\-@%]+/)*[\w.+\-@%]+")
+_USER = re.compile(r"(?i)\b(?P<key>user(?:name)?|role)(?P<sep>\s*[=:]?\s*\"?)(?P<name>[\w.\-]+)")
+
+
+def scrub(text: str, url: str | None = None) -> str:
+    """text with nothing that locates or identifies the store: every password (redact_text), every URL, and the
+    configured URL's user, host, port and database replaced by <url>, <user>, <host>, <port>, <database>; any
+    other address, 'port N', 'user "x"' and absolute path masked too.  For log lines: driver messages quote all
+    of these ('connection to server at "db.lan" (10.0.0.5), port 5432 failed: FATAL: password authentication
+    failed for user "graspd"')."""
+    out = redact_text(text, url)
+    parts: dict[str, str] = {}
+    if url:
+        try:
+            u = sa.engine.make_url(url)
+            parts = {"<user>": u.username or "", "<host>": u.host or "", "<port>": str(u.port or ""),
+                     "<database>": u.database or ""}
+        except Exception:  # an unparsable URL: the generic patterns below still apply
+            parts = {}
+        for form in {url, redact_url(url)}:
+            out = out.replace(form, "<url>")
+    out = re.sub(r"[A-Za-z][A-Za-z0-9+.\-]*://\S+", "<url>", out)
+    for mask, value in sorted(parts.items(), key=lambda kv: -len(kv[1])):
+        if len(value) >= 2:
+            out = re.sub(rf"(?<![\w]){re.escape(value)}(?![\w])", mask, out)
+    out = _ADDRESS.sub("<host>", out)
+    out = _PORT.sub("port <port>", out)
+    out = _USER.sub(lambda m: f"{m['key']}{m['sep']}<user>", out)
+    return _PATH.sub("<path>", out)
+
+
 def make_engine(url: str) -> Engine:
     """An engine for url; SQLite gets WAL, a 60 s busy timeout and BEGIN IMMEDIATE transactions.  Errors
     quote the URL with its password masked."""

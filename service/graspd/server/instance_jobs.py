@@ -32,6 +32,7 @@ import numpy as np
 import graspd
 import graspd_client
 from graspd import classifier
+from graspd.database import scrub
 from graspd.instances import BASE_MODELS, parse_progress
 from graspd.world.mesh_file import MeshError, MeshLimits, check_declared_counts
 
@@ -215,7 +216,7 @@ class InstanceJobs:
         job.work.mkdir(parents=True, exist_ok=True)
         log_path = job.work / "job.log"
         env = {**os.environ, "PYTHONPATH": _pythonpath(), "PYTHONUNBUFFERED": "1"}
-        log.info("instance job started", extra={"job": job.id, "model": job.name, "log": str(log_path)})
+        log.info("instance job started", extra={"job": job.id, "model": job.name})  # its log: <work>/job.log
         with open(log_path, "w") as errors:
             proc = subprocess.Popen(self.command(job), stdout=subprocess.PIPE, stderr=errors, text=True, env=env,
                                     start_new_session=True)
@@ -249,7 +250,7 @@ class InstanceJobs:
             closed = self._closed
         if code != 0:
             if failed is not None:
-                error, where = str(failed.get("error")), failed.get("field")
+                error, where = scrub(str(failed.get("error"))), failed.get("field")
             elif closed:
                 error, where = "the server shut down while training", None
             elif code in (-signal.SIGTERM, -signal.SIGKILL):
@@ -257,7 +258,7 @@ class InstanceJobs:
             else:
                 error, where = f"training exited with status {code} (the server log has the details)", None
                 log.error("instance job crashed", extra={"job": job.id, "model": job.name, "status": code,
-                                                         "stderr": _tail(log_path)})
+                                                         "stderr": scrub(_tail(log_path))})
             self._finish(job, error, where if isinstance(where, str) else None)
             return
         with self._lock:
@@ -268,7 +269,9 @@ class InstanceJobs:
             if probe.shape != (1,):
                 raise classifier.ModelError(f"model {job.name!r} does not score one image as one probability")
         except (classifier.ModelError, OSError) as exc:
-            self._finish(job, f"the new model did not load: {exc}", None)
+            log.error("instance model did not load", extra={"job": job.id, "model": job.name,
+                                                             "error": scrub(f"{type(exc).__name__}: {exc}")})
+            self._finish(job, f"the new model did not load (job {job.id}; the server log has the details)", None)
             return
         self.registry.add(job.name, model)
         self._finish(job, None, None)
@@ -380,7 +383,7 @@ def check_mesh(path: Path, category: str | None, hand: dict[str, float], max_byt
     except ValueError:
         verdict = None
     if done.returncode != 0 or not isinstance(verdict, dict):
-        log.info("mesh check failed", extra={"status": done.returncode, "stderr": done.stderr[-2000:]})
+        log.info("mesh check failed", extra={"status": done.returncode, "stderr": scrub(done.stderr[-2000:])})
         if done.returncode in (-signal.SIGXCPU, -signal.SIGKILL):
             raise Problem(422, f"the mesh could not be checked within {timeout_s:g} s of CPU time (simplify it)",
                           "mesh")

@@ -11,9 +11,10 @@ Where feedback finds a grasp by its id:
   least recently detected forgotten first.  An older, unknown or other process's id answers 404.
 
 The library opens on first use (GRASPD_TEMPLATE_LIBRARY, else an SQLite file in the data folder); a
-library that cannot be opened answers 503 naming template_library, and GPD detection is unaffected.  The
-library URL's password never appears in an answer or a log line: errors quote the URL with it masked, and
-driver messages are scrubbed of it (graspd.database.redact_text).
+library that cannot be opened answers 503 naming template_library, and GPD detection is unaffected.  Nothing
+that locates the store appears in an answer or a log line: an answer names the component (template_library)
+and the request id only; the log line with that id says what failed, with the URL, password, user, host, port,
+database and paths masked (graspd.database.scrub).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import sqlalchemy as sa
 from numpy.typing import NDArray
 
 from graspd.cloud import CloudError, ViewpointCloud
-from graspd.database import redact_text, redact_url
+from graspd.database import redact_url, scrub
 from graspd.detector import Detection
 from graspd.hand import HandGeometry, hand_preset
 from graspd.outcomes import Feedback
@@ -42,6 +43,7 @@ from graspd.templates.demonstration import grasp_image
 from graspd.templates.library import parse_grasp_id
 from graspd_client.codec import WireError
 
+from .logs import current_request
 from .problems import Problem, from_error, from_wire
 from .schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
 from .settings import Settings
@@ -110,6 +112,13 @@ class RecentDetections:
             return self._items.get(request_id)
 
 
+def _see_log() -> str:
+    """'request <id>; the server log has the details': what an answer says of an internal failure (the log line
+    with that request id says what failed, scrubbed; the answer never holds a URL, host, port, user or path)."""
+    ctx = current_request()
+    return f"request {ctx.id if ctx is not None else 'unknown'}; the server log has the details"
+
+
 class TemplateService:
     """The library (opened on first use), its detector, and the memory of recent GPD detections."""
 
@@ -135,19 +144,21 @@ class TemplateService:
                     self._library = TemplateLibrary(self.url, hand=hand)
                 except Exception as exc:  # a bad URL, an unreachable database, a hand mismatch, a read-only disk
                     reason = self._reason(exc)
-                    log.error("template library unavailable", extra={"url": self.safe_url, "error": reason})
-                    raise Problem(503, f"the template library at {self.safe_url} cannot be opened ({reason})",
+                    log.error("template library unavailable", extra={"component": "template_library",
+                                                                     "error": reason})
+                    raise Problem(503, f"the template library cannot be opened ({_see_log()})",
                                   "template_library", retry_after=30) from None
                 self._detector = TemplateDetector(self._library)
             return self._library
 
     def _reason(self, exc: BaseException) -> str:
-        """'<type>: <first line of the message>' with every password masked (drivers may quote the URL or
-        DSN; SQLAlchemy appends the SQL and its parameters after the first line)."""
+        """'<type>: <first line of the message>' for the log, with the password, URL, user, host, port, database
+        and any path masked (graspd.database.scrub: drivers quote the URL or DSN and the server's address;
+        SQLAlchemy appends the SQL and its parameters after the first line)."""
         orig = getattr(exc, "orig", None)
         text = str(orig if isinstance(orig, BaseException) else exc).strip()
         first = text.splitlines()[0] if text else ""
-        return redact_text(f"{type(exc).__name__}: {first}", self.url)
+        return scrub(f"{type(exc).__name__}: {first}", self.url)
 
     @contextmanager
     def database(self) -> Iterator[None]:
@@ -158,8 +169,8 @@ class TemplateService:
         except (sa.exc.OperationalError, sa.exc.InterfaceError, sa.exc.TimeoutError,
                 sa.exc.DisconnectionError) as exc:
             reason = self._reason(exc)
-            log.error("template library failed", extra={"url": self.safe_url, "error": reason})
-            raise Problem(503, f"the template library at {self.safe_url} failed ({reason})", "template_library",
+            log.error("template library failed", extra={"component": "template_library", "error": reason})
+            raise Problem(503, f"the template library failed ({_see_log()})", "template_library",
                           retry_after=5) from None
 
     @property
