@@ -44,10 +44,13 @@ class CliError(Exception):
 
 
 def _detect(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     import numpy as np
 
-    from .cloud import CloudError
-    from .cloud_io import read_cloud
+    from graspd_client.codec import WireError
+
+    from .cloud_io import read_input
     from .detector import DetectionParams, GraspDetector
     from .environment import EnvironmentParams
     from .hand import HandGeometry, hand_preset
@@ -57,7 +60,10 @@ def _detect(args: argparse.Namespace) -> int:
 
     try:
         viewpoints = np.array(args.viewpoint, np.float32).reshape(-1, 3) if args.viewpoint else None
-        cloud = read_cloud(args.cloud, viewpoints=viewpoints)
+        # the service's way with the same file (graspd.inputs): NaN rows dropped and counted, camera poses applied
+        given = read_input(args.cloud, viewpoints=viewpoints, camera_poses=args.camera_pose,
+                           points_frame=args.points_frame, intrinsics=args.intrinsics, depth_scale=args.depth_scale)
+        cloud = given.cloud
         hand = hand_preset(args.hand) if args.hand else HandGeometry()
         params = DetectionParams(
             num_samples=args.samples,
@@ -70,7 +76,7 @@ def _detect(args: argparse.Namespace) -> int:
             approach_distance=args.approach_distance,
             seed=args.seed,
         )
-    except (CloudError, KeyError, ValueError, OSError) as exc:
+    except (WireError, KeyError, ValueError, OSError) as exc:  # WireError: CloudError, a bad camera pose
         print(f"graspd detect: {exc}", file=sys.stderr)
         return 2
     try:
@@ -80,7 +86,8 @@ def _detect(args: argparse.Namespace) -> int:
         print(f"graspd detect: {exc}", file=sys.stderr)
         return EXIT_USAGE
     detection = _checked(GraspDetector(classifier, hand, prefilter).detect(cloud, params), cloud, params, classifier)
-    out = detection.to_dict()
+    detection = replace(detection, warnings=(*given.warnings, *detection.warnings))  # the input's first, as served
+    out = {"frame": given.frame, **detection.to_dict()}
     if classifier is None:
         out["note"] = "no classifier: candidates are unscored (the paper's 'no classification' ablation)"
     text = json.dumps(out, indent=1)
@@ -225,8 +232,12 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="graspd", description="Grasp Pose Detection for two-finger hands")
     parser.add_argument("--version", action="version", version=f"graspd {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-    d = sub.add_parser("detect", help="detect grasps in a point cloud file (.pcd, .ply, .npz)")
-    d.add_argument("cloud")
+    d = sub.add_parser("detect", help="detect grasps in a point cloud file (.pcd, .ply, .npz, .npy) or a depth "
+                       "image (.png, .npy with --intrinsics)")
+    d.add_argument("cloud", help=".pcd, .ply; .npz (points, optional viewpoints, camera_source, normals, "
+                   "camera_poses); .npy ((N,3) points, (H,W,3) organised, or with --intrinsics an (H,W) depth image in "
+                   "metres); .png (16-bit depth, --depth-scale m a unit) with --intrinsics.  Rows with NaN are dropped "
+                   "and counted (warning non_finite_dropped)")
     d.add_argument("--viewpoint", type=float, nargs=3, action="extend", metavar=("X", "Y", "Z"),
                    help="camera position in the cloud frame (m); repeat for several cameras")
     d.add_argument("--workspace", type=float, nargs=6, metavar=("XMIN", "XMAX", "YMIN", "YMAX", "ZMIN", "ZMAX"))
@@ -236,6 +247,17 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
     d.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
                    help="gravity direction in the cloud frame; enables the top-grasp utility")
     d.add_argument("--model", help="classifier name in the models directory (default: scene15, trained on "
+    d.add_argument("--camera-pose", type=float, nargs="+", action="append", metavar="V",
+                   help="camera-to-robot transform of a camera: X Y Z QX QY QZ QW (m, quaternion as ROS TF gives "
+                   "it) or 16 numbers (4x4, row-major); repeat per camera; instead of --viewpoint.  Grasps, and "
+                   "--workspace/--gravity, are then in the robot frame")
+    d.add_argument("--points-frame", choices=("camera", "robot"),
+                   help="with --camera-pose: the points are in the camera's frame (moved into the robot frame) or "
+                   "already in the robot frame; a depth image is always 'camera'")
+    d.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
+                   help="depth images: pinhole intrinsics in pixels (ROS CameraInfo K)")
+    d.add_argument("--depth-scale", type=float, default=0.001,
+                   help="depth PNG: metres per unit (default 0.001: millimetres)")
                    "cluttered scenes)")
     d.add_argument("--models-dir", help="directory of ONNX models and cards (default: the shipped models/)")
     d.add_argument("--no-classifier", action="store_true", help="skip scoring (the paper's ablation)")

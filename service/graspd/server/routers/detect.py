@@ -25,7 +25,8 @@ OPENAPI_EXTRA: dict[str, Any] = {
     "parameters": openapi_parameters(),  # generated from DetectRequest (uploads.QUERY_PARAMS)
     "requestBody": {
         "required": True,
-        "description": "a DetectRequest (JSON), or a PCD/PLY file (binary; query parameters carry the options)",
+        "description": "a DetectRequest (JSON), or a PCD, PLY, NPY or NPZ file, or a 16-bit depth PNG with "
+                       "intrinsics (binary; query parameters carry the options)",
         "content": {
             "application/json": {"schema": {"$ref": "#/components/schemas/DetectRequest"}},
             "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
@@ -63,13 +64,15 @@ async def read_capped(request: Request, cap: int, timeout_s: float | None = None
     return b"".join(chunks)
 
 
-def parse_body(data: bytes, content_type: str, query: Mapping[str, str], viewpoints: list[str]) -> DetectRequest:
-    """A validated DetectRequest from the body (JSON, PCD or PLY; options of a file in the query); runs on a
-    worker thread: PCD/PLY/PNG decoding takes tens of milliseconds to seconds."""
+def parse_body(data: bytes, content_type: str, query: Mapping[str, str], viewpoints: list[str],
+               camera_poses: list[str] | None = None) -> DetectRequest:
+    """A validated DetectRequest from the body (JSON, PCD, PLY, NPY, NPZ or a depth PNG; options of a file in the
+    query, viewpoint and camera_pose repeatable); runs on a worker thread: file decoding takes tens of milliseconds
+    to seconds."""
     kind = sniff(data, content_type)
     if kind == "json":
         return parse_request(data)
-    return parse_request(upload_request(data, kind, query, viewpoints))
+    return parse_request(upload_request(data, kind, query, viewpoints, camera_poses))
 
 
 @router.post(
@@ -110,8 +113,10 @@ async def detect(request: Request, state: State) -> Response:
         q = request.query_params
         content_type, query, viewpoints = request.headers.get("content-type", ""), {k: q[k] for k in q}, \
             q.getlist("viewpoint")
+        poses = q.getlist("camera_pose")
         timings = {"read": time.perf_counter() - t0}
-        body = await state.engine.run_admitted(lambda: parse_body(data, content_type, query, viewpoints), timings)
+        body = await state.engine.run_admitted(lambda: parse_body(data, content_type, query, viewpoints, poses),
+                                               timings)
         outcome, status = "ok", 200
         return Response(body, media_type="application/json")  # DetectResponse.to_json(), made on the worker
     except ClientDisconnect:  # the client went away while sending: nothing to answer (RequestGuard logs it)
