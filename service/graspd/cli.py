@@ -97,8 +97,7 @@ def _detect(args: argparse.Namespace) -> int:
     if args.plot or args.view:
         # the cloud the environment labelled: the detector's preprocessing of the input
         shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
-        title = f"{Path(args.cloud).name}: top {min(args.top, len(detection.grasps))} of " \
-                f"{detection.num_candidates} candidates, model {detection.model or 'none (unscored)'}"
+        title = f"{Path(args.cloud).name}: {_drawn(args.top, detection)}"
         if args.plot:
             plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title,
                         gravity=params.gravity, environment=detection.environment)
@@ -139,14 +138,22 @@ def _demo(args: argparse.Namespace) -> int:
         result["note"] = "no classifier in models/: candidates are unscored (the paper's 'no classification' ablation)"
     (out / "grasps.json").write_text(json.dumps(result, indent=1))
     shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size))
-    title = (f"demo tabletop ({args.objects} objects, {len(cloud)} points, 2 cameras): top {args.top} of "
-             f"{detection.num_candidates} candidates, model {detection.model or 'none (unscored)'}")
+    title = f"demo tabletop ({args.objects} objects, {len(cloud)} points, 2 cameras): {_drawn(args.top, detection)}"
     plot_grasps(shown, detection.grasps, detection.hand, out / "grasps.png", top=args.top, title=title,
                 gravity=GRAVITY, environment=detection.environment)
     t = detection.timings
     print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates in {t['total']:.2f} s "
-          f"(model: {detection.model or 'none'}); wrote {out / 'grasps.png'} and {out / 'grasps.json'}")
+          f"(model: {detection.model or 'none'}); wrote {out / 'grasps.json'} (all {len(detection.grasps)}) and "
+          f"{out / 'grasps.png'} (the best {min(args.top, len(detection.grasps))})")
     return 0
+
+
+def _drawn(top: int, detection: Detection) -> str:
+    """What a picture's title says it draws: 'the best 8 of the 20 grasps returned (1077 candidates, model
+    scene15)'."""
+    n = len(detection.grasps)
+    return (f"the best {min(top, n)} of the {n} grasps returned ({detection.num_candidates} candidates, model "
+            f"{detection.model or 'none: unscored'})")
 
 
 def _checked(detection: Detection, cloud: ViewpointCloud, params: DetectionParams,
@@ -240,13 +247,6 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
                    "and counted (warning non_finite_dropped)")
     d.add_argument("--viewpoint", type=float, nargs=3, action="extend", metavar=("X", "Y", "Z"),
                    help="camera position in the cloud frame (m); repeat for several cameras")
-    d.add_argument("--workspace", type=float, nargs=6, metavar=("XMIN", "XMAX", "YMIN", "YMAX", "ZMIN", "ZMAX"))
-    d.add_argument("--hand", help="hand preset: gpd (default), panda, robotiq_2f85")
-    d.add_argument("--samples", type=int, default=1000, help="points to sample hands at")
-    d.add_argument("--max-grasps", type=int, default=100)
-    d.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
-                   help="gravity direction in the cloud frame; enables the top-grasp utility")
-    d.add_argument("--model", help="classifier name in the models directory (default: scene15, trained on "
     d.add_argument("--camera-pose", type=float, nargs="+", action="append", metavar="V",
                    help="camera-to-robot transform of a camera: X Y Z QX QY QZ QW (m, quaternion as ROS TF gives "
                    "it) or 16 numbers (4x4, row-major); repeat per camera; instead of --viewpoint.  Grasps, and "
@@ -258,6 +258,13 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
                    help="depth images: pinhole intrinsics in pixels (ROS CameraInfo K)")
     d.add_argument("--depth-scale", type=float, default=0.001,
                    help="depth PNG: metres per unit (default 0.001: millimetres)")
+    d.add_argument("--workspace", type=float, nargs=6, metavar=("XMIN", "XMAX", "YMIN", "YMAX", "ZMIN", "ZMAX"))
+    d.add_argument("--hand", help="hand preset: gpd (default), panda, robotiq_2f85")
+    d.add_argument("--samples", type=int, default=1000, help="points to sample hands at")
+    d.add_argument("--max-grasps", type=int, default=100)
+    d.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
+                   help="gravity direction in the cloud frame; enables the top-grasp utility")
+    d.add_argument("--model", help="classifier name in the models directory (default: scene15, trained on "
                    "cluttered scenes)")
     d.add_argument("--models-dir", help="directory of ONNX models and cards (default: the shipped models/)")
     d.add_argument("--no-classifier", action="store_true", help="skip scoring (the paper's ablation)")

@@ -177,9 +177,25 @@ def score_colours(scores: F64) -> tuple[F64, float, float, str]:
         lo, hi = float(s.min()), float(s.max())
         if hi - lo < 1e-6:
             lo, hi = lo - 0.5, hi + 0.5
-        return s, lo, hi, "classifier score"
+        return s, lo, hi, "classifier score (probability of a grasp)"
     values = -np.arange(1, len(s) + 1, dtype=np.float64)
-    return values, -float(max(len(s), 2)), -1.0, "rank (unscored: -rank)"
+    return values, -float(max(len(s), 2)), -1.0, RANK_BAR_LABEL
+
+
+#: Colour-bar label of unscored grasps, coloured by rank (the bar's ticks show the rank, 1 at the top).
+RANK_BAR_LABEL = "rank (unscored grasps: 1 = best)"
+
+
+def grasp_caption(grasps: GraspSet, k: int) -> str:
+    """One line on grasp k of a ranked set: its rank, score, width and, when selection ranked it, the terms of
+    its ranking key (graspd.grasp.RANKING_RULE)."""
+    score = "  -  " if np.isnan(grasps.scores[k]) else f"{grasps.scores[k]:.3f}"
+    line = f"#{k + 1:<2d} score {score} width {1000 * grasps.widths[k]:3.0f} mm"
+    r = grasps.ranking
+    if r is not None:
+        line += (f"  key {r.key[k]:.3f} = {r.classifier[k]:.3f} x {r.utility[k]:.2f} x {r.width[k]:.2f} x "
+                 f"{r.unknown[k]:.2f}")
+    return line
 
 
 def _project_camera(xyz: NDArray[np.floating], frames: ViewFrames) -> tuple[F64, NDArray[np.bool_]]:
@@ -208,6 +224,7 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
     from matplotlib.collections import LineCollection  # noqa: PLC0415
     from matplotlib.colors import Normalize  # noqa: PLC0415
     from matplotlib.lines import Line2D  # noqa: PLC0415
+    from matplotlib.ticker import FuncFormatter  # noqa: PLC0415
 
     path = Path(path)
     env = environment if environment is not None and len(environment.labels) == len(cloud) else None
@@ -313,27 +330,35 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
         bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), cax=fig.add_subplot(grid[0, 3]))
         bar.set_label(bar_label, fontsize=8)
         bar.ax.tick_params(labelsize=7)
+        if bar_label == RANK_BAR_LABEL:  # values are -rank: show the rank
+            bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{-v:.0f}"))
     if outline is not None:
         handles.append(Line2D([], [], color=SUPPORT_OUTLINE, lw=1.0, ls="--", label="support outline"))
     if walls:
         handles.append(Line2D([], [], color=WALL_EDGE, lw=1.0, label=f"wall boxes ({len(walls)})"))
     if declared:
         handles.append(Line2D([], [], color=DECLARED_EDGE, lw=1.0, label=f"declared boxes ({len(declared)})"))
-    handles.append(Line2D([], [], color=cmap(1.0), lw=1.1, label="gripper (number = rank, colour = score)"))
-    legend_ax = fig.add_subplot(grid[1, :2])
+    colour_says = "rank" if bar_label == RANK_BAR_LABEL else "score"
+    handles.append(Line2D([], [], color=cmap(1.0), lw=1.1, label=f"gripper: number = rank (1 = best),\ncolour = "
+                          f"{colour_says} (bar at right)"))
+    legend_ax = fig.add_subplot(grid[1, 0])
     legend_ax.axis("off")
-    legend_ax.legend(handles=handles, loc="upper left", ncol=3, fontsize=8, markerscale=6, frameon=False)
-    legend_ax.text(0.0, 0.05, "Grasps are sampled on object points only; a hand, and its approach path, may not enter "
+    legend_ax.legend(handles=handles, loc="upper left", ncol=2, fontsize=8, markerscale=6, frameon=False)
+    legend_ax.text(0.0, -0.02, "Grasps are sampled on object points only; a hand, and its approach path, may not enter "
                    "the support or a wall / declared box:\nregions of environment points, or too close to them, get "
-                   "no grasps.", fontsize=7.5, transform=legend_ax.transAxes, va="bottom", color="#333333")
-    table_ax = fig.add_subplot(grid[1, 2:])
+                   "no grasps.", fontsize=7.5, transform=legend_ax.transAxes, va="top", color="#333333")
+    table_ax = fig.add_subplot(grid[1, 1:])
     table_ax.axis("off")
-    rows = [f"#{k + 1}: score {'-' if np.isnan(g.scores[k]) else f'{g.scores[k]:.3f}'}, "
-            f"width {1000 * g.widths[k]:.0f} mm" for k in range(min(len(g), 12))]
-    cols = [rows[i : i + 4] for i in range(0, len(rows), 4)]
+    rows = [grasp_caption(g, k) for k in range(min(len(g), 12))]
+    per_col = 6 if g.ranking is not None else 4  # the longer lines of ranked grasps: two columns
+    cols = [rows[i : i + per_col] for i in range(0, len(rows), per_col)]
     for c, chunk in enumerate(cols):
-        table_ax.text(c / 3.0, 1.0, "\n".join(chunk), fontsize=7.5, va="top", family="monospace",
+        table_ax.text(c / len(cols), 1.0, "\n".join(chunk), fontsize=7, va="top", family="monospace",
                       transform=table_ax.transAxes)
+    if g.ranking is not None:
+        table_ax.text(0.0, -0.05, "key = classifier x utility J(h) x width preference x share of the hand seen: "
+                      "the grasps are numbered by key, so a lower score can rank higher", fontsize=7, va="top",
+                      transform=table_ax.transAxes, color="#333333")
     fig.suptitle(title or f"top {len(g)} grasps", fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
