@@ -66,7 +66,8 @@ class Grasp:
 
 @dataclass(frozen=True)
 class Grasps:
-    """M grasps in the caller's cloud frame (metres), sorted best first as the server sent them.
+    """M grasps in the caller's cloud frame, or the robot frame when the request gave camera poses (frame says
+    which; metres), sorted best first as the server sent them.
 
     poses (M,4,4) have rotation columns [approach, binormal, axis] and translation = hand-base centre.
     scores are NaN when the server ran without a classifier (scored is False); with method "templates"
@@ -87,6 +88,8 @@ class Grasps:
     model: str | None = None
     scored: bool = False
     method: str = "gpd"
+    #: The frame the grasps are in: "robot" when the request gave camera_poses, else "cloud" (as sent).
+    frame: str = "cloud"
     timings: dict[str, float] = field(default_factory=dict)
     request_id: str | None = None
     crops: list[bytes | None] = field(default_factory=list)
@@ -159,6 +162,7 @@ class Grasps:
             model=body.get("model"),
             scored=bool(body.get("scored", False)),
             method=str(body.get("method", "gpd")),
+            frame=str(body.get("frame", "cloud")),
             timings={str(k): float(v) for k, v in (body.get("timings") or {}).items()},
             request_id=body.get("request_id"),
             crops=crops,

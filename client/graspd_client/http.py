@@ -7,17 +7,20 @@ after the server's Retry-After (capped); 4xx raise RequestRejected naming the fi
 from __future__ import annotations
 
 import asyncio
+import io
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 from numpy.typing import ArrayLike
 
 from .codec import WireError
 from .errors import RequestRejected, ServerBusy, ServerError, TransportError
 from .grasps import Grasps
-from .wire import build_demonstration_request, build_detect_request, build_feedback_request
+from .wire import build_demonstration_request, build_detect_request, build_feedback_request, upload_params
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 
@@ -62,6 +65,38 @@ def instance_upload(mesh_path: str | Path, name: str, category: str | None, hand
     path = Path(mesh_path)
     fields = {"name": name, **({"category": category} if category else {}), **({"hand": hand} if hand else {})}
     return {"files": {"mesh": (path.name, path.read_bytes(), "application/octet-stream")}, "data": fields}
+
+
+#: Content types of the files POST /detect takes, by suffix (the server also recognises them by their bytes).
+FILE_TYPES = {".pcd": "application/x-pcd", ".ply": "application/ply", ".npy": "application/x-npy",
+              ".npz": "application/x-npz", ".png": "image/png"}
+
+
+def file_upload(data: bytes | str | Path, content_type: str | None, params: Mapping[str, Any]
+                ) -> dict[str, Any]:
+    """httpx arguments of a file upload to POST /detect: the bytes (or a path's), their content type (from the
+    suffix when not given) and the options as query parameters (wire.upload_params)."""
+    if isinstance(data, str | Path):
+        path = Path(data)
+        content_type = content_type or FILE_TYPES.get(path.suffix.lower(), "application/octet-stream")
+        data = path.read_bytes()
+    return {"content": data, "headers": {"Content-Type": content_type or "application/octet-stream"},
+            "params": upload_params(params)}
+
+
+def depth_upload(depth: ArrayLike | bytes, intrinsics: Mapping[str, float] | Sequence[float],
+                 camera_pose: Any = None, depth_scale: float | None = None, **params: Any) -> dict[str, Any]:
+    """httpx arguments of a depth image upload: PNG bytes (16-bit, depth_scale m a unit, default mm) or an array
+    (H,W) (float: metres; integer: depth_scale units) sent as .npy; intrinsics fx, fy, cx, cy (pixels); an
+    optional camera-to-robot pose (then the grasps come back in the robot frame)."""
+    if isinstance(depth, bytes | bytearray):
+        data, content_type = bytes(depth), "image/png"
+    else:
+        buf = io.BytesIO()
+        np.save(buf, np.ascontiguousarray(np.asarray(depth)), allow_pickle=False)
+        data, content_type = buf.getvalue(), "application/x-npy"
+    options = {**params, "intrinsics": intrinsics, "camera_pose": camera_pose, "depth_scale": depth_scale}
+    return file_upload(data, content_type, options)
 
 
 def find_job(models: Any, job_id: str) -> Any:
@@ -133,11 +168,21 @@ class GraspClient:
         """Grasps for an already-built request body."""
         return parse_grasps(self._request("POST", "/detect", json=body))
 
-    def detect_file(self, data: bytes, *, content_type: str = "application/octet-stream",
-                    **params: Any) -> Grasps:
-        """Grasps for raw PCD/PLY bytes (params: viewpoint "x,y,z", num_samples, model, ...)."""
-        return parse_grasps(self._request("POST", "/detect", content=data,
-                                          headers={"Content-Type": content_type}, params=params))
+    def detect_file(self, data: bytes | str | Path, *, content_type: str | None = None, **params: Any) -> Grasps:
+        """Grasps for a file (its bytes or its path): .pcd, .ply, .npy ((N,3) points or (H,W,3) organised), .npz
+        (points, optional viewpoints, camera_source, normals, camera_poses).  params are the upload's query
+        parameters: viewpoint, camera_pose (one or a list; with points_frame "camera" or "robot"), num_samples,
+        model, ... (Python values: wire.upload_params writes them)."""
+        return parse_grasps(self._request("POST", "/detect", **file_upload(data, content_type, params)))
+
+    def detect_depth(self, depth: ArrayLike | bytes, intrinsics: Mapping[str, float] | Sequence[float], *,
+                     camera_pose: Any = None, depth_scale: float | None = None, **params: Any) -> Grasps:
+        """Grasps for a depth image: 16-bit PNG bytes (millimetres unless depth_scale says otherwise) or an (H,W)
+        array (float metres); intrinsics fx, fy, cx, cy (pixels, ROS CameraInfo K); camera_pose (camera-to-robot:
+        4x4, 7 numbers x, y, z, qx, qy, qz, qw, or {position, quat_xyzw}) puts the answer in the robot frame.
+        params: other query parameters (num_samples, workspace, ...)."""
+        return parse_grasps(self._request("POST", "/detect", **depth_upload(depth, intrinsics, camera_pose,
+                                                                            depth_scale, **params)))
 
     def models(self) -> Any:
         """{"default", "models": [{name, representation, default, card}], "jobs": [instance jobs]}."""
@@ -212,6 +257,15 @@ class AsyncGraspClient:
 
     async def detect_request(self, body: dict[str, Any]) -> Grasps:
         return parse_grasps(await self._request("POST", "/detect", json=body))
+
+    async def detect_file(self, data: bytes | str | Path, *, content_type: str | None = None,
+                          **params: Any) -> Grasps:
+        return parse_grasps(await self._request("POST", "/detect", **file_upload(data, content_type, params)))
+
+    async def detect_depth(self, depth: ArrayLike | bytes, intrinsics: Mapping[str, float] | Sequence[float], *,
+                           camera_pose: Any = None, depth_scale: float | None = None, **params: Any) -> Grasps:
+        return parse_grasps(await self._request("POST", "/detect", **depth_upload(depth, intrinsics, camera_pose,
+                                                                                  depth_scale, **params)))
 
     async def add_demonstration(self, points: ArrayLike, hand_pose: ArrayLike,
                                 viewpoints: ArrayLike = ((0.0, 0.0, 0.0),), camera_source: ArrayLike | None = None,

@@ -2,7 +2,11 @@
 client and server so there is one definition.
 
 Frames and units: metres, right-handed, everything in the frame of the cloud the caller sends;
-viewpoints are camera positions in that frame.  A grasp follows gpd_ros GraspConfig: rotation
+viewpoints are camera positions in that frame.  Or, with camera_poses (one camera-to-robot transform per
+camera, ROS TF's camera -> base_link) and points_frame ("camera": each point in its camera's frame, as a driver
+gives it; "robot": already in the robot frame), the server moves the cloud into the robot frame and answers
+there (the response's "frame" is "robot"); workspace, gravity and the other geometric options are then in the
+robot frame too.  A grasp follows gpd_ros GraspConfig: rotation
 columns [approach, binormal, axis], position = centre of the hand base.
 """
 
@@ -95,6 +99,9 @@ def build_detect_request(
     method: str | None = None,
     environment: str | Mapping[str, Any] | None = None,
     approach_distance: float | None = None,
+    camera_poses: Sequence[Any] | ArrayLike | None = None,
+    points_frame: str | None = None,
+    normals: ArrayLike | None = None,
 ) -> dict[str, Any]:
     """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
 
@@ -106,8 +113,12 @@ def build_detect_request(
     min_aperture/max_aperture (m) bound the grasp width; exclude_support_plane overrides where samples go.
     environment "auto" (the server's default), "declared" or "none", or {"mode", "support_plane": [a, b, c, d],
     "boxes": [[xmin, xmax, ymin, ymax, zmin, zmax], ...]}; approach_distance (m) the pre-grasp distance.
+    camera_poses: one camera-to-robot transform per camera (4x4, or {"position", "quat_xyzw"}, or 7 numbers x, y,
+    z, qx, qy, qz, qw) with points_frame "camera" or "robot" (see the module's note on frames); viewpoints are
+    then left out.  normals (N,3): optional unit normals pointing toward the cameras.
     """
-    body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source)}
+    body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source, camera_poses=camera_poses,
+                                                 points_frame=points_frame, normals=normals)}
     if method is not None:
         if method not in DETECT_METHODS:
             raise WireError("method", f"one of {DETECT_METHODS} expected, got {method!r}")
@@ -150,17 +161,87 @@ def build_detect_request(
     return body
 
 
+def camera_poses_json(poses: Sequence[Any] | ArrayLike) -> list[Any]:
+    """The JSON form of camera poses: each a 4x4 nested list, or {"position", "quat_xyzw"} (from a mapping, or
+    from 7 numbers x, y, z, qx, qy, qz, qw).  The server checks them (proper rotation, finite)."""
+    if isinstance(poses, np.ndarray) and poses.ndim == 2:
+        poses = [poses]
+    out: list[Any] = []
+    for k, pose in enumerate(poses):  # type: ignore[arg-type]
+        if isinstance(pose, Mapping):
+            out.append({"position": _vec(pose["position"], 3, f"cloud.camera_poses[{k}].position"),
+                        "quat_xyzw": _vec(pose["quat_xyzw"], 4, f"cloud.camera_poses[{k}].quat_xyzw")})
+            continue
+        arr = np.asarray(pose, np.float64)
+        if arr.size == 7:
+            out.append({"position": arr.reshape(-1)[:3].tolist(), "quat_xyzw": arr.reshape(-1)[3:].tolist()})
+        elif arr.size == 16:
+            out.append(arr.reshape(4, 4).tolist())
+        else:
+            raise WireError(f"cloud.camera_poses[{k}]", f"a 4x4 matrix, {{position, quat_xyzw}} or 7 numbers "
+                            f"expected, got shape {arr.shape}")
+    return out
+
+
 def build_cloud(points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
-                camera_source: ArrayLike | None = None) -> dict[str, Any]:
-    """The "cloud" object of a request: points (N,3) m, camera positions (K,3) m, per-point camera index."""
+                camera_source: ArrayLike | None = None, *, camera_poses: Sequence[Any] | ArrayLike | None = None,
+                points_frame: str | None = None, normals: ArrayLike | None = None) -> dict[str, Any]:
+    """The "cloud" object of a request: points (N,3) m (NaN rows are dropped and counted by the server), camera
+    positions (K,3) m, per-point camera index; or camera_poses and points_frame instead of the viewpoints (the
+    default origin viewpoint is then left out)."""
     pts = np.asarray(points, np.float32)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise WireError("cloud.points", f"shape (N,3) expected, got {tuple(pts.shape)}")
     vps = np.asarray(viewpoints, np.float64).reshape(-1, 3)
-    cloud: dict[str, Any] = {"points": encode_array(pts), "viewpoints": vps.tolist()}
+    cloud: dict[str, Any] = {"points": encode_array(pts)}
+    if camera_poses is None or not (vps.shape == (1, 3) and not vps.any()):
+        cloud["viewpoints"] = vps.tolist()
+    if camera_poses is not None:
+        cloud["camera_poses"] = camera_poses_json(camera_poses)
+    if points_frame is not None:
+        cloud["points_frame"] = points_frame
     if camera_source is not None:
         cloud["camera_source"] = encode_array(np.asarray(camera_source).astype(np.int32))
+    if normals is not None:
+        cloud["normals"] = encode_array(np.asarray(normals, np.float32))
     return cloud
+
+
+def upload_params(params: Mapping[str, Any]) -> dict[str, Any]:
+    """Query parameters of a file upload to POST /detect from Python values: vectors (viewpoint, intrinsics,
+    workspace, gravity) as comma-separated numbers, camera_pose (one pose or a list of them: 4x4, 7 numbers or
+    {position, quat_xyzw}) as repeated 'x,y,z,qx,qy,qz,qw' or 16 numbers, booleans as true/false."""
+    out: dict[str, Any] = {}
+    for name, value in params.items():
+        if value is None:
+            continue
+        if name in ("camera_pose", "camera_poses"):
+            poses = camera_poses_json(value if not _one_pose(value) else [value])
+            out["camera_pose"] = [",".join(repr(float(v)) for v in (
+                [*p["position"], *p["quat_xyzw"]] if isinstance(p, dict) else np.asarray(p).reshape(-1)))
+                for p in poses]
+        elif name == "viewpoint" and np.asarray(value).ndim == 2:
+            out[name] = [",".join(repr(float(v)) for v in row) for row in np.asarray(value, np.float64)]
+        elif isinstance(value, bool):
+            out[name] = "true" if value else "false"
+        elif isinstance(value, str | int | float):
+            out[name] = value
+        elif isinstance(value, Mapping) and name == "intrinsics":
+            out[name] = ",".join(repr(float(value[k])) for k in ("fx", "fy", "cx", "cy"))
+        else:
+            out[name] = ",".join(repr(float(v)) for v in np.asarray(value, np.float64).reshape(-1))
+    return out
+
+
+def _one_pose(value: Any) -> bool:
+    """Whether a camera_pose value is one pose (a mapping, a 4x4, 7 or 16 numbers), not a list of them."""
+    if isinstance(value, Mapping):
+        return True
+    try:
+        arr = np.asarray(value, np.float64)
+    except (TypeError, ValueError):  # a list of mappings
+        return False
+    return arr.shape in ((4, 4), (7,), (16,))
 
 
 def build_demonstration_request(

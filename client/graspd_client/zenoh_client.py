@@ -36,6 +36,7 @@ from .wire import (
     build_demonstration_request,
     build_detect_request,
     build_feedback_request,
+    camera_poses_json,
     zenoh_token_attachment,
 )
 
@@ -248,7 +249,11 @@ class ZenohGraspClient:
     def set_stream_options(self, **options: Any) -> Any:
         """Set the detection options of streamed clouds and CDR queries (DetectRequest fields but cloud and
         crops, plus viewpoints) on <prefix>/config; answers the options in force (RequestRejected names a bad
-        field).  Names what differs from the server's settings (GRASPD_STREAM_OPTIONS)."""
+        field).  Names what differs from the server's settings (GRASPD_STREAM_OPTIONS).  For a camera-frame
+        PointCloud2: camera_poses (one camera-to-robot pose: 4x4, 7 numbers or {position, quat_xyzw}),
+        points_frame "camera", camera_frame_id (the cloud's frame_id, checked) and robot_frame_id (the outputs')."""
+        if options.get("camera_poses") is not None:
+            options["camera_poses"] = camera_poses_json(options["camera_poses"])
         return self.query(json.dumps(options).encode(), f"{self.prefix}/config")
 
     def stream_options(self) -> Any:

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .cloud import CloudError, ViewpointCloud
-from .depth import DEFAULT_DEPTH_SCALE, Intrinsics, check_depth, depth_points, read_depth_png
+from .depth import DEFAULT_DEPTH_SCALE, Intrinsics, depth_metres, depth_points, read_depth_png
 from .inputs import CloudInput, cloud_input
 
 #: The most points a PCD or PLY file may declare (the /detect cloud cap, graspd.server.schemas.MAX_POINTS).
@@ -352,7 +352,8 @@ def read_input(path: str | Path, viewpoints: NDArray[np.floating] | None = None,
     non-finite rows dropped and counted, camera poses applied).
 
     .pcd, .ply: points; .npz: points plus optional viewpoints, camera_source, normals, camera_poses; .npy: (N,3)
-    points, an organised (H,W,3) cloud, or with intrinsics an (H,W) float depth image in metres; .png: a 16-bit
+    points, an organised (H,W,3) cloud, or with intrinsics an (H,W) depth image (float: metres; integer:
+    depth_scale units); .png: a 16-bit
     depth image (depth_scale metres a unit, default millimetres) with intrinsics (fx, fy, cx, cy).  A depth image
     is in its camera's optical frame; a camera pose (one) makes it points_frame "camera".  Camera positions come,
     in order of precedence, from `viewpoints`, from the file (PCD VIEWPOINT header; NPZ viewpoints), else the
@@ -375,7 +376,7 @@ def read_input(path: str | Path, viewpoints: NDArray[np.floating] | None = None,
                 raise CloudError("intrinsics", "a depth PNG needs the camera's intrinsics fx, fy, cx, cy (pixels)")
             arrays = {"points": array_cloud(image)}
         else:
-            depth = read_depth_png(data, depth_scale) if image is None else check_depth(image)
+            depth = read_depth_png(data, depth_scale) if image is None else depth_metres(image, depth_scale)
             arrays = {"points": depth_points(depth, Intrinsics.parse(intrinsics))}
             points_frame = points_frame or ("camera" if camera_poses is not None else None)
     else:

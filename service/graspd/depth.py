@@ -1,7 +1,7 @@
 """Depth images as clouds: a 16-bit PNG in millimetres (what ROS depth drivers and OpenCV write, depth_scale
-0.001 m a unit) or a float32 array in metres, with pinhole intrinsics (fx, fy, cx, cy: ROS CameraInfo K, pixel
-centres at integer coordinates), back-projected by the project's one camera model
-(graspd.world.cameras.backproject) into the camera's optical frame (x right, y down, z forward; m).
+0.001 m a unit) or a float32 array in metres (an integer array: depth_scale units), with pinhole intrinsics (fx,
+fy, cx, cy: ROS CameraInfo K, pixel centres at integer coordinates), back-projected by the project's one camera
+model (graspd.world.cameras.backproject) into the camera's optical frame (x right, y down, z forward; m).
 
 Pixels without depth (0, the drivers' mark) are not points and are left out silently; NaN or infinite depths
 become non-finite rows, dropped and counted like every other input's (graspd.inputs).  With a camera pose
@@ -63,6 +63,18 @@ def check_depth(depth: NDArray[np.generic], field: str = "body") -> NDArray[np.f
     if depth.size > MAX_DEPTH_PIXELS:
         raise CloudError(field, f"{depth.shape[1]}x{depth.shape[0]} pixels exceeds the limit of {MAX_DEPTH_PIXELS}")
     return np.asarray(depth, np.float32)
+
+
+def depth_metres(image: NDArray[np.generic], depth_scale: float = DEFAULT_DEPTH_SCALE,
+                 field: str = "body") -> NDArray[np.float32]:
+    """A depth array (.npy) in metres: float values are metres already; integer values (a 16UC1 image saved as
+    it is) are units of depth_scale metres (default millimetres), as in a depth PNG."""
+    depth = check_depth(image, field)
+    if image.dtype.kind in "iu":
+        if not (np.isfinite(depth_scale) and depth_scale > 0):
+            raise CloudError("depth_scale", f"a positive number of metres per unit expected, got {depth_scale!r}")
+        return depth * np.float32(depth_scale)
+    return depth
 
 
 def read_depth_png(data: bytes, depth_scale: float = DEFAULT_DEPTH_SCALE, field: str = "body") -> NDArray[np.float32]:

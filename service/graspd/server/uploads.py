@@ -25,7 +25,7 @@ from graspd.cloud_io import (
     parse_pcd,
     parse_ply,
 )
-from graspd.depth import DEFAULT_DEPTH_SCALE, PNG_MAGIC, Intrinsics, check_depth, depth_points, read_depth_png
+from graspd.depth import DEFAULT_DEPTH_SCALE, PNG_MAGIC, Intrinsics, depth_metres, depth_points, read_depth_png
 from graspd.frames import POINTS_FRAMES, pose_matrix
 from graspd_client.codec import WireError
 
@@ -125,8 +125,8 @@ def _query_params() -> dict[str, QueryParam]:
         "intrinsics", "vector", {"type": "string"}, "depth images (a 16-bit PNG, or an .npy of metres): the "
         "camera's pinhole intrinsics 'fx,fy,cx,cy' (pixels; ROS CameraInfo K)", 4),
         "depth_scale": QueryParam(
-        "depth_scale", "text", {"type": "number", "exclusiveMinimum": 0}, "depth PNG: metres per unit (default "
-        f"{DEFAULT_DEPTH_SCALE:g}: millimetres)")}
+        "depth_scale", "text", {"type": "number", "exclusiveMinimum": 0}, "depth PNG or integer .npy: metres per "
+        f"unit (default {DEFAULT_DEPTH_SCALE:g}: millimetres)")}
     for name, info in DetectRequest.model_fields.items():
         param = _query_param(name, info, props[name])
         if param is not None:
@@ -187,11 +187,8 @@ def _file_arrays(data: bytes, kind: str, query: Mapping[str, str]) -> dict[str, 
             raise Problem(422, "a depth PNG needs the camera's intrinsics 'fx,fy,cx,cy' (pixels)", "intrinsics")
         return {"points": array_cloud(image)}
     intrinsics = Intrinsics.parse(_floats(query["intrinsics"], 4, "intrinsics"))
-    if image is None:
-        scale = _floats(query["depth_scale"], 1, "depth_scale")[0] if "depth_scale" in query else DEFAULT_DEPTH_SCALE
-        depth = read_depth_png(data, scale)
-    else:
-        depth = check_depth(image)
+    scale = _floats(query["depth_scale"], 1, "depth_scale")[0] if "depth_scale" in query else DEFAULT_DEPTH_SCALE
+    depth = read_depth_png(data, scale) if image is None else depth_metres(image, scale)
     return {"points": depth_points(depth, intrinsics), "depth": True}
 
 
