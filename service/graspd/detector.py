@@ -57,7 +57,7 @@ class DetectionParams:
     min_score (else 0.5); deterministic for a seed.  cascade (with a detector that has a prefilter): a cheap
     first pass scores every candidate and only the best cascade_keep fraction (at least cascade_min) are
     encoded and scored by the full model; the rest are dropped.  unknown_space "avoid" (default): a hand with more
-    than max_unknown of its fingers, palm or approach path in space no camera saw (behind a seen surface from
+    than max_unknown (default none) of its fingers, palm or approach path in space no camera saw (behind a seen surface from
     every camera) is treated as colliding; "allow" checks the seen points only, as GPD does."""
 
     num_samples: int = 1000

@@ -363,23 +363,37 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
     smooth = counts + np.concatenate([[0], counts[:-1]]) + np.concatenate([counts[1:], [0]])
     axes2 = _in_plane_axes(up)
     levels: list[Level] = []
+    ref_normal: F64 | None = None
     for _ in range(2 * params.max_levels + 2):
         if len(levels) >= params.max_levels or smooth.max() < params.level_min_points:
             break
         b = int(np.argmax(smooth))
         centre_h = lo + (b + 0.5) * bin_w
         smooth[max(0, b - 1): b + 2] = 0  # this peak is spent, whatever it turns out to be
-        window = upf & (np.abs(h - centre_h) <= 2.0 * bin_w)
-        if window.sum() < params.level_min_points:
-            continue
-        sub = points[window]
-        c = sub.mean(axis=0)
-        _, _, vt = np.linalg.svd(sub - c, full_matrices=False)
-        normal = vt[-1] if float(vt[-1] @ up) > 0.0 else -vt[-1]
-        if float(normal @ up) < np.cos(np.radians(15.0)):
-            normal = up
-        plane = Plane(normal, -float(normal @ c))
-        inliers = upf & (np.abs(plane.distance(points)) <= params.plane_distance)
+        # refine from the horizontal plane at the peak: inliers within plane_distance, least squares, three times
+        # (a level may tilt a little from up; neighbouring levels a few mm apart are not averaged together)
+        # the first level found sets the normal of every other (a container's floor or a platform is parallel to
+        # the table): later levels refine their height only, in a narrower band, so two levels a few mm apart
+        # are never fitted as one tilted plane
+        plane = Plane(up if ref_normal is None else ref_normal, -centre_h)
+        band = params.plane_distance if ref_normal is None else 0.6 * params.plane_distance
+        inliers = upf & (np.abs(plane.distance(points)) <= band)
+        c = np.zeros(3)
+        for _ in range(3):
+            if inliers.sum() < params.level_min_points:
+                break
+            sub = points[inliers]
+            c = sub.mean(axis=0)
+            if ref_normal is None:
+                _, _, vt = np.linalg.svd(sub - c, full_matrices=False)
+                normal = vt[-1] if float(vt[-1] @ up) > 0.0 else -vt[-1]
+                if float(normal @ up) < np.cos(np.radians(15.0)):
+                    normal = up
+            else:
+                normal = ref_normal
+                c = normal * float(np.median(sub @ normal)) + (c - normal * float(c @ normal))
+            plane = Plane(normal, -float(normal @ c))
+            inliers = upf & (np.abs(plane.distance(points)) <= band)
         if inliers.sum() < params.level_min_points:
             continue
         xy = points[inliers] @ axes2.T
@@ -404,6 +418,7 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
         if any(abs(height - lv.height) < 0.7 * params.support_distance for lv in levels):
             continue
         levels.append(Level(plane, height, centre, axes, half, spans, int(inliers.sum()), float(fill)))
+        ref_normal = plane.normal if ref_normal is None else ref_normal
     levels.sort(key=lambda lv: lv.height)
     return levels[:1] + [lv for lv in levels[1:] if lv.fill >= params.level_min_fill]
 
@@ -656,7 +671,7 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
                                    int((labels == Label.SUPPORT).sum()), 1.0))
     found_conf = [s.confidence for s in surfaces if s.kind != "declared"]
     confidence = 0.0 if (p.mode == "auto" and support is None) else min(found_conf, default=1.0)
-    if p.mode == "auto" and support is not None and confidence < 0.5 and not warnings:
+    if p.mode == "auto" and support is not None and confidence < 0.3 and not warnings:
         weakest = min((s for s in surfaces if s.kind != "declared"), key=lambda s: s.confidence)
         warnings.append(DetectionWarning(
             "environment_unsure", f"the {weakest.kind} found is barely distinct from an object (confidence "

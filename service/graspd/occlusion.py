@@ -21,8 +21,9 @@ from .scene import VoxelGrid
 F64 = NDArray[np.float64]
 UnknownSpace = Literal["avoid", "allow"]
 UNKNOWN_SPACE_MODES: tuple[str, ...] = ("avoid", "allow")
-#: Default most share of a hand's samples that may lie in unseen space under "avoid" (a stray voxel of noise).
-MAX_UNKNOWN_SHARE = 0.03
+#: Default most share of a hand's samples that may lie in unseen space under "avoid": none (the margin below
+#: absorbs sensor noise at the surface; a tolerance let fingertips a centimetre into a hidden object through).
+MAX_UNKNOWN_SHARE = 0.0
 #: Default distance (m) the hand's samples keep inside its faces: unseen space closer than this is tolerated.
 UNKNOWN_MARGIN = 0.004
 

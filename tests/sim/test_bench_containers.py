@@ -76,4 +76,4 @@ def test_tiny_run_writes_tables_json_picture_and_resumes(tmp_path: Path, capsys:
 def test_held_out_styles_have_no_training_ranges() -> None:
     bench = _bench()
     with pytest.raises(SystemExit):
-        bench.main(["--split", "training", "--styles", "shelf", "--detectors", "baseline"])
+        bench.main(["--split", "training", "--styles", "corner", "--detectors", "baseline"])

@@ -30,17 +30,20 @@ import json
 import multiprocessing as mp
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from ..detector import DetectionParams, GraspDetector
+from ..environment import Environment, EnvironmentParams
 from ..grasp import GraspSet
 from ..hand import HAND_PRESETS, HandGeometry, hand_preset
 from ..images import channel_layout, encode_images
+from ..scene import ClosingRegionPoints
 from ..world.cameras import sensing_cameras
 from ..world.noise import DepthNoise
 from ..world.objects import TRAINING_URDFS, check_not_held_out
@@ -59,6 +62,13 @@ from .labels import LabelParams, label_grasps
 
 #: Scene kinds and their share of the scenes: the benchmark's trays and piles, packed rows, lone objects.
 SCENE_MIX: tuple[tuple[str, float], ...] = (("pour", 0.4), ("pile", 0.35), ("packed", 0.1), ("single", 0.15))
+#: Container scenes (issue 22): the container family's training styles (graspd.sim.containers.TRAINING_STYLES,
+#: their training ranges) with objects dropped in, beside some of the benchmark's trays and piles.  A kind
+#: "container:STYLE" draws the scene's container from its seed.
+CONTAINER_MIX: tuple[tuple[str, float], ...] = (("container:tray", 0.2), ("container:deep_bin", 0.15),
+                                                ("container:platform", 0.15), ("container:tote", 0.2),
+                                                ("container:shelf", 0.1), ("pour", 0.1), ("pile", 0.1))
+MIXES: dict[str, tuple[tuple[str, float], ...]] = {"clutter": SCENE_MIX, "containers": CONTAINER_MIX}
 #: Sensing and its share of the views: the benchmark's passive pair and one side camera.
 SENSING_MIX: tuple[tuple[str, float], ...] = (("passive", 0.6), ("side", 0.4))
 PARTS = ("train", "val", "test")
@@ -83,7 +93,9 @@ class SceneParams:
     """Everything that determines a scene dataset (with the code): seed, how many scenes of which kinds,
     objects per scene (min, max), views per scene (one object removed between views), candidates per view
     (num_samples of the detector) and the most rows kept per view: every positive up to half of it, and
-    negatives (a uniform draw) up to negatives_per_positive per positive, at least min_negatives."""
+    negatives (a uniform draw) up to negatives_per_positive per positive, at least min_negatives.
+    hard_negatives_per_view: hands the detector itself rejects (rim and wall pinches, grasps on the support,
+    hands in unseen space) added to each view's candidates before the draw."""
 
     seed: int = 0
     scenes: int = 600
@@ -95,6 +107,7 @@ class SceneParams:
     per_view: int = 160
     negatives_per_positive: int = 3
     min_negatives: int = 20
+    hard_negatives_per_view: int = 0
     scenes_per_chunk: int = 10
     part_fractions: tuple[float, float] = (0.15, 0.10)  # (test, val) of the objects and of the views
     hand: HandGeometry = field(default_factory=HandGeometry)
@@ -163,7 +176,16 @@ def scene_views(kind: str, object_ids: list[int], seed: int, views: int, hand: H
             check_not_held_out(int(oid))
     rng = np.random.default_rng([seed, 13])
     scene_kind = "pile" if kind == "single" else kind
-    world = build_scene(scene_kind, len(object_ids), seed, hand, object_ids=tuple(int(i) for i in object_ids))
+    container = None
+    if kind.startswith("container:"):
+        from ..sim.containers import TRAINING_STYLES, sample_container  # noqa: PLC0415 - beside build_scene
+        style = kind.split(":", 1)[1]
+        if style not in TRAINING_STYLES and not held_out_ok:
+            raise ValueError(f"container style {style!r} is held out of training (graspd.sim.containers)")
+        container = sample_container(style, np.random.default_rng([seed, 22]), "training")
+        scene_kind = "container"
+    world = build_scene(scene_kind, len(object_ids), seed, hand, object_ids=tuple(int(i) for i in object_ids),
+                        container=container)
     out: list[SceneView] = []
     try:
         region = world.workspace()
@@ -203,6 +225,8 @@ def _view_rows(view: SceneView, scene_id: int, view_id: int, params: SceneParams
     record["num_candidates"] = len(cands)
     if len(cands) == 0:
         return _empty_rows(), record
+    if params.hard_negatives_per_view > 0:
+        cands, region = _with_hard_candidates(det, prep, cands, region, p, params, rng)
     lab = label_grasps(view.truth, cands, params.hand, params.labels, graspable=view.graspable)
     pos, neg = np.flatnonzero(lab.grasp), np.flatnonzero(~lab.grasp)
     record.update(num_positive=len(pos), num_negative=len(neg))
@@ -227,6 +251,37 @@ def _view_rows(view: SceneView, scene_id: int, view_id: int, params: SceneParams
         "widths": chosen.widths.astype(np.float32),
     }
     return rows, record
+
+
+def _with_hard_candidates(det: GraspDetector, prep: Any, cands: GraspSet, region: ClosingRegionPoints,
+                          p: DetectionParams, params: SceneParams, rng: np.random.Generator
+                          ) -> tuple[GraspSet, ClosingRegionPoints]:
+    """The detector's candidates plus up to hard_negatives_per_view of the hands it rejects: searched with no
+    environment model and unseen space allowed (pinches of rims and walls, grasps on the support, hands in
+    unseen space), labelled like the rest, so the classifier learns them too."""
+    loose = replace(p, environment=EnvironmentParams(mode="none"), unknown_space="allow")
+    sampling = replace(prep.sampling, sample_pool=None, obstacles=None, support=None, clear_behind=None)
+    extra, extra_region = det.search(replace(prep, environment=Environment.empty(len(prep.cloud))), sampling,
+                                     loose, params.hand)
+    if len(extra) == 0:
+        return cands, region
+    # hands the default search did not return: not within 5 mm and 10 degrees of one of its candidates
+    fresh = np.ones(len(extra), bool)
+    if len(cands):
+        tree = cKDTree(cands.positions)
+        near = tree.query_ball_point(extra.positions, 0.005)
+        for i, js in enumerate(near):
+            if js and (np.abs(np.einsum("j,kj->k", extra.approach[i], cands.approach[js])) > 0.985).any():
+                fresh[i] = False
+    idx = np.flatnonzero(fresh)
+    idx = idx[rng.permutation(len(idx))[: params.hard_negatives_per_view]]
+    keep = np.zeros(len(extra), bool)
+    keep[idx] = True
+    hard, hard_region = extra[keep], extra_region.subset(keep)
+    joined = ClosingRegionPoints(np.concatenate([region.grasp, hard_region.grasp + len(cands)]),
+                                 np.concatenate([region.local, hard_region.local]),
+                                 np.concatenate([region.index, hard_region.index]))
+    return GraspSet.concatenate([cands, hard]), joined
 
 
 def scene_spec(scene_id: int, params: SceneParams, parts: dict[str, list[int]]) -> dict[str, Any]:
@@ -358,12 +413,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--scenes-per-chunk", type=int, default=10)
+    ap.add_argument("--mix", choices=sorted(MIXES), default="clutter",
+                    help="scene kinds: clutter (trays, piles, packed rows, lone objects) or containers (the "
+                    "container family's training styles with some trays and piles)")
+    ap.add_argument("--hard-negatives", type=int, default=0, metavar="N",
+                    help="per view, add up to N hands the detector rejects (rims, walls, support, unseen space)")
     args = ap.parse_args(argv)
     try:
         params = SceneParams(seed=args.seed, scenes=args.scenes, views_per_scene=args.views,
                              objects=(args.objects[0], args.objects[1]), num_samples=args.samples,
                              per_view=args.per_view, scenes_per_chunk=args.scenes_per_chunk,
-                             hand=hand_preset(args.hand))
+                             hand=hand_preset(args.hand), scene_mix=MIXES[args.mix],
+                             hard_negatives_per_view=args.hard_negatives)
     except (ValueError, KeyError) as exc:
         ap.error(str(exc))
     manifest = generate_scene_dataset(args.out, params, workers=args.workers, progress=True)
