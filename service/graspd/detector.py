@@ -56,9 +56,9 @@ class DetectionParams:
     rounds of early_stop_round and stop once 2 x max_grasps candidates in distinct 2 cm cells score at least
     min_score (else 0.5); deterministic for a seed.  cascade (with a detector that has a prefilter): a cheap
     first pass scores every candidate and only the best cascade_keep fraction (at least cascade_min) are
-    encoded and scored by the full model; the rest are dropped.  unknown_space "avoid" (default): a hand with more
-    than max_unknown (default none) of its fingers, palm or approach path in space no camera saw (behind a seen surface from
-    every camera) is treated as colliding; "allow" checks the seen points only, as GPD does."""
+    encoded and scored by the full model; the rest are dropped.  unknown_space "avoid" (default): a hand with
+    more than max_unknown (default none) of its fingers, palm or approach path in space no camera saw (behind a
+    seen surface from every camera) is treated as colliding; "allow" checks the seen points only, as GPD does."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None

@@ -443,8 +443,8 @@ class DetectRequest(BaseModel):
                           "best 30% (at least 200); false: the full model scores every candidate")
     unknown_space: Literal["avoid", "allow"] = Field(
         "avoid", description="space no camera saw (behind a seen surface from every camera): 'avoid' treats a "
-        "hand with any of its fingers, palm or approach path there (beyond 4 mm) as colliding (a neighbour seen only in "
-        "part may be there); 'allow' checks the seen points only, as GPD does, and warns when the best grasps "
+        "hand with any of its fingers, palm or approach path there (beyond 4 mm) as colliding (a neighbour seen "
+        "only in part may be there); 'allow' checks the seen points only, as GPD does, and warns when the best grasps "
         "reach into unseen space")
     min_aperture: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False,
                                        description="drop grasps whose width (object extent between the fingers) "
