@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -267,3 +268,27 @@ def test_a_depth_image_needs_intrinsics_and_depth(server: Server, scene: tuple[C
         with pytest.raises(RequestRejected) as err:
             client.detect_depth(rgb.getvalue(), (500, 500, 4, 4))
         assert err.value.status == 422 and "16-bit" in str(err.value)
+
+
+def test_the_ros2_example_puts_a_camera_frame_cloud_into_its_base_link_workspace(mug: np.ndarray) -> None:
+    """examples/ros2/graspd.env: a camera-frame PointCloud2 and a base_link workspace work together (the issue: the
+    viewpoint at the origin with that workspace gave 0 candidates, with no word why)."""
+    from graspd.detector import GraspDetector  # noqa: PLC0415
+    from graspd.server.ros_stream import decode_input, parse_options, stream_request  # noqa: PLC0415
+
+    env = (Path(__file__).resolve().parents[2] / "examples" / "ros2" / "graspd.env").read_text()
+    found = re.search(r"^GRASPD_STREAM_OPTIONS='(.*)'$", env, re.M)
+    assert found is not None
+    example = json.loads(found.group(1))
+    options = parse_options({"num_samples": SAMPLES}, example, ((0.0, 0.0, 0.0),))
+    msg = decode_input(encode_pointcloud2(mug, Header(example["camera_frame_id"], (3, 4))), "pointcloud2", options)
+    assert msg.header.frame_id == "base_link"
+    req = stream_request(msg, options)
+    det = GraspDetector().detect(req.to_cloud(), req.to_params())
+    lo, hi = np.array(example["workspace"][0::2]), np.array(example["workspace"][1::2])
+    assert len(det.grasps) > 0 and ((det.grasps.positions >= lo) & (det.grasps.positions <= hi)).all()
+    assert det.environment is not None and det.environment.up is not None and det.environment.up[2] > 0.99
+    without = {k: v for k, v in example.items() if k not in ("camera_poses", "points_frame", "camera_frame_id")}
+    old = parse_options({"num_samples": SAMPLES}, without, ((0.0, 0.0, 0.0),))
+    old_req = stream_request(decode_input(encode_pointcloud2(mug, Header("cam", (3, 4))), "pointcloud2", old), old)
+    assert len(GraspDetector().detect(old_req.to_cloud(), old_req.to_params()).grasps) == 0
