@@ -59,7 +59,14 @@ from numpy.typing import NDArray  # noqa: E402
 import clutter  # noqa: E402  (bench/clutter.py: service start, detectors, round log, formatting)
 from graspd.grasp import GraspSet  # noqa: E402
 from graspd.hand import HandGeometry  # noqa: E402
-from graspd.sim.containers import HELD_OUT_STYLES, SPLITS, STYLES, TRAINING_STYLES, scene_container  # noqa: E402
+from graspd.sim.containers import (  # noqa: E402
+    HELD_OUT_STYLES,
+    SPLITS,
+    STYLES,
+    TRAINING_STYLES,
+    TUNED_ON,
+    scene_container,
+)
 from graspd.sim.detectors import SimDetector  # noqa: E402
 from graspd.sim.protocol import (  # noqa: E402
     SENSINGS,
@@ -214,7 +221,8 @@ def markdown(per_style: dict[str, dict[str, tuple[Summary, dict[str, Any]]]],
     else:
         lines += ["## Headline: none (no held-out style in this run)", ""]
     for style, rows in per_style.items():
-        tag = "held out" if style in HELD_OUT_STYLES else "tuned on (training style)"
+        tag = "held out" if style in HELD_OUT_STYLES else \
+            "tuned on (held out at first, then tuned on)" if style in TUNED_ON else "tuned on (training style)"
         lines += [f"## {style} ({tag}, {meta['split']} ranges)", ""]
         lines += table(rows)
         lines.append("")
