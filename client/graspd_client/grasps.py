@@ -92,6 +92,9 @@ class Grasps:
     frame: str = "cloud"
     timings: dict[str, float] = field(default_factory=dict)
     request_id: str | None = None
+    #: What the server could not do right for this request, each {"code", "message"} (empty: nothing; see the
+    #: README's "On your robot" for the codes).  Check it: a wrong viewpoint or frame still returns grasps.
+    warnings: list[dict[str, str]] = field(default_factory=list)
     crops: list[bytes | None] = field(default_factory=list)
     crop_pixels: F64 = field(default_factory=lambda: np.zeros((0, 2)))
     in_image: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
@@ -165,6 +168,8 @@ class Grasps:
             frame=str(body.get("frame", "cloud")),
             timings={str(k): float(v) for k, v in (body.get("timings") or {}).items()},
             request_id=body.get("request_id"),
+            warnings=[{"code": str(w.get("code")), "message": str(w.get("message"))}
+                      for w in body.get("warnings") or () if isinstance(w, dict)],
             crops=crops,
             crop_pixels=pixels,
             in_image=inside,

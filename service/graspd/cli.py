@@ -100,7 +100,7 @@ def _detect(args: argparse.Namespace) -> int:
         title = f"{Path(args.cloud).name}: {_drawn(args.top, detection)}"
         if args.plot:
             plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title,
-                        gravity=params.gravity, environment=detection.environment)
+                        gravity=params.gravity, environment=detection.environment, warnings=detection.warnings)
         if args.view:
             Path(args.view).parent.mkdir(parents=True, exist_ok=True)
             Path(args.view).write_text(viewer_html(shown, detection, hand, top=args.view_top,
@@ -140,7 +140,7 @@ def _demo(args: argparse.Namespace) -> int:
     shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size))
     title = f"demo tabletop ({args.objects} objects, {len(cloud)} points, 2 cameras): {_drawn(args.top, detection)}"
     plot_grasps(shown, detection.grasps, detection.hand, out / "grasps.png", top=args.top, title=title,
-                gravity=GRAVITY, environment=detection.environment)
+                gravity=GRAVITY, environment=detection.environment, warnings=detection.warnings)
     t = detection.timings
     print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates in {t['total']:.2f} s "
           f"(model: {detection.model or 'none'}); wrote {out / 'grasps.json'} (all {len(detection.grasps)}) and "

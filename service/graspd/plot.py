@@ -11,6 +11,8 @@ gripper_segments, box_edges, support_outline) are shared with the interactive vi
 
 from __future__ import annotations
 
+import textwrap
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -186,6 +188,21 @@ def score_colours(scores: F64) -> tuple[F64, float, float, str]:
 RANK_BAR_LABEL = "rank (unscored grasps: 1 = best)"
 
 
+def warning_lines(warnings: Sequence[Any] | None, width: int = 200) -> list[tuple[str, str]]:
+    """(text, colour) lines saying a detection's warnings (graspd.warning.DetectionWarning or {code, message}),
+    wrapped at width characters; 'warnings: none' when there are none; nothing when warnings is None (not
+    known)."""
+    if warnings is None:
+        return []
+    if not warnings:
+        return [("warnings: none", "#1e7b34")]
+    out: list[tuple[str, str]] = []
+    for w in warnings:
+        code, message = (w["code"], w["message"]) if isinstance(w, Mapping) else (w.code, w.message)
+        out += [(line, "#b00020") for line in textwrap.wrap(f"warning {code}: {message}", width)]
+    return out
+
+
 def grasp_caption(grasps: GraspSet, k: int) -> str:
     """One line on grasp k of a ranked set: its rank, score, width and, when selection ranked it, the terms of
     its ranking key (graspd.grasp.RANKING_RULE)."""
@@ -213,10 +230,11 @@ def _fmt_dir(v: F64) -> str:
 def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, path: str | Path,
                 top: int = 10, title: str = "", gravity: tuple[float, float, float] | None = None,
                 labels: NDArray[np.integer] | None = None, environment: Environment | None = None,
-                max_points: int = 40_000) -> Path:
+                max_points: int = 40_000, warnings: Sequence[Any] | None = None) -> Path:
     """Write a PNG of cloud (the preprocessed cloud the environment labelled, cloud frame, m) with the top
     grasps of grasps (ranked best first).  labels (one environment.Label per point) default to environment's;
-    up comes from the environment, else against gravity.  At most max_points points are drawn."""
+    up comes from the environment, else against gravity.  At most max_points points are drawn.  warnings: the
+    detection's (warning_lines), written under the title in red, or 'warnings: none' in green; None: not shown."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
@@ -271,8 +289,10 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
          f"away from camera 0: m along {_fmt_dir(frames.away)}", height_name),
     )
     fig = plt.figure(figsize=(18, 7.4), dpi=100)
+    notes = warning_lines(warnings)
     grid = fig.add_gridspec(2, 4, width_ratios=[1.25, 1.0, 1.0, 0.035], height_ratios=[1.0, 0.17],
-                            left=0.04, right=0.96, top=0.9, bottom=0.04, wspace=0.28, hspace=0.3)
+                            left=0.04, right=0.96, top=0.9 - 0.022 * max(len(notes) - 1, 0), bottom=0.04,
+                            wspace=0.28, hspace=0.3)
     handles: list[Any] = []
     for col, (proj, depth, name, xlabel, ylabel) in enumerate(views):
         ax = fig.add_subplot(grid[0, col])
@@ -360,6 +380,8 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
                       "the grasps are numbered by key, so a lower score can rank higher", fontsize=7, va="top",
                       transform=table_ax.transAxes, color="#333333")
     fig.suptitle(title or f"top {len(g)} grasps", fontsize=10)
+    for k, (text, colour) in enumerate(notes):
+        fig.text(0.5, 0.945 - 0.022 * k, text, ha="center", va="top", fontsize=8, color=colour)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)

@@ -17,7 +17,7 @@ from fastapi.testclient import TestClient
 from graspd.cloud_io import read_cloud
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
-from graspd_client import build_detect_request
+from graspd_client import Grasps, build_detect_request
 from graspd_client.zenoh_client import ZenohGraspClient
 
 SAMPLES = 100
@@ -70,6 +70,7 @@ def test_a_camera_behind_the_cloud_warns_the_same_everywhere(server: tuple[TestC
                                                                mug_path: Path) -> None:
     by_json, by_upload, by_zenoh = _three_ways(server, mug_path, (0.0, 0.0, 3.0))
     assert by_json == by_upload == by_zenoh
+    assert Grasps.from_response({"grasps": [], "warnings": by_json}).warnings == by_json  # the client keeps them
     codes = [w["code"] for w in by_json]
     assert codes[0] == "viewpoint_flipped" and len(set(codes)) == len(codes)
     assert "(0, 0, 3)" in by_json[0]["message"]
