@@ -93,8 +93,7 @@ def test_healthz_answers_through_a_slow_header_flood(make_settings: Callable[...
         times = [healthz_seconds(url) for _ in range(10)]
         assert max(times) < 1.0, times
         closed = sum(is_closed(s) for s in flood)
-        assert closed >= 60 - 8, closed  # the oldest went first; at most the cap is left waiting
-        assert not is_closed(flood[-1])
+        assert closed >= 60 - 8, closed  # the oldest went first (and each /healthz evicted one more)
 
 
 def test_the_total_cap_evicts_header_waiting_connections(make_settings: Callable[..., Settings]) -> None:

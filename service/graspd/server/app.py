@@ -23,7 +23,7 @@ from graspd.parallel import THREADS
 
 from .deps import ServiceState
 from .engine import DetectionEngine, dumps
-from .guards import HealthFastPath, UploadRateGuard
+from .guards import BudgetGate, HealthFastPath, UploadRateGuard
 from .instance_jobs import InstanceJobs
 from .logs import MAX_REQUEST_ID, begin_request, valid_request_id
 from .metrics import Metrics
@@ -169,6 +169,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
     # /docs, /redoc and /openapi.json: routers.docs (offline assets, the token unless GRASPD_PUBLISH_DOCS)
     app = FastAPI(title="graspd", version=__version__, description=DESCRIPTION, lifespan=lifespan,
                   docs_url=None, redoc_url=None, openapi_url=None)
+    app.add_middleware(BudgetGate)  # innermost: its refusals carry RequestGuard's X-Request-ID
     app.add_middleware(RequestGuard)
     app.add_middleware(UploadRateGuard, min_bytes_per_s=settings.http_min_upload_rate,
                        grace_s=settings.http_upload_grace_s)

@@ -31,6 +31,7 @@ from graspd_client.codec import WireError
 
 from . import proposals
 from .allocator import IdleTrimmer, trim_function
+from .budget import MemoryBudget, cost_of
 from .logs import current_request
 from .metrics import Metrics
 from .pngio import encode_png_b64
@@ -161,6 +162,7 @@ class DetectionEngine:
         self._avg_seconds = 1.0  # EWMA of a request's time on a worker (parse + detect), seconds
         self._trimmer = IdleTrimmer(trim_function(), busy=lambda: self._pending > 0)
         self.templates = TemplateService(settings)  # method "templates", and what feedback needs
+        self.budget = MemoryBudget(settings.detect_memory_mb)  # admission by estimated cost (budget.py)
         self.closed = False
 
     # ---- admission -------------------------------------------------------------------------
@@ -216,6 +218,7 @@ class DetectionEngine:
         the ROS header of a CDR payload, which parse() may fill in (Zenoh); it goes into the response.
         on_detection(det, cloud, hand) is called on the worker with the detection (ROS outputs, the viewer)."""
         start = time.perf_counter()
+        held = 0.0  # MiB of the memory budget this request holds (budget.MemoryBudget)
         with self._lock:
             self._running += 1
             self.metrics.running.set(self._running)
@@ -226,6 +229,8 @@ class DetectionEngine:
             if start > deadline:
                 raise Problem(504, f"deadline of {self.settings.deadline_s} s passed while queued", "deadline")
             req = parse()
+            wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
+            held = self.budget.take(cost_of(req), self.retry_after(), wait)  # 413 / 503 before detection work
             timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
             try:
                 hand = req.hand_geometry()
@@ -279,6 +284,7 @@ class DetectionEngine:
                                                  model_fits_hand=fits, detection_id=detection_id,
                                                  frame=given.frame, warnings=input_warnings).to_json()
         finally:
+            self.budget.give(held)
             elapsed = time.perf_counter() - start
             with self._lock:
                 self._running -= 1

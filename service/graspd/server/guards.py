@@ -4,6 +4,9 @@
   pool or any middleware that reads bodies: detection work (worker threads) and a flood of routes waiting on
   threads cannot delay it.  Connection floods are handled by the protocol (graspd.server.runner: header
   deadline, per-peer cap, eviction of header-pending connections), so a new /healthz connection gets in.
+- BudgetGate refuses a POST /detect or /viewer whose Content-Length alone cannot fit the detection memory budget
+  (413 naming body) or cannot fit now (503 with Retry-After), before a byte of the body is read
+  (graspd.server.budget; the exact cost is taken on the worker after parsing).
 - UploadRateGuard enforces a minimum upload rate on request bodies: after a grace period, a body must keep
   arriving at min_bytes_per_s on average, else 408 naming body and the connection closes.  uvicorn only has
   a keep-alive timeout and an incomplete-event size; the whole-body deadline lives in routers.detect.read_capped.
@@ -12,6 +15,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import time
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -75,3 +79,39 @@ class UploadRateGuard:
             return message
 
         await self.app(scope, guarded_receive, send)
+
+
+#: Routes whose bodies are clouds to detect on (the memory budget applies before their body is read).
+BUDGETED_PATHS = frozenset({"/detect", "/viewer"})
+
+
+async def send_problem(send: Send, exc: Problem) -> None:
+    """Answer exc as the app's error handler would (its JSON body, Retry-After), closing the connection: the
+    request body was not read."""
+    body = json.dumps(exc.body()).encode()
+    headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+               (b"connection", b"close")]
+    if exc.retry_after is not None:
+        headers.append((b"retry-after", str(int(exc.retry_after)).encode()))
+    await send({"type": "http.response.start", "status": exc.status, "headers": headers})
+    await send({"type": "http.response.body", "body": body})
+
+
+class BudgetGate:
+    """POST /detect and /viewer: the body's announced size checked against the detection memory budget
+    (engine.budget.check_body) before the route runs or the body is read."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http" and scope.get("method") == "POST" and scope.get("path") in BUDGETED_PATHS:
+            length = next((v for k, v in scope.get("headers", ()) if k == b"content-length"), b"")
+            service = getattr(getattr(scope.get("app"), "state", None), "service", None)
+            if length.isdigit() and service is not None:
+                try:
+                    service.engine.budget.check_body(int(length), service.engine.retry_after())
+                except Problem as exc:
+                    await send_problem(send, exc)
+                    return
+        await self.app(scope, receive, send)

@@ -44,6 +44,13 @@ class Settings(BaseSettings):
                          "request uses them all, concurrent ones divide them); 0 = every core of the process")
     warmup: bool = Field(default=True, description="run one detection on a small bundled cloud at start-up, before "
                          "the service answers, so that the first request is as fast as the rest (~1 s of start-up)")
+    detect_memory_mb: float = Field(default=2048.0, ge=0, description="memory budget of the detections running at "
+                                    "once (MiB; graspd.server.budget estimates each request's from its points, "
+                                    "samples and crops): a request over the whole budget gets 413 naming the field, "
+                                    "one that does not fit now waits detect_memory_wait_s, then 503 with "
+                                    "Retry-After; 0: no budget")
+    detect_memory_wait_s: float = Field(default=5.0, ge=0, description="a request whose detection does not fit the "
+                                        "memory budget now waits this long on its worker for memory, then 503 (s)")
     queue_size: int = Field(default=32, ge=0, description="requests that may wait for a worker before 503")
     deadline_s: float = Field(default=30.0, gt=0, description="per-request deadline, queueing included (s)")
     max_body_bytes: int = Field(default=64 << 20, gt=0, description="request size cap (bytes); larger gets 413")
