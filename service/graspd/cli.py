@@ -13,10 +13,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 import sys
 from collections.abc import Collection
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from . import __version__
 
@@ -85,9 +86,10 @@ def _detect(args: argparse.Namespace) -> int:
     except CliError as exc:
         print(f"graspd detect: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    detection = _checked(GraspDetector(classifier, hand, prefilter).detect(cloud, params), cloud, params, classifier)
+    detection = GraspDetector(classifier, hand, prefilter).detect(cloud, params)
     detection = replace(detection, warnings=(*given.warnings, *detection.warnings))  # the input's first, as served
-    out = {"frame": given.frame, **detection.to_dict()}
+    detection = _checked(detection, cloud, params, classifier)  # then the request-level checks, as served
+    out = {"frame": given.frame, **_with_ranking(detection)}
     if classifier is None:
         out["note"] = "no classifier: candidates are unscored (the paper's 'no classification' ablation)"
     text = json.dumps(out, indent=1)
@@ -133,7 +135,7 @@ def _demo(args: argparse.Namespace) -> int:
     params = DetectionParams(num_samples=args.samples, exclude_support_plane=True, gravity=GRAVITY,
                              approach_direction=GRAVITY, approach_max_angle_deg=80.0, max_grasps=20)
     detection = _checked(GraspDetector(classifier).detect(cloud, params), cloud, params, classifier)
-    result = detection.to_dict()
+    result = _with_ranking(detection)
     if classifier is None:
         result["note"] = "no classifier in models/: candidates are unscored (the paper's 'no classification' ablation)"
     (out / "grasps.json").write_text(json.dumps(result, indent=1))
@@ -154,6 +156,20 @@ def _drawn(top: int, detection: Detection) -> str:
     n = len(detection.grasps)
     return (f"the best {min(top, n)} of the {n} grasps returned ({detection.num_candidates} candidates, model "
             f"{detection.model or 'none: unscored'})")
+
+
+def _with_ranking(detection: Detection) -> dict[str, Any]:
+    """detection.to_dict() with each grasp's ranking terms and the rule combining them, as the service answers
+    (non-finite terms as null)."""
+    from .grasp import RANKING_RULE
+
+    out = detection.to_dict()
+    ranking = detection.grasps.ranking
+    if ranking is not None:
+        for grasp, terms in zip(out["grasps"], ranking.to_dicts(), strict=True):
+            grasp["ranking"] = {k: v if math.isfinite(v) else None for k, v in terms.items()}
+        out["ranking_rule"] = RANKING_RULE
+    return out
 
 
 def _checked(detection: Detection, cloud: ViewpointCloud, params: DetectionParams,

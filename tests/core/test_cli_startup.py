@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.metadata
+import json
 import shutil
 import subprocess
 import sys
@@ -100,3 +101,15 @@ def test_empty_models_dir_through_the_entry_point(real_data: Path, tmp_path: Pat
     assert proc.returncode != 0
     assert proc.stdout == ""  # no grasps printed
     assert "holds no model" in proc.stderr
+
+
+def test_detect_answers_the_ranking_terms_as_the_service_does(real_data: Path, tmp_path: Path) -> None:
+    out = tmp_path / "g.json"
+    assert main(["detect", str(real_data / "table_mug.pcd"), "--samples", "100", "--no-classifier",
+                 "--out", str(out)]) == 0
+    answer = json.loads(out.read_text())
+    assert answer["ranking_rule"].startswith("key = classifier x utility x width x unknown")
+    terms = [g["ranking"] for g in answer["grasps"]]
+    assert terms and all(set(t) == {"classifier", "utility", "width", "unknown", "key"} for t in terms)
+    keys = [t["key"] for t in terms]
+    assert keys == sorted(keys, reverse=True)

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from graspd.cli import main as cli_main
 from graspd.cloud_io import read_cloud
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
@@ -74,6 +75,18 @@ def test_a_camera_behind_the_cloud_warns_the_same_everywhere(server: tuple[TestC
     codes = [w["code"] for w in by_json]
     assert codes[0] == "viewpoint_flipped" and len(set(codes)) == len(codes)
     assert "(0, 0, 3)" in by_json[0]["message"]
+
+
+def test_the_cli_warns_as_the_service_does(server: tuple[TestClient, str], mug_path: Path, tmp_path: Path,
+                                           models_and_default: tuple[Path, str],
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    by_json = _three_ways(server, mug_path, (0.0, 0.0, 3.0))[0]
+    out = tmp_path / "g.json"
+    assert cli_main(["detect", str(mug_path), "--viewpoint", "0", "0", "3", "--samples", str(SAMPLES),
+                     "--models-dir", str(models_and_default[0]), "--out", str(out)]) == 0
+    answer = json.loads(out.read_text())
+    assert answer["warnings"] == by_json
+    assert f"warning viewpoint_flipped: {by_json[0]['message']}" in capsys.readouterr().err
 
 
 def test_an_empty_workspace_says_so(server: tuple[TestClient, str], mug_path: Path) -> None:
