@@ -37,6 +37,7 @@ from graspd.environment import Environment, EnvironmentParams, model_environment
 from graspd.hand import HandGeometry
 from graspd.images import encode_images
 from graspd.preprocess import PreprocessParams, preprocess
+from graspd.progress import track
 from graspd.scene import Scene
 from graspd.world.scenes import cluttered_tabletop, subsample
 
@@ -319,7 +320,8 @@ def main() -> None:
 
     sizes = [10_000, 30_000, 100_000] if args.quick else [10_000, 30_000, 66_000, 100_000, 200_000, 300_000]
     emit("## Growth with cloud size (600 samples)\n")
-    size_rows = [measure(subsample(big, n), 600, repeats) for n in sizes if n <= len(big)]
+    size_rows = [measure(subsample(big, n), 600, repeats)
+                 for n in track([n for n in sizes if n <= len(big)], "cloud sizes", "size")]
     emit(table(size_rows, ["points", "voxelized", "candidates", "preprocess", "environment", "scene", "sample",
                            "sample_per_1k",
                            "encode15_per_1k"]))
@@ -327,7 +329,7 @@ def main() -> None:
     emit("\n## Growth with the number of samples (66k points)\n")
     c66 = subsample(big, 66_000)
     sample_rows = []
-    for s in samples:
+    for s in track(samples, "sample counts", "count"):
         r = measure(c66, s, repeats)
         r["samples"] = s
         sample_rows.append(r)

@@ -36,6 +36,7 @@ from matplotlib.figure import Figure
 
 from graspd.cloud import ViewpointCloud
 from graspd.hand import HandGeometry
+from graspd.progress import track
 from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
 from graspd.templates import TemplateDetector, TemplateError, TemplateLibrary, TemplateParams
@@ -117,7 +118,7 @@ def time_http(url: str, queries: list[tuple[str, ViewpointCloud]], repeats: int)
             serve_in_thread(Settings(port=0, zenoh_enabled=False, template_library=url, detect_workers=1,
                                      models_dir=Path(tmp) / "no-models", log_level="WARNING")) as base, \
             GraspClient(base, timeout=60) as client:
-        for _, cloud in queries:
+        for _, cloud in track(queries, "HTTP queries", "query"):
             client.detect(cloud.points, cloud.viewpoints, method="templates", max_grasps=100)
             trips, server = [], []
             for _ in range(repeats):
@@ -197,7 +198,7 @@ def main() -> None:
             ("mesh 200, 10 cm, dense (object ~30k)", scene_cloud(200, 0.10, 0.7, 640, 480, fov=25.0, seed=4)),
         ]
         rows = []
-        for name, cloud in queries:
+        for name, cloud in track(queries, "queries", "query"):
             rows.append((name, len(cloud), time_detection(det, cloud, args.repeats)))
         object_pts = [int((c.points[:, 2] > 0.004).sum()) for _, c in queries]
         head = (f"{'query':38s} {'points':>7s} {'object':>7s} {'cands':>6s} {'out':>4s} "
