@@ -74,7 +74,8 @@ def test_zenoh_header_is_part_of_the_model() -> None:
 
 def test_http_answers_validate_against_the_declared_model(client: TestClient, body: dict[str, Any]) -> None:
     out = client.post("/detect", json=body).json()
-    assert set(out) == GPD_KEYS
+    assert set(out) == GPD_KEYS | {"ranking_rule"}  # ranked by selection: the rule, and each grasp's terms
+    assert all("ranking" in g for g in out["grasps"])
     assert DetectResponse.model_validate(out).model_dump(exclude_unset=True) == out
 
 
