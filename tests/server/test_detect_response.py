@@ -59,8 +59,8 @@ def test_template_response_matches_the_detection() -> None:
                                                    hand=hand).to_json())
     expected = det.to_dict()
     expected.pop("detection_id")
-    assert out == {"request_id": "d1", **expected, "frame": "cloud", "model": None, "scored": True, "hand": hand.to_dict(),
-                   "warnings": []}
+    assert out == {"request_id": "d1", **expected, "frame": "cloud", "model": None, "scored": True,
+                   "hand": hand.to_dict(), "warnings": []}
     assert set(out) == TEMPLATE_KEYS and out["grasps"][2]["mismatch"] is None
 
 
