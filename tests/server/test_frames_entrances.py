@@ -292,3 +292,35 @@ def test_the_ros2_example_puts_a_camera_frame_cloud_into_its_base_link_workspace
     old = parse_options({"num_samples": SAMPLES}, without, ((0.0, 0.0, 0.0),))
     old_req = stream_request(decode_input(encode_pointcloud2(mug, Header("cam", (3, 4))), "pointcloud2", old), old)
     assert len(GraspDetector().detect(old_req.to_cloud(), old_req.to_params()).grasps) == 0
+
+
+def test_gpd_ros_clouds_of_two_cameras_move_with_each_cameras_pose(mug: np.ndarray) -> None:
+    """A CloudSources / CloudSamples of two cameras, each point in its own camera's frame: with the stream's camera
+    poses, camera_source picks the pose; the cloud, its viewpoints and the samples land where the JSON request's
+    do (one rule: graspd.inputs.apply_frames)."""
+    from graspd.ros import encode_cloud_samples, encode_cloud_sources  # noqa: PLC0415
+    from graspd.server.engine import parse_request  # noqa: PLC0415
+    from graspd.server.problems import Problem  # noqa: PLC0415
+    from graspd.server.ros_stream import decode_input, parse_options  # noqa: PLC0415
+
+    second = np.eye(4)
+    second[:3, :3] = Rotation.from_euler("z", 90, degrees=True).as_matrix()
+    second[:3, 3] = [0.1, 0.2, 0.3]
+    poses = [pose_4x4(), second]
+    points = np.concatenate([mug[:300], mug[300:600]])
+    source = np.repeat([0, 1], 300)
+    options = parse_options({"camera_poses": [p.tolist() for p in poses], "points_frame": "camera"}, {},
+                            ((0.0, 0.0, 0.0),))
+    want = parse_request({"cloud": {"points": points.tolist(), "camera_source": source.tolist(),
+                                    "camera_poses": [p.tolist() for p in poses], "points_frame": "camera"}}).to_cloud()
+    got = decode_input(encode_cloud_sources(points, np.zeros((2, 3)), source, Header("cam", (1, 2))),
+                       "cloud_sources", options)
+    assert np.allclose(got.cloud.points, want.points, atol=1e-6)
+    assert np.allclose(got.cloud.viewpoints, [T, [0.1, 0.2, 0.3]], atol=1e-6) and got.header.frame_id == "base_link"
+    samples = decode_input(encode_cloud_samples(points, np.zeros((2, 3)), points[:5], source, Header("cam", (1, 2))),
+                           "cloud_samples", options)
+    assert samples.samples is not None and np.allclose(samples.samples, want.points[:5], atol=1e-6)
+    with pytest.raises(Problem) as err:  # an index beyond the poses: the message's field is named
+        decode_input(encode_cloud_sources(points, np.zeros((3, 3)), np.full(600, 2), Header("cam", (1, 2))),
+                     "cloud_sources", options)
+    assert err.value.status == 422 and err.value.field == "camera_source"
