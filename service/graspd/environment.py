@@ -129,9 +129,11 @@ class EnvironmentParams:
     max_levels: int = 4
     level_min_points: int = 60
     level_min_fill: float = 0.3
+    level_points: int = 8000
     wall_base_gap: float = 0.04
     rim_min_length: float | None = None
     rim_width: float = 0.006
+    wall_min_points: int = 60
 
     def __post_init__(self) -> None:
         if self.mode not in ENVIRONMENT_MODES:
@@ -265,6 +267,7 @@ def _robust_span(values: F64) -> float:
     """The 2nd-98th percentile span of values (m): a few stray inliers do not make a plane large."""
     if len(values) < 10:
         return 0.0
+    values = values[:: max(1, len(values) // 4000)]  # a regular thinning: the percentiles barely move
     lo, hi = np.percentile(values, [2.0, 98.0])
     return float(hi - lo)
 
@@ -311,7 +314,7 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
 def _min_area_rectangle(xy: F64) -> tuple[F64, F64, F64]:
     """The smallest rectangle around 2-D points (N,2): centre (2,), unit axes (2,2) as rows and half sizes (2,)
     (rotating calipers over the convex hull's edges; a container's floor at any yaw)."""
-    pts = np.unique(np.round(xy, 4), axis=0)
+    pts = xy
     try:
         hull = pts[ConvexHull(pts).vertices] if len(pts) >= 3 else pts
     except (QhullError, ValueError):
@@ -352,10 +355,15 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
     """Support levels, lowest first: up-facing planes (normal within 15 degrees of up) whose points span
     min_extent in both in-plane directions.  Candidate heights are the peaks of a histogram of up-facing
     points' heights; each peak is refined by a least-squares plane, so a level may tilt a little from up."""
-    h = points @ up
-    upf = (normals @ up) > np.cos(np.radians(25.0))
-    if upf.sum() < params.level_min_points:
+    upf_all = (normals @ up) > np.cos(np.radians(25.0))
+    if upf_all.sum() < params.level_min_points:
         return []
+    # only up-facing points can be a level: everything below runs on them (a third of a tabletop cloud), thinned
+    # regularly to at most level_points (a 1 cm grid of a 50 cm table still holds a few per cell)
+    points = points[upf_all]
+    points = points[:: max(1, len(points) // params.level_points)]
+    h = points @ up
+    upf = np.ones(len(points), bool)
     bin_w = params.plane_distance
     hu = h[upf]
     lo = float(hu.min()) - bin_w
@@ -375,6 +383,12 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
         # the first level found sets the normal of every other (a container's floor or a platform is parallel to
         # the table): later levels refine their height only, in a narrower band, so two levels a few mm apart
         # are never fitted as one tilted plane
+        window = np.abs(h - centre_h) <= 2.0 * bin_w
+        if window.sum() < params.level_min_points:
+            continue
+        wxy = points[window][:: max(1, int(window.sum()) // 2000)] @ _in_plane_axes(up).T
+        if min(_robust_span(wxy[:, 0]), _robust_span(wxy[:, 1])) < min_extent:
+            continue  # the points at this height span less than a level must: objects' tops
         plane = Plane(up if ref_normal is None else ref_normal, -centre_h)
         band = params.plane_distance if ref_normal is None else 0.6 * params.plane_distance
         inliers = upf & (np.abs(plane.distance(points)) <= band)
@@ -382,7 +396,7 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
         for _ in range(3):
             if inliers.sum() < params.level_min_points:
                 break
-            sub = points[inliers]
+            sub = points[inliers][:: max(1, int(inliers.sum()) // 5000)]
             c = sub.mean(axis=0)
             if ref_normal is None:
                 _, _, vt = np.linalg.svd(sub - c, full_matrices=False)
@@ -402,18 +416,21 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
         grid = np.zeros(tuple(ij.max(axis=0) + 1), bool)
         grid[ij[:, 0], ij[:, 1]] = True
         parts, count = ndimage.label(ndimage.binary_dilation(grid), structure=np.ones((3, 3), bool))
+        largest = 1
         if count > 1:
             cell_part = parts[ij[:, 0], ij[:, 1]]
-            xy = xy[cell_part == int(np.argmax(np.bincount(cell_part)[1:])) + 1]
+            largest = int(np.argmax(np.bincount(cell_part)[1:])) + 1
+            xy = xy[cell_part == largest]
         spans = (_robust_span(xy[:, 0]), _robust_span(xy[:, 1]))
-        centre, axes, half = _min_area_rectangle(xy[::max(1, len(xy) // 4000)])
-        if min(spans) < min_extent or 2.0 * float(half.min()) < min_extent:
+        if min(spans) < min_extent:
+            continue
+        centre, axes, half = _min_area_rectangle(xy[:: max(1, len(xy) // 2000)])
+        if 2.0 * float(half.min()) < min_extent:
             continue
         # how much of its footprint the level covers (1 cm cells): a raised level is a filled surface, not a
         # ring of rims or scattered object tops at one height
-        cell = 0.01
-        occupied = np.unique(np.floor(((xy - centre) @ axes.T + half) / cell).astype(np.int64), axis=0)
-        fill = len(occupied) / max(float(np.prod(np.ceil(2.0 * half / cell))), 1.0)
+        occupied = int((grid & (parts == largest)).sum())
+        fill = occupied / max(float(np.prod(np.ceil(2.0 * half / 0.01))), 1.0)
         height = float(c @ up)
         if any(abs(height - lv.height) < 0.7 * params.support_distance for lv in levels):
             continue
@@ -464,15 +481,18 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     remaining = points[pool]
     walls: list[tuple[Box, Plane, float, int, float, bool]] = []
     min_points = 30
+    # a wall is among the largest planes left: fewer hypotheses on fewer points find it (half the cost)
+    wall_ransac = replace(params, ransac_points=min(params.ransac_points, 3000),
+                          ransac_iterations=min(params.ransac_iterations, 120))
     for _ in range(params.wall_rounds):
         if len(remaining) < min_points or len(walls) >= params.max_walls:
             break
-        plane = _ransac_plane(remaining, params, rng)
+        plane = _ransac_plane(remaining, wall_ransac, rng)
         if plane is None:
             break
         inliers = np.abs(plane.distance(remaining)) <= params.plane_distance
-        if inliers.sum() < min_points:
-            break
+        if inliers.sum() < params.wall_min_points:
+            break  # the largest plane left is too small to be a wall: the rest are objects' faces
         patch = remaining[inliers]
         remaining = remaining[~inliers]
         if abs(float(plane.normal @ up)) > np.sin(np.radians(params.wall_max_tilt_deg)):
@@ -512,14 +532,14 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     return walls
 
 
-def find_rims(points: F64, support: Plane, params: EnvironmentParams, min_length: float,
+def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentParams, min_length: float,
               rng: np.random.Generator, candidates: NDArray[np.bool_]) -> list[tuple[Box, F64, F64, float, int]]:
     """Rims: long, thin, horizontal lines of points above the support (a thin wall's top seen from above, its
     faces unseen), each at least min_length gap-free with nothing else at its height beside it.  Returns (box
     down to the support, point on the line, direction, length, points) per rim."""
     up = support.normal
     h = support.distance(points)
-    idx = np.flatnonzero(candidates & (h > 0.015))
+    idx = np.flatnonzero(candidates & (h > 0.015) & (normals @ up > 0.7))  # a rim's top faces up
     rims: list[tuple[Box, F64, F64, float, int]] = []
     if len(idx) < 20:
         return rims
@@ -649,7 +669,7 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
                         "support level found; it is treated as environment (too large to grasp), but the "
                         "support may be wrong: declare the support or the container in the request"))
             rim_length = p.rim_min_length if p.rim_min_length is not None else min_length
-            for box, origin, direction, length, count in find_rims(pts, support, p, rim_length, rng,
+            for box, origin, direction, length, count in find_rims(pts, normals, support, p, rim_length, rng,
                                                                     labels == Label.OBJECT):
                 labels[(labels == Label.OBJECT) & box.contains(pts, margin=0.003)] = Label.WALL
                 walls.append(box)

@@ -34,7 +34,8 @@ def hand_samples(hand: HandGeometry, approach_distance: float, margin: float = U
     sampled on its mid-plane).  The closing region between the fingers is not sampled: the object is there."""
     boxes = hand.swept_boxes(approach_distance)  # (3, 2, 3): left finger, right finger, palm
     out = []
-    for (lo, hi), steps in zip(boxes, ((8, 2, 2), (8, 2, 2), (4, 6, 2)), strict=True):
+    # about 2 cm apart along the approach, one column per finger (1 cm wide), 2 layers across the hand's height
+    for (lo, hi), steps in zip(boxes, ((6, 1, 2), (6, 1, 2), (3, 5, 2)), strict=True):
         lo_m, hi_m = lo + margin, hi - margin
         mid = (lo + hi) / 2.0
         lo_m = np.where(lo_m > hi_m, mid, lo_m)
