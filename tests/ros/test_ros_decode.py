@@ -100,6 +100,7 @@ def test_pointcloud2_float32_with_padding_rgb_and_header(points: np.ndarray) -> 
     assert msg.cloud.normals is None
     assert msg.header == Header("head_camera", (17, 99))
     assert msg.sample_indices is None and msg.samples is None
+    assert (msg.received, msg.dropped) == (60, 3)  # the organised cloud's holes, counted (warning non_finite_dropped)
 
 
 @pytest.mark.parametrize("bigendian", [False, True])
