@@ -74,6 +74,7 @@ def _detect(args: argparse.Namespace) -> int:
             use_classifier=not args.no_classifier,
             exclude_support_plane=True if args.exclude_table else None,
             environment=EnvironmentParams(mode=args.environment),
+            unknown_space=args.unknown_space,
             approach_distance=args.approach_distance,
             seed=args.seed,
         )
@@ -289,7 +290,11 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
     d.add_argument("--exclude-table", action="store_true",
                    help="override: never sample on the dominant plane (the default samples on objects only)")
     d.add_argument("--environment", choices=("auto", "declared", "none"), default="auto",
-                   help="environment model: auto (find the support and walls; default) or none (ablation)")
+                   help="environment model: auto (find the support levels, walls and rims; default) or none "
+                   "(ablation)")
+    d.add_argument("--unknown-space", choices=("avoid", "allow"), default="avoid",
+                   help="space no camera saw: avoid (default: a hand reaching into it collides) or allow (check the "
+                   "seen points only, as GPD does; the answer warns when the best grasps reach into it)")
     d.add_argument("--approach-distance", type=float, default=0.05,
                    help="pre-grasp distance (m) whose path must be free of points and environment")
     d.add_argument("--seed", type=int, default=0)
