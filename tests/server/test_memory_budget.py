@@ -17,7 +17,8 @@ from fastapi.testclient import TestClient
 
 from graspd.cloud import ViewpointCloud
 from graspd.server.app import create_app
-from graspd.server.budget import BASE_MB, SAMPLE_MB, MemoryBudget, request_cost
+from graspd.server.budget import BASE_MB, SAMPLE_MB, MemoryBudget, request_cost, work_units
+from graspd.server.engine import parse_request
 from graspd.server.problems import Problem
 from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
@@ -88,3 +89,22 @@ def test_the_same_budget_on_zenoh(make_settings: Callable[..., Settings], krylon
         with pytest.raises(RequestRejected) as info:
             zc.detect(krylon.points, krylon.viewpoints, num_samples=2000)
         assert info.value.status == 413 and info.value.field == "num_samples"
+
+
+def test_a_request_that_would_end_past_its_deadline_is_503_not_started(
+        make_settings: Callable[..., Settings], krylon: ViewpointCloud,
+        small_body: Callable[..., dict[str, Any]]) -> None:
+    """Expected seconds = work units x learned seconds per unit: a request expected to need the whole deadline
+    after it waited and was parsed is refused with 503 + Retry-After instead of running into a 504."""
+    body = small_body(krylon, num_samples=300)
+    units = work_units(parse_request(body))
+    with TestClient(create_app(make_settings(deadline_s=10))) as client:
+        budget = client.app.state.service.engine.budget  # type: ignore[attr-defined]
+        budget.unit_seconds = 9.99999 / units  # expected ~10 s: it fits the deadline only if it started at once
+        late = client.post("/detect", json=body)
+        assert late.status_code == 503 and int(late.headers["retry-after"]) >= 1, late.text[:300]
+        assert "would not end within the deadline" in late.json()["error"]
+        assert budget.unit_seconds == pytest.approx(9.99999 / units)  # a refusal teaches nothing
+        budget.unit_seconds = 0.5
+        assert client.post("/detect", json=small_body(krylon, num_samples=300)).status_code == 200
+        assert budget.unit_seconds != 0.5  # learned from the detection that ran

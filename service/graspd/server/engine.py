@@ -31,7 +31,7 @@ from graspd_client.codec import WireError
 
 from . import proposals
 from .allocator import IdleTrimmer, trim_function
-from .budget import MemoryBudget, cost_of
+from .budget import MemoryBudget, cost_of, work_units
 from .logs import current_request
 from .metrics import Metrics
 from .pngio import encode_png_b64
@@ -219,6 +219,7 @@ class DetectionEngine:
         on_detection(det, cloud, hand) is called on the worker with the detection (ROS outputs, the viewer)."""
         start = time.perf_counter()
         held = 0.0  # MiB of the memory budget this request holds (budget.MemoryBudget)
+        units = 0.0  # its work units (budget.work_units), known once parsed
         with self._lock:
             self._running += 1
             self.metrics.running.set(self._running)
@@ -227,10 +228,18 @@ class DetectionEngine:
             timings["queue"] = start - enqueued
             before = timings.get("read", 0.0) + timings.get("decode", 0.0)  # spent before enqueue (body read)
             if start > deadline:
+                if self._avg_seconds < self.settings.deadline_s:  # requests fit the deadline: the queue was long
+                    raise Problem(503, f"server busy: queued past the deadline of {self.settings.deadline_s:g} s",
+                                  retry_after=self.retry_after())
                 raise Problem(504, f"deadline of {self.settings.deadline_s} s passed while queued", "deadline")
             req = parse()
             wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
             held = self.budget.take(cost_of(req), self.retry_after(), wait)  # 413 / 503 before detection work
+            expected = work_units(req) * self.budget.unit_seconds  # 503 rather than start what cannot end in time
+            if expected <= self.settings.deadline_s and time.perf_counter() + expected > deadline:
+                raise Problem(503, f"server busy: this request takes about {expected:.0f} s and would not end "
+                              f"within the deadline of {self.settings.deadline_s:g} s", retry_after=self.retry_after())
+            units = work_units(req)  # timed from here on (budget.observe)
             timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
             try:
                 hand = req.hand_geometry()
@@ -286,6 +295,7 @@ class DetectionEngine:
         finally:
             self.budget.give(held)
             elapsed = time.perf_counter() - start
+            self.budget.observe(units, elapsed)
             with self._lock:
                 self._running -= 1
                 self.metrics.running.set(self._running)
