@@ -311,7 +311,7 @@ def parse_npz(data: bytes, field: str = "body") -> dict[str, NDArray[Any]]:
     with archive:
         members = {Path(info.filename).stem: info for info in archive.infolist() if info.filename.endswith(".npy")}
         if "points" not in members:
-            raise CloudError(f"{field}.points", f"npz: needs an array named 'points' (has {sorted(members)})")
+            raise CloudError("cloud.points", f"npz: needs an array named 'points' (has {sorted(members)})")
         for name in NPZ_ARRAYS:
             info = members.get(name)
             if info is None:

@@ -48,7 +48,7 @@ def test_npz_reads_the_cloud_arrays_and_refuses_a_bomb() -> None:
     np.savez(buf, cloud=np.ones((5, 3)))
     with pytest.raises(CloudError) as err:
         parse_npz(buf.getvalue())
-    assert err.value.field == "body.points" and "'points'" in err.value.message
+    assert err.value.field == "cloud.points" and "'points'" in err.value.message
     bomb = io.BytesIO()
     with zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as z:
         with z.open("points.npy", "w", force_zip64=True) as f:
