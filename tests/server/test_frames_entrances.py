@@ -119,8 +119,9 @@ def test_every_entrance_answers_the_camera_frame_cloud_alike(server: Server, mug
     assert upload.frame == "robot"
     same_grasps(upload, json_answer)
     with ZenohGraspClient(connect=[endpoint], timeout=120) as zc:
-        zc.set_stream_options(camera_poses=[pose_4x4()], points_frame="camera", camera_frame_id=CAMERA_FRAME,
-                              num_samples=SAMPLES)
+        shown = zc.set_stream_options(camera_poses=[pose_4x4()], points_frame="camera", camera_frame_id=CAMERA_FRAME,
+                                      num_samples=SAMPLES)
+        assert np.allclose(shown["viewpoints"], [T]) and shown["points_frame"] == "camera"  # the camera, in base_link
         reply = zc.query(encode_pointcloud2(mug, Header(CAMERA_FRAME, (5, 6))))
         with pytest.raises(RequestRejected) as err:  # a cloud of another camera: its pose would be wrong
             zc.query(encode_pointcloud2(mug, Header("other_camera", (5, 6))))

@@ -24,7 +24,7 @@ from pydantic import PrivateAttr
 
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
-from graspd.frames import frame_name, to_robot
+from graspd.frames import camera_positions, frame_name, to_robot
 from graspd.grasp import GraspSet
 from graspd.hand import HandGeometry
 from graspd.inputs import CloudInput, apply_frames, no_finite_point
@@ -171,8 +171,10 @@ def parse_options(payload: bytes | str | dict[str, Any], base: Mapping[str, Any]
         if exc.field is not None and exc.field.startswith("cloud."):  # the stream option is named without cloud.
             raise Problem(exc.status, exc.message, exc.field[len("cloud."):]) from None
         raise
-    return StreamOptions(req, np.asarray(req.cloud.viewpoints, np.float64), source, req.cloud.poses(),
-                         req.cloud.points_frame, ids.get("camera_frame_id"), ids.get("robot_frame_id"))
+    poses = req.cloud.poses()  # with them, the viewpoints are the cameras' positions in the robot frame
+    viewpoints = np.asarray(req.cloud.viewpoints, np.float64) if poses is None else camera_positions(poses)
+    return StreamOptions(req, viewpoints, source, poses, req.cloud.points_frame, ids.get("camera_frame_id"),
+                         ids.get("robot_frame_id"))
 
 
 def decode_input(payload: bytes, name: str, options: StreamOptions) -> CloudMessage:
