@@ -16,7 +16,7 @@ from graspd.environment import Environment
 from graspd.grasp import GraspSet
 from graspd.hand import HandGeometry
 from graspd.server.schemas import DetectRequest, DetectResponse
-from graspd.server.uploads import QUERY_PARAMS, openapi_parameters
+from graspd.server.uploads import CLOUD_PARAMS, QUERY_PARAMS, openapi_parameters
 from graspd.templates import TemplateDetection
 from graspd_client import wire
 
@@ -81,7 +81,8 @@ def test_http_answers_validate_against_the_declared_model(client: TestClient, bo
 
 def test_upload_query_parameters_come_from_detect_request(client: TestClient) -> None:
     objects = {"cloud", "approach", "crops"}  # no query form: nested objects
-    assert set(QUERY_PARAMS) == {"viewpoint"} | set(DetectRequest.model_fields) - objects
+    assert set(QUERY_PARAMS) == set(CLOUD_PARAMS) | set(DetectRequest.model_fields) - objects
+    assert set(CLOUD_PARAMS) == {"viewpoint", "camera_pose", "points_frame", "intrinsics", "depth_scale"}
     documented = client.get("/openapi.json").json()["paths"]["/detect"]["post"]["parameters"]
     assert documented == openapi_parameters()
     limits = {p["name"]: p["schema"] for p in documented}
