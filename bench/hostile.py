@@ -1,11 +1,22 @@
-"""Hostile-input bench: start the real service (uvicorn in a subprocess on a free port) and send it small
-malicious requests (each under 1 MB): PCD headers that lie, huge POINTS, LZF bombs, PLY list bombs, huge PNGs,
-deep JSON.  Prints a table of each request's status, the server's peak RSS increase while it was handled
-(psutil on the server pid, sampled every 2 ms), and /healthz latency p50/p99/max while 8 copies of a request
-are in flight.  Targets (issue 11): no request under 1 MB raises RSS by more than 100 MB, /healthz p99 under
-100 ms with 8 malicious requests in flight.  Writes the table to bench/results/hostile.md.
+"""Hostile-input bench: start the real service (uvicorn in a subprocess on a free port, a token set, Zenoh on
+loopback, a template library that cannot be reached) and attack it.
 
-  PYTHONPATH=service:client .venv/bin/python bench/hostile.py [--out bench/results/hostile.md]
+Issue 11 (small malicious requests, each under 1 MB): PCD headers that lie, huge POINTS, LZF bombs, PLY list bombs,
+huge PNGs, deep JSON.  A table of each request's status and the server's peak RSS increase while it was handled
+(psutil, sampled every 2 ms), and /healthz latency p50/p99/max while 8 copies of a request are in flight.  Targets:
+no request under 1 MB raises RSS by more than 100 MB, /healthz p99 under 100 ms with 8 malicious requests in flight.
+
+Issue 23 (bounded memory, slow clients, nothing readable without the token, errors that give nothing away): the
+lying 204-byte mesh, 12 parallel uploads of large meshes, 300 slow-header connections, 40 slow uploads, 8 clients
+sending 5M-point clouds, the memory budget over HTTP and Zenoh, anonymous reads of every guarded route and of the
+Zenoh admin space, an unreachable database, a bounded schemathesis run; then every answer and log line is grepped
+for the token, the database's user, password, host and port, and the server's paths.  A table of what was tried,
+the answer, the time and the peak RSS of the server and its children.  Targets: the lying mesh 4xx within 5 s and
+<= 200 MB above baseline; /healthz < 2 s in >= 9 of 10 tries under 300 slow-header connections; every 5M-point
+request answered 200, 413 or 503 within 60 s with peak RSS <= 4 GB and /healthz p99 <= 1 s; no 5xx but 503.
+Writes bench/results/hostile.md.
+
+  PYTHONPATH=service:client .venv/bin/python bench/hostile.py [--out bench/results/hostile.md] [--clouds-s 30]
 """
 
 from __future__ import annotations
@@ -153,7 +164,7 @@ def healthz_under_load(url: str, hostile: Hostile, inflight: int = 8, seconds: f
     lock = threading.Lock()
 
     def attack() -> None:
-        with httpx.Client(base_url=url, timeout=120) as c:
+        with httpx.Client(base_url=url, timeout=120, headers=AUTH) as c:
             while not stop.is_set():
                 status = c.post("/detect", content=hostile.content,
                                 headers={"Content-Type": hostile.content_type}).status_code
@@ -178,19 +189,422 @@ def healthz_under_load(url: str, hostile: Hostile, inflight: int = 8, seconds: f
     return latencies, sum(statuses.values()), statuses
 
 
+TOKEN = "hostile-bench-token-" + os.urandom(6).hex()
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+#: The unreachable template library: every part of it must stay out of answers and logs.
+DB_USER, DB_PASSWORD, DB_NAME = "cellrobot", "Sw0rdf1sh-db", "graspdlib"
+
+#: The audit's mesh: 204 bytes of ASCII PLY whose header declares 1e9 vertices.
+LYING_PLY = (b"ply\nformat ascii 1.0\ncomment a lying header\nelement vertex 1000000000\nproperty float x\n"
+             b"property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+             b"end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+
+
+class TreeRss:
+    """Samples the RSS of a process and its children (mesh checks, training jobs) every 10 ms on a thread."""
+
+    def __init__(self, pid: int) -> None:
+        self.proc = psutil.Process(pid)
+        self._peak = self.now()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def now(self) -> int:
+        total = 0
+        for p in (self.proc, *self.proc.children(recursive=True)):
+            try:
+                total += p.memory_info().rss
+            except psutil.Error:
+                pass
+        return total
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self._peak = max(self._peak, self.now())
+            time.sleep(0.01)
+
+    def reset(self) -> int:
+        time.sleep(0.05)
+        self._peak = self.now()
+        return self._peak
+
+    def peak(self) -> int:
+        time.sleep(0.05)
+        return self._peak
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def sphere_ply(resolution: int = 250) -> bytes:
+    """A binary PLY sphere of radius 5 cm (~250k triangles at 250: under the triangle cap, a full check)."""
+    import open3d as o3d  # noqa: PLC0415
+
+    mesh = o3d.geometry.TriangleMesh.create_sphere(0.05, resolution=resolution)
+    out = Path(os.environ.get("TMPDIR", "/tmp")) / f"hostile-sphere-{os.getpid()}.ply"
+    o3d.io.write_triangle_mesh(str(out), mesh)
+    data = out.read_bytes()
+    out.unlink()
+    return data
+
+
+def big_face_ply(faces: int = 2_100_000) -> bytes:
+    """A binary PLY declaring `faces` triangles (and backing them with bytes): over the triangle cap."""
+    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            f"property float z\nelement face {faces}\nproperty list uchar int vertex_indices\nend_header\n").encode()
+    return head + bytes(36) + (struct.pack("<Biii", 3, 0, 1, 2) * faces)
+
+
+def upload(c: httpx.Client, data: bytes, name: str) -> httpx.Response:
+    return c.post("/models", files={"mesh": (f"{name}.ply", data)}, data={"name": name}, headers=AUTH)
+
+
+def slow_header_flood(url: str, n: int = 300, tries: int = 10) -> tuple[list[float], int, int]:
+    """n connections that never finish their headers (a byte every second), then `tries` /healthz on fresh
+    connections: their latencies (s; inf when refused or failed), how many flood sockets opened, how many the
+    server closed by the end."""
+    host, port = "127.0.0.1", int(url.rsplit(":", 1)[1])
+    flood: list[socket.socket] = []
+    stop = threading.Event()
+    for _ in range(n):
+        try:
+            s = socket.create_connection((host, port), timeout=5)
+            s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Slow: ")
+            flood.append(s)
+        except OSError:
+            pass
+
+    def trickle() -> None:
+        while not stop.wait(1.0):
+            for s in flood:
+                try:
+                    s.sendall(b"a")
+                except OSError:
+                    pass
+
+    feeder = threading.Thread(target=trickle, daemon=True)
+    feeder.start()
+    time.sleep(0.5)
+    latencies = []
+    for _ in range(tries):
+        t0 = time.perf_counter()
+        try:
+            r = httpx.get(f"{url}/healthz", timeout=5)
+            latencies.append(time.perf_counter() - t0 if r.status_code == 200 else float("inf"))
+        except httpx.HTTPError:
+            latencies.append(float("inf"))
+        time.sleep(0.2)
+    stop.set()
+    feeder.join()
+    closed = 0
+    for s in flood:
+        s.settimeout(0.01)
+        try:
+            closed += s.recv(1) == b""
+        except TimeoutError:
+            pass
+        except OSError:
+            closed += 1
+        s.close()
+    return latencies, len(flood), closed
+
+
+def slow_uploads(url: str, n: int = 40, body_bytes: int = 2_000_000, rate: float = 1000.0
+                 ) -> tuple[dict[str, int], float, int, float]:
+    """n clients trickling /detect bodies at `rate` bytes/s while one honest client detects: the slow clients'
+    answers, the longest a slow client was held (s), the honest request's status and time (s)."""
+    host, port = "127.0.0.1", int(url.rsplit(":", 1)[1])
+    answers: dict[str, int] = {}
+    held: list[float] = []
+    lock = threading.Lock()
+
+    def slow() -> None:
+        t0 = time.monotonic()
+        answer = "closed"
+        try:
+            with socket.create_connection((host, port), timeout=120) as s:
+                s.sendall(b"POST /detect HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                          b"Authorization: Bearer " + TOKEN.encode() + b"\r\n"
+                          b"Content-Length: " + str(body_bytes).encode() + b"\r\n\r\n")
+                s.settimeout(0.1)
+                sent = 0
+                while sent < body_bytes and time.monotonic() - t0 < 120:
+                    try:
+                        reply = s.recv(4096)
+                        answer = reply.split(b" ", 2)[1].decode() if reply else "closed"
+                        break
+                    except TimeoutError:
+                        s.sendall(b" " * int(rate / 10))
+                        sent += int(rate / 10)
+        except OSError:
+            answer = "closed"
+        with lock:
+            answers[answer] = answers.get(answer, 0) + 1
+            held.append(time.monotonic() - t0)
+
+    threads = [threading.Thread(target=slow, daemon=True) for _ in range(n)]
+    for t in threads:
+        t.start()
+    time.sleep(1.0)
+    valid = pcd(np.random.default_rng(1).uniform(-0.05, 0.05, (2000, 3)) + [0, 0, 0.5], 2000)
+    t0 = time.perf_counter()
+    while True:  # as graspd_client does: a 503 is retried after its Retry-After
+        reply = httpx.post(f"{url}/detect?num_samples=100", content=valid, timeout=120,
+                           headers={"Content-Type": "application/octet-stream", **AUTH})
+        if reply.status_code != 503 or time.perf_counter() - t0 > 60:
+            break
+        time.sleep(float(reply.headers.get("retry-after", 1)))
+    honest, honest_s = reply.status_code, time.perf_counter() - t0
+    for t in threads:
+        t.join(timeout=150)
+    return answers, max(held, default=0.0), honest, honest_s
+
+
+def cloud_flood(url: str, clients: int = 8, points: int = 5_000_000, seconds: float = 30.0
+                ) -> tuple[dict[int, int], float, list[float]]:
+    """`clients` clients sending `points`-point binary PCDs back to back for `seconds`: statuses, the slowest
+    answer (s), /healthz latencies (s) meanwhile."""
+    rng = np.random.default_rng(2)
+    half = points // 2
+    cloud = np.r_[np.c_[rng.uniform(-0.5, 0.5, (half, 2)), np.full(half, 0.8)],
+                  rng.uniform(-0.04, 0.04, (points - half, 3)) + [0, 0, 0.7]].astype(np.float32)
+    body = pcd(cloud, points)
+    del cloud
+    statuses: dict[int, int] = {}
+    slowest = [0.0]
+    lock = threading.Lock()
+    end = time.monotonic() + seconds
+
+    def client() -> None:
+        with httpx.Client(base_url=url, timeout=120) as c:
+            while time.monotonic() < end:
+                t0 = time.perf_counter()
+                try:
+                    status = c.post("/detect?num_samples=300&viewpoint=0,0,0", content=body,
+                                    headers={"Content-Type": "application/octet-stream", **AUTH}).status_code
+                except httpx.HTTPError:
+                    status = -1
+                with lock:
+                    statuses[status] = statuses.get(status, 0) + 1
+                    slowest[0] = max(slowest[0], time.perf_counter() - t0)
+                if status == 503:
+                    time.sleep(1.0)
+
+    threads = [threading.Thread(target=client, daemon=True) for _ in range(clients)]
+    for t in threads:
+        t.start()
+    health = []
+    while time.monotonic() < end:
+        t0 = time.perf_counter()
+        try:
+            ok = httpx.get(f"{url}/healthz", timeout=10).status_code == 200
+        except httpx.HTTPError:
+            ok = False
+        health.append(time.perf_counter() - t0 if ok else float("inf"))
+        time.sleep(0.1)
+    for t in threads:
+        t.join(timeout=180)
+    return statuses, slowest[0], health
+
+
+def zenoh_cases(endpoint: str) -> list[tuple[str, str]]:
+    """(what, answer) over Zenoh: a query without the token, the admin space read anonymously, and the memory
+    budget's 413 with the token."""
+    import zenoh  # noqa: PLC0415
+
+    from graspd_client import ZenohGraspClient  # noqa: PLC0415
+    from graspd_client.errors import RequestRejected  # noqa: PLC0415
+    from graspd_client.zenoh_client import zenoh_config  # noqa: PLC0415
+
+    out = []
+    with zenoh.open(zenoh_config(connect=[endpoint])) as session:
+        time.sleep(0.5)
+        replies = list(session.get("graspd/detect", payload=b"{}", timeout=10))
+        err = json.loads(replies[0].err.payload.to_bytes()) if replies and replies[0].err is not None else {}
+        out.append(("Zenoh graspd/detect without the token", f"{err.get('status')} {err.get('field')}"))
+        mine = str(session.info.zid())
+        admin = [str(r.ok.key_expr) for r in session.get("@/**", timeout=5)
+                 if r.ok is not None and not str(r.ok.key_expr).startswith(f"@/{mine}")]
+        out.append(("Zenoh admin space @/** read anonymously", f"{len(admin)} keys of the server"))
+    pts = np.random.default_rng(3).uniform(-0.05, 0.05, (2000, 3)).astype(np.float32) + np.float32([0, 0, 0.5])
+    with ZenohGraspClient(connect=[endpoint], timeout=60, retries=0, token=TOKEN) as zc:
+        try:
+            zc.detect(pts, np.zeros((1, 3)), num_samples=20000)
+            out.append(("Zenoh num_samples 20000 (over the memory budget)", "200"))
+        except RequestRejected as exc:
+            out.append(("Zenoh num_samples 20000 (over the memory budget)", f"{exc.status} {exc.field}"))
+    return out
+
+
+def fuzz(url: str, examples: int) -> dict[str, int]:
+    """A bounded stateful schemathesis run of the whole API with the token: status counts ("5xx" keys name
+    every 5xx but 503)."""
+    import schemathesis  # noqa: PLC0415
+    from hypothesis import HealthCheck  # noqa: PLC0415
+    from hypothesis import settings as hsettings  # noqa: PLC0415
+
+    schema = schemathesis.openapi.from_path(str(ROOT / "openapi" / "openapi.json"))
+    seen: dict[str, int] = {}
+
+    class Machine(schema.as_state_machine()):  # type: ignore[misc]
+        def get_call_kwargs(self, case: Any) -> dict[str, Any]:
+            return {"base_url": url, "timeout": 60, "headers": AUTH}
+
+        def validate_response(self, response: Any, case: Any, **kwargs: Any) -> None:
+            code = response.status_code
+            key = f"5xx {case.method} {case.path} {code}" if code >= 500 and code != 503 else str(code)
+            seen[key] = seen.get(key, 0) + 1
+
+    Machine.run(settings=hsettings(max_examples=examples, stateful_step_count=4, deadline=None, derandomize=True,
+                                   database=None, suppress_health_check=list(HealthCheck)))
+    return seen
+
+
+def secrets_found(texts: list[str], secrets: dict[str, str]) -> dict[str, int]:
+    """How many of texts hold each secret."""
+    return {name: sum(value in t for t in texts) for name, value in secrets.items() if value}
+
+
+def issue23(url: str, endpoint: str, pid: int, args: argparse.Namespace) -> tuple[list[str], list[str]]:
+    """The issue-23 attacks: table rows and every answer text seen (for the secrets grep)."""
+    rows = ["| what was tried | answer | time (s) | server + children peak RSS above baseline (MB) |",
+            "|---|---|---:|---:|"]
+    answers: list[str] = []
+    rss = TreeRss(pid)
+
+    def row(what: str, answer: str, seconds: float, grow_mb: float | None) -> None:
+        line = f"| {what} | {answer} | {seconds:.2f} | {'' if grow_mb is None else f'{grow_mb:.0f}'} |"
+        rows.append(line)
+        print(line, flush=True)
+
+    with httpx.Client(base_url=url, timeout=300) as c:
+        base = rss.reset()
+        t0 = time.perf_counter()
+        r = upload(c, LYING_PLY, "lying")
+        answers.append(r.text)
+        row(f"POST /models: {len(LYING_PLY)}-byte ASCII PLY declaring 1e9 vertices", f"{r.status_code} "
+            f"{r.json().get('field')}", time.perf_counter() - t0, (rss.peak() - base) / MB)
+        base = rss.reset()
+        t0 = time.perf_counter()
+        r = upload(c, big_face_ply(), "faces")
+        answers.append(r.text)
+        row("POST /models: binary PLY with 2.1M faces (25 MB > the 16 MB cap)", f"{r.status_code} "
+            f"{r.json().get('field')}", time.perf_counter() - t0, (rss.peak() - base) / MB)
+        sphere = sphere_ply()
+        statuses: dict[int, int] = {}
+        lock = threading.Lock()
+
+        def one(k: int) -> None:
+            with httpx.Client(base_url=url, timeout=300) as cc:
+                resp = upload(cc, sphere, f"sphere{k}")
+            with lock:
+                statuses[resp.status_code] = statuses.get(resp.status_code, 0) + 1
+                answers.append(resp.text)
+
+        base = rss.reset()
+        t0 = time.perf_counter()
+        threads = [threading.Thread(target=one, args=(k,)) for k in range(12)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        row(f"12 parallel POST /models of a {len(sphere) / MB:.1f} MB 250k-triangle mesh (full checks)",
+            str(dict(sorted(statuses.items()))), time.perf_counter() - t0, (rss.peak() - base) / MB)
+
+        base = rss.reset()
+        t0 = time.perf_counter()
+        lat, opened, closed = slow_header_flood(url)
+        fast = sum(x < 2.0 for x in lat)
+        row(f"{opened} slow-header connections, then 10 GET /healthz", f"{fast}/10 under 2 s (max "
+            f"{max(lat):.2f} s); {closed} flood connections closed by the server", time.perf_counter() - t0,
+            (rss.peak() - base) / MB)
+
+        base = rss.reset()
+        t0 = time.perf_counter()
+        slow_answers, longest, honest, honest_s = slow_uploads(url)
+        row("40 /detect uploads at 1 kB/s, one honest /detect meanwhile (retrying 503s)",
+            f"slow: {slow_answers} (held <= "
+            f"{longest:.1f} s); honest: {honest} in {honest_s:.1f} s", time.perf_counter() - t0,
+            (rss.peak() - base) / MB)
+
+        base = rss.reset()
+        t0 = time.perf_counter()
+        statuses5, slowest, health = cloud_flood(url, seconds=args.clouds_s)
+        finite = np.asarray([h for h in health if np.isfinite(h)]) * 1e3
+        p99 = float(np.percentile(finite, 99)) if len(finite) else float("inf")
+        row(f"8 clients sending 5M-point clouds (60 MB binary PCD) for {args.clouds_s:g} s",
+            f"{dict(sorted(statuses5.items()))}, slowest {slowest:.1f} s; /healthz p99 {p99:.0f} ms "
+            f"({len(health) - len(finite)} failed of {len(health)}); peak RSS {rss.peak() / 2**30:.2f} GB",
+            time.perf_counter() - t0, (rss.peak() - base) / MB)
+
+        for what, kwargs in (
+                ("/detect num_samples=20000 (over the memory budget)",
+                 {"params": {"num_samples": 20000}, "content": pcd(np.random.default_rng(4).uniform(
+                     -0.05, 0.05, (2000, 3)) + [0, 0, 0.5], 2000)}),):
+            t0 = time.perf_counter()
+            r = c.post("/detect", headers={"Content-Type": "application/octet-stream", **AUTH}, **kwargs)
+            answers.append(r.text)
+            row(what, f"{r.status_code} {r.json().get('field')}", time.perf_counter() - t0, None)
+
+        for path in ("/metrics", "/docs", "/redoc", "/openapi.json", "/readyz", "/models", "/library"):
+            t0 = time.perf_counter()
+            r = c.get(path)
+            answers.append(r.text)
+            shown = r.text[:60].replace("|", "/").replace("\n", " ")
+            row(f"GET {path} without the token", f"{r.status_code} {shown}", time.perf_counter() - t0, None)
+        t0 = time.perf_counter()
+        r = c.get("/library", headers=AUTH)
+        answers.append(r.text)
+        row("GET /library with the token, database unreachable", f"{r.status_code} {r.json().get('error')}",
+            time.perf_counter() - t0, None)
+        t0 = time.perf_counter()
+        docs = c.get("/docs", headers=AUTH).text
+        row("GET /docs with the token: URLs of other hosts in the page",
+            str(sum(u.startswith(("http://", "https://")) for u in docs.split('"'))), time.perf_counter() - t0, None)
+    for what, answer in zenoh_cases(endpoint):
+        answers.append(answer)
+        row(what, answer, 0.0, None)
+    if args.fuzz:
+        t0 = time.perf_counter()
+        seen = fuzz(url, args.fuzz)
+        bad = {k: v for k, v in seen.items() if k.startswith("5xx")}
+        row(f"schemathesis stateful run ({args.fuzz} examples, the token)", f"{sum(seen.values())} calls, "
+            f"statuses {dict(sorted((k, v) for k, v in seen.items() if not k.startswith('5xx')))}; 5xx but 503: "
+            f"{bad or 0}", time.perf_counter() - t0, None)
+    rss.close()
+    return rows, answers
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "hostile.md")
     ap.add_argument("--seconds", type=float, default=3.0, help="per /healthz-under-load phase")
+    ap.add_argument("--clouds-s", type=float, default=30.0, help="the 5M-point cloud flood's duration (s)")
+    ap.add_argument("--fuzz", type=int, default=40, help="schemathesis examples (0: no fuzzing)")
+    ap.add_argument("--skip-issue11", action="store_true", help="only the issue-23 attacks")
     args = ap.parse_args(argv)
 
-    port = free_port()
-    env = {**os.environ, "PYTHONPATH": f"{ROOT / 'service'}:{ROOT / 'client'}", "GRASPD_LOG_LEVEL": "WARNING",
-           "XDG_DATA_HOME": str(Path(os.environ.get("TMPDIR", "/tmp")) / f"graspd-hostile-{port}")}
-    server = subprocess.Popen([sys.executable, "-m", "graspd.server.cli", "serve", "--port", str(port),
-                               "--no-zenoh"], env=env, stderr=subprocess.DEVNULL)
+    port, zport = free_port(), free_port()
+    work = Path(os.environ.get("TMPDIR", "/tmp")) / f"graspd-hostile-{port}"
+    models = work / "models"  # writable, the shipped models linked in (POST /models writes next to them)
+    models.mkdir(parents=True, exist_ok=True)
+    for f in (ROOT / "models").glob("*.*"):
+        if f.suffix in (".onnx", ".json") and not (models / f.name).exists():
+            (models / f.name).symlink_to(f)
+    dead = free_port()  # nothing listens there: the template library is unreachable
+    env = {**os.environ, "PYTHONPATH": f"{ROOT / 'service'}:{ROOT / 'client'}", "GRASPD_LOG_LEVEL": "INFO",
+           "XDG_DATA_HOME": str(work), "GRASPD_TOKEN": TOKEN, "GRASPD_MODELS_DIR": str(models),
+           "GRASPD_TEMPLATE_LIBRARY": f"postgresql+psycopg://{DB_USER}:{DB_PASSWORD}@127.0.0.1:{dead}/{DB_NAME}",
+           "GRASPD_ZENOH_LISTEN": json.dumps([f"tcp/127.0.0.1:{zport}"]), "GRASPD_ZENOH_STREAM": "false"}
+    log_path = work / "server.log"
+    log_file = open(log_path, "wb")  # noqa: SIM115  (closed in finally)
+    server = subprocess.Popen([sys.executable, "-m", "graspd.server.cli", "serve", "--port", str(port)], env=env,
+                              stderr=log_file, stdout=log_file)
     url = f"http://127.0.0.1:{port}"
     rows: list[str] = []
+    answers: list[str] = []
     try:
         deadline = time.monotonic() + 120
         while True:
@@ -202,70 +616,92 @@ def main(argv: list[str] | None = None) -> int:
             if time.monotonic() > deadline or server.poll() is not None:
                 raise SystemExit("server did not start")
             time.sleep(0.2)
-        rss = RssPeak(server.pid)
-        cases = requests()
-        with httpx.Client(base_url=url, timeout=120) as c:
-            valid = pcd(np.random.default_rng(1).uniform(-0.05, 0.05, (2000, 3)) + [0, 0, 0.5], 2000)
-            for content in (valid, *(h.content for h in cases[:3])):  # warm-up: open3d's import (~150 MB once),
-                c.post("/detect?num_samples=50", content=content,  # Pillow, the model, first allocations
-                       headers={"Content-Type": "application/octet-stream"})
-            c.post("/detect", json=crops_body(png_bytes(64, 48), 32, 24))  # Pillow's import
-            time.sleep(0.5)
-            header = ("| request | bytes | status | field | server RSS peak increase (MB) |\n"
-                      "|---|---:|---:|---|---:|")
-            rows.append(header)
-            print(header)
-            worst = 0.0
-            for h in cases:
-                base = rss.reset()
-                r = c.post("/detect", content=h.content, headers={"Content-Type": h.content_type})
-                grow = (rss.peak() - base) / MB
-                worst = max(worst, grow)
-                field = r.json().get("field") if r.headers.get("content-type", "").startswith("application/json") \
-                    else ""
-                line = f"| {h.name} | {len(h.content):,} | {r.status_code} | {field or ''} | {grow:.1f} |"
-                rows.append(line)
-                print(line, flush=True)
-        rss.close()
-        rows.append("")
-        rows.append(f"Largest RSS increase: {worst:.1f} MB (target < 100 MB).")
-        rows.append("")
-        header = ("| 8 in flight, back to back | hostile requests answered | their statuses | /healthz n | "
-                  "p50 (ms) | p99 (ms) | max (ms) |\n|---|---:|---|---:|---:|---:|---:|")
-        rows.append(header)
-        print("\n" + header)
-        picks = [h for h in cases if h.name.startswith(("PLY list bomb 2e7", "PNG 7000", "PNG 4096",
-                                                        "PCD POINTS 5e6", "JSON nested 5000",
-                                                        "PCD binary_compressed"))]
-        worst_p99 = 0.0
-        for h in picks:
-            lat, done, statuses = healthz_under_load(url, h, seconds=args.seconds)
-            ms = np.asarray(lat) * 1e3
-            p50, p99 = float(np.percentile(ms, 50)), float(np.percentile(ms, 99))
-            worst_p99 = max(worst_p99, p99)
-            line = f"| {h.name} | {done} | {statuses} | {len(ms)} | {p50:.1f} | {p99:.1f} | {ms.max():.1f} |"
-            rows.append(line)
-            print(line, flush=True)
-        rows.append("")
-        rows.append(f"Worst /healthz p99: {worst_p99:.1f} ms (target < 100 ms).")
+        if not args.skip_issue11:
+            rows += issue11(url, server.pid, args)
+        rows += ["", "## Issue 23: bounded memory, slow clients, tokens, errors", ""]
+        more, answers = issue23(url, f"tcp/127.0.0.1:{zport}", server.pid, args)
+        rows += more
     finally:
         server.terminate()
         try:
             server.wait(timeout=60)
         except subprocess.TimeoutExpired:
             server.kill()
+        log_file.close()
+    logs = log_path.read_text(errors="replace").splitlines()
+    secrets = {"token": TOKEN, "database password": DB_PASSWORD, "database user": DB_USER,
+               "database name": DB_NAME, "database port": f":{dead}", "models path": str(models),
+               "data path": str(work)}
+    found_answers, found_logs = secrets_found(answers, secrets), secrets_found(logs, secrets)
+    rows += ["", f"Secrets grep over {len(answers)} answers and {len(logs)} server log lines (token, the database's "
+             "user, password, name and port, the server's paths): "
+             f"answers {found_answers}, logs {found_logs}."]
+    print(rows[-1])
     load = os.getloadavg()
-    text = ("# Hostile requests (issue 11)\n\n"
+    text = ("# Hostile requests (issues 11 and 23)\n\n"
             "Command: `PYTHONPATH=service:client .venv/bin/python bench/hostile.py`\n\n"
             f"Machine: {os.cpu_count()} cores, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end "
-            f"(shared with other work: latencies are noisy).  Server: `graspd serve --no-zenoh`, default settings "
-            f"(workers = cores, queue 32), shipped models.\n\n" + "\n".join(rows) + "\n")
+            f"(shared with other work: latencies are noisy).  Server: `graspd serve` with GRASPD_TOKEN, Zenoh on "
+            f"loopback, an unreachable PostgreSQL template library, a writable copy of the models folder, otherwise "
+            f"default settings (workers = cores, queue 32, detection memory budget 2048 MiB).\n\n## Issue 11: small "
+            "malicious requests\n\n" + "\n".join(rows) + "\n")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
     print(f"\nwrote {args.out}")
     return 0
 
 
+def issue11(url: str, pid: int, args: argparse.Namespace) -> list[str]:
+    """The issue-11 tables: each small malicious request's status and RSS increase, /healthz under load."""
+    rows: list[str] = []
+    rss = RssPeak(pid)
+    cases = requests()
+    with httpx.Client(base_url=url, timeout=120, headers=AUTH) as c:
+        valid = pcd(np.random.default_rng(1).uniform(-0.05, 0.05, (2000, 3)) + [0, 0, 0.5], 2000)
+        for content in (valid, *(h.content for h in cases[:3])):  # warm-up: open3d's import (~150 MB once),
+            c.post("/detect?num_samples=50", content=content,  # Pillow, the model, first allocations
+                   headers={"Content-Type": "application/octet-stream"})
+        c.post("/detect", json=crops_body(png_bytes(64, 48), 32, 24))  # Pillow's import
+        time.sleep(0.5)
+        header = ("| request | bytes | status | field | server RSS peak increase (MB) |\n"
+                  "|---|---:|---:|---|---:|")
+        rows.append(header)
+        print(header)
+        worst = 0.0
+        for h in cases:
+            base = rss.reset()
+            r = c.post("/detect", content=h.content, headers={"Content-Type": h.content_type})
+            grow = (rss.peak() - base) / MB
+            worst = max(worst, grow)
+            field = r.json().get("field") if r.headers.get("content-type", "").startswith("application/json") \
+                else ""
+            line = f"| {h.name} | {len(h.content):,} | {r.status_code} | {field or ''} | {grow:.1f} |"
+            rows.append(line)
+            print(line, flush=True)
+    rss.close()
+    rows.append("")
+    rows.append(f"Largest RSS increase: {worst:.1f} MB (target < 100 MB).")
+    rows.append("")
+    header = ("| 8 in flight, back to back | hostile requests answered | their statuses | /healthz n | "
+              "p50 (ms) | p99 (ms) | max (ms) |\n|---|---:|---|---:|---:|---:|---:|")
+    rows.append(header)
+    print("\n" + header)
+    picks = [h for h in cases if h.name.startswith(("PLY list bomb 2e7", "PNG 7000", "PNG 4096",
+                                                    "PCD POINTS 5e6", "JSON nested 5000",
+                                                    "PCD binary_compressed"))]
+    worst_p99 = 0.0
+    for h in picks:
+        lat, done, statuses = healthz_under_load(url, h, seconds=args.seconds)
+        ms = np.asarray(lat) * 1e3
+        p50, p99 = float(np.percentile(ms, 50)), float(np.percentile(ms, 99))
+        worst_p99 = max(worst_p99, p99)
+        line = f"| {h.name} | {done} | {statuses} | {len(ms)} | {p50:.1f} | {p99:.1f} | {ms.max():.1f} |"
+        rows.append(line)
+        print(line, flush=True)
+    rows.append("")
+    rows.append(f"Worst /healthz p99: {worst_p99:.1f} ms (target < 100 ms).")
+    return rows
+
+
 if __name__ == "__main__":
     raise SystemExit(main())
-

@@ -101,10 +101,10 @@ def test_a_request_that_would_end_past_its_deadline_is_503_not_started(
     with TestClient(create_app(make_settings(deadline_s=10))) as client:
         budget = client.app.state.service.engine.budget  # type: ignore[attr-defined]
         budget.unit_seconds = 9.99999 / units  # expected ~10 s: it fits the deadline only if it started at once
-        late = client.post("/detect", json=body)
+        late = client.post("/detect", json=body)  # alone: shared by 1
         assert late.status_code == 503 and int(late.headers["retry-after"]) >= 1, late.text[:300]
         assert "would not end within the deadline" in late.json()["error"]
         assert budget.unit_seconds == pytest.approx(9.99999 / units)  # a refusal teaches nothing
-        budget.unit_seconds = 0.5
+        budget.unit_seconds = 0.6
         assert client.post("/detect", json=small_body(krylon, num_samples=300)).status_code == 200
-        assert budget.unit_seconds != 0.5  # learned from the detection that ran
+        assert budget.unit_seconds != 0.6  # learned from the detection that ran

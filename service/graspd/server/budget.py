@@ -61,13 +61,14 @@ def cost_of(req: Any) -> dict[str, float]:
 #: cores (2026-11): 66k points, 300 samples (2.3 units) in 0.66 s; 5M points, 300 samples (26 units) in 12-17 s.
 POINTS_PER_UNIT = 200_000
 SAMPLES_PER_UNIT = 300
-#: Seconds per work unit before any detection was timed (the measurements above, rounded up).
-UNIT_SECONDS = 0.5
+#: Seconds per work unit of a detection running alone, before any detection was timed (the measurements above,
+#: rounded up); the engine multiplies by the detections sharing the cores at its start.
+UNIT_SECONDS = 0.6
 
 
 def work_units(req: Any) -> float:
     """How much detection work a parsed DetectRequest asks for (see POINTS_PER_UNIT): its expected seconds are
-    units x MemoryBudget.unit_seconds, learned from the detections that ran."""
+    units x MemoryBudget.unit_seconds x the detections sharing the cores, learned from the detections that ran."""
     return 1.0 + len(req.cloud.points) / POINTS_PER_UNIT + int(req.num_samples) / SAMPLES_PER_UNIT
 
 

@@ -235,11 +235,12 @@ class DetectionEngine:
             req = parse()
             wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
             held = self.budget.take(cost_of(req), self.retry_after(), wait)  # 413 / 503 before detection work
-            expected = work_units(req) * self.budget.unit_seconds  # 503 rather than start what cannot end in time
-            if expected <= self.settings.deadline_s and time.perf_counter() + expected > deadline:
+            shared = max(1, self._running)  # detections sharing the cores now (graspd.parallel), this one included
+            expected = work_units(req) * self.budget.unit_seconds * shared  # 503 rather than start what cannot end
+            if expected <= self.settings.deadline_s and time.perf_counter() + expected > deadline:  # in time
                 raise Problem(503, f"server busy: this request takes about {expected:.0f} s and would not end "
                               f"within the deadline of {self.settings.deadline_s:g} s", retry_after=self.retry_after())
-            units = work_units(req)  # timed from here on (budget.observe)
+            units = work_units(req) * shared  # timed from here on (budget.observe learns seconds per lone unit)
             timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
             try:
                 hand = req.hand_geometry()
