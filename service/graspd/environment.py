@@ -228,7 +228,8 @@ class Environment:
         }
 
 
-def _ransac_plane(points: F64, params: EnvironmentParams, rng: np.random.Generator) -> Plane | None:
+def _ransac_plane(points: F64, params: EnvironmentParams, rng: np.random.Generator,
+                  vertical_to: F64 | None = None) -> Plane | None:
     """The plane with most inliers within plane_distance: RANSAC over ransac_iterations point triplets of at
     most ransac_points points, all hypotheses scored at once (numpy, seeded: the same cloud and seed always
     give the same plane, which open3d's multi-threaded RANSAC did not), refined by least squares."""
@@ -244,6 +245,11 @@ def _ransac_plane(points: F64, params: EnvironmentParams, rng: np.random.Generat
         return None
     normals = normals[ok] / length[ok, None]
     offsets = -np.einsum("kj,kj->k", normals, tri[ok, 0])
+    if vertical_to is not None:  # only planes standing up (walls): a slice across a wall would eat its points
+        upright = np.abs(normals @ vertical_to) <= np.sin(np.radians(params.wall_max_tilt_deg))
+        if not upright.any():
+            return None
+        normals, offsets = normals[upright], offsets[upright]
     counts = (np.abs(sub @ normals.T + offsets) <= params.plane_distance).sum(axis=0)
     best = int(np.argmax(counts))
     inliers = sub[np.abs(sub @ normals[best] + offsets[best]) <= params.plane_distance]
@@ -487,7 +493,7 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     for _ in range(params.wall_rounds):
         if len(remaining) < min_points or len(walls) >= params.max_walls:
             break
-        plane = _ransac_plane(remaining, wall_ransac, rng)
+        plane = _ransac_plane(remaining, wall_ransac, rng, vertical_to=up)
         if plane is None:
             break
         inliers = np.abs(plane.distance(remaining)) <= params.plane_distance

@@ -355,7 +355,10 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
     if outline is not None:
         handles.append(Line2D([], [], color=SUPPORT_OUTLINE, lw=1.0, ls="--", label="support outline"))
     if walls:
-        handles.append(Line2D([], [], color=WALL_EDGE, lw=1.0, label=f"wall boxes ({len(walls)})"))
+        kinds = [f.kind for f in (() if env is None else env.surfaces) if f.box is not None and f.kind != "declared"]
+        named = ", ".join(f"{kinds.count(k)} {k}{'s' if kinds.count(k) > 1 else ''}"
+                          for k in ("floor", "platform", "board", "wall", "rim") if k in kinds)
+        handles.append(Line2D([], [], color=WALL_EDGE, lw=1.0, label=f"environment solids: {named or len(walls)}"))
     if declared:
         handles.append(Line2D([], [], color=DECLARED_EDGE, lw=1.0, label=f"declared boxes ({len(declared)})"))
     colour_says = "rank" if bar_label == RANK_BAR_LABEL else "score"
