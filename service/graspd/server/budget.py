@@ -64,6 +64,10 @@ SAMPLES_PER_UNIT = 300
 #: Seconds per work unit of a detection running alone, before any detection was timed (the measurements above,
 #: rounded up); the engine multiplies by the detections sharing the cores at its start.
 UNIT_SECONDS = 0.6
+#: Under load (other detections running, or a queue wait over 1 s) expected seconds are multiplied by this before
+#: they are compared with the time left: a detection's time varies with the machine's load, and a refusal costs a
+#: retry where an overrun costs a 504 and wasted cores.  A lone request fits if its plain estimate does.
+TIME_MARGIN = 1.5
 
 
 def work_units(req: Any) -> float:

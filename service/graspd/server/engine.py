@@ -31,7 +31,7 @@ from graspd_client.codec import WireError
 
 from . import proposals
 from .allocator import IdleTrimmer, trim_function
-from .budget import MemoryBudget, cost_of, work_units
+from .budget import TIME_MARGIN, MemoryBudget, cost_of, work_units
 from .logs import current_request
 from .metrics import Metrics
 from .pngio import encode_png_b64
@@ -237,7 +237,8 @@ class DetectionEngine:
             held = self.budget.take(cost_of(req), self.retry_after(), wait)  # 413 / 503 before detection work
             shared = max(1, self._running)  # detections sharing the cores now (graspd.parallel), this one included
             expected = work_units(req) * self.budget.unit_seconds * shared  # 503 rather than start what cannot end
-            if expected <= self.settings.deadline_s and time.perf_counter() + expected > deadline:  # in time
+            margin = TIME_MARGIN if shared > 1 or timings["queue"] > 1.0 else 1.0  # under load: a safety margin
+            if expected <= self.settings.deadline_s and time.perf_counter() + margin * expected > deadline:
                 raise Problem(503, f"server busy: this request takes about {expected:.0f} s and would not end "
                               f"within the deadline of {self.settings.deadline_s:g} s", retry_after=self.retry_after())
             units = work_units(req) * shared  # timed from here on (budget.observe learns seconds per lone unit)
