@@ -179,3 +179,12 @@ def check_points_frame(points_frame: str | None, has_poses: bool, field: str = "
     if not has_poses and points_frame is not None:
         raise WireError(field, f"points_frame {points_frame!r} needs camera_poses (one camera-to-robot transform "
                         "per camera); without them everything stays in the cloud's own frame")
+
+
+def check_camera_source(points_frame: str | None, num_poses: int, has_source: bool,
+                        field: str = "cloud.camera_source") -> None:
+    """Camera-frame points of several cameras need camera_source: which camera's pose moves each point (guessing
+    would put one camera's points where another's belong).  WireError naming the field otherwise."""
+    if points_frame == "camera" and num_poses > 1 and not has_source:
+        raise WireError(field, f"required with {num_poses} camera poses and points_frame 'camera': the index of "
+                        "the camera that saw each point (its pose moves the point into the robot frame)")

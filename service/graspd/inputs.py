@@ -18,7 +18,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .cloud import CloudError, ViewpointCloud
-from .frames import FRAME_CLOUD, FRAME_ROBOT, camera_positions, check_points_frame, pose_matrices, to_robot
+from .frames import (
+    FRAME_CLOUD,
+    FRAME_ROBOT,
+    camera_positions,
+    check_camera_source,
+    check_points_frame,
+    pose_matrices,
+    to_robot,
+)
 from .warning import DetectionWarning
 
 
@@ -110,6 +118,7 @@ def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_s
     if nrm is not None and nrm.shape != pts.shape:
         raise CloudError(f"{field}.normals", f"must have shape {pts.shape}, got {nrm.shape}")
     src = None if camera_source is None else np.asarray(camera_source).reshape(-1)
+    check_camera_source(points_frame, 0 if poses is None else len(poses), src is not None, f"{field}.camera_source")
     if src is not None and len(src) != len(pts):
         raise CloudError(f"{field}.camera_source", f"must have one entry per point ({len(pts)}), got {len(src)}")
     received = len(pts)

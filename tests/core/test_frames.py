@@ -82,6 +82,7 @@ def test_camera_frame_points_move_with_their_own_camera() -> None:
     ({"points_frame": "camera"}, "points_frame"),
     ({"camera_poses": [np.eye(4)], "points_frame": "camera", "viewpoints": [[0, 0, 0]]}, "cloud.viewpoints"),
     ({"camera_poses": [np.eye(4)], "points_frame": "camera", "camera_source": [0, 1, 0]}, "cloud.camera_source"),
+    ({"camera_poses": [np.eye(4), np.eye(4)], "points_frame": "camera"}, "cloud.camera_source"),
 ])
 def test_frames_must_be_said_consistently(kwargs: dict[str, object], field: str) -> None:
     with pytest.raises(WireError) as err:

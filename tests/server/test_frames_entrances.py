@@ -146,13 +146,22 @@ def test_a_bad_pose_is_refused_naming_it_on_every_entrance(server: Server, mug: 
         with pytest.raises(RequestRejected) as err:
             client.detect(mug[:100], camera_poses=[np.eye(4)])
         assert err.value.status == 422 and err.value.field == "cloud.points_frame"
+        with pytest.raises(RequestRejected) as err:  # two cameras' points: which pose moves which point?
+            client.detect(mug[:100], camera_poses=[np.eye(4), pose_4x4()], points_frame="camera")
+        assert err.value.status == 422 and err.value.field == "cloud.camera_source"
         with pytest.raises(RequestRejected) as err:
             client.detect_file(np.save(buf := io.BytesIO(), mug[:100]) or buf.getvalue(),
                                camera_pose=[0, 0, 0, 0, 0, 0, 2], points_frame="camera")
         assert err.value.status == 422 and err.value.field == "camera_pose"
-    with ZenohGraspClient(connect=[endpoint], timeout=60) as zc, pytest.raises(RequestRejected) as err:
-        zc.set_stream_options(camera_poses=[mirror], points_frame="camera")
-    assert err.value.status == 422 and err.value.field == "camera_poses[0]"
+    with ZenohGraspClient(connect=[endpoint], timeout=60) as zc:
+        with pytest.raises(RequestRejected) as err:
+            zc.set_stream_options(camera_poses=[mirror], points_frame="camera")
+        assert err.value.status == 422 and err.value.field == "camera_poses[0]"
+        zc.set_stream_options(camera_poses=[np.eye(4), pose_4x4()], points_frame="camera")
+        with pytest.raises(RequestRejected) as err:  # a PointCloud2 cannot say which of two cameras saw a point
+            zc.query(encode_pointcloud2(mug[:100], Header(CAMERA_FRAME, (5, 6))))
+        zc.set_stream_options()
+    assert err.value.status == 422 and err.value.field == "camera_poses"
     np.save(npy := tmp_path / "small.npy", mug[:100])
     assert run_cli(tmp_path, str(npy), "--camera-pose", *map(str, mirror.reshape(-1)), "--points-frame",
                    "camera")[0] == 2

@@ -24,7 +24,7 @@ from pydantic import PrivateAttr
 
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
-from graspd.frames import camera_positions, frame_name, to_robot
+from graspd.frames import camera_positions, check_camera_source, frame_name, to_robot
 from graspd.grasp import GraspSet
 from graspd.hand import HandGeometry
 from graspd.inputs import CloudInput, apply_frames, no_finite_point
@@ -41,7 +41,9 @@ from graspd.ros import (
     encode_moveit_grasps,
     encode_pose_array,
 )
+from graspd.ros.types import POINTCLOUD2
 from graspd.templates import TemplateDetection
+from graspd_client.codec import WireError
 
 from .engine import json_object, parse_model
 from .problems import Problem
@@ -162,6 +164,8 @@ def parse_options(payload: bytes | str | dict[str, Any], base: Mapping[str, Any]
     for name in CLOUD_OPTIONS[1:]:
         if name in merged:
             cloud[name] = merged.pop(name)
+    if "camera_poses" in cloud:
+        cloud["camera_source"] = [0]  # a placeholder: each message says which camera saw its points
     vps = merged.pop("viewpoints", None)
     if vps is not None or "camera_poses" not in cloud:  # camera poses replace the settings' viewpoint
         cloud["viewpoints"] = np.asarray(viewpoints, np.float64).tolist() if vps is None else vps
@@ -208,6 +212,12 @@ def in_robot_frame(msg: CloudMessage, options: StreamOptions) -> CloudMessage:
     if poses is None:
         return msg
     camera = options.points_frame == "camera"
+    try:  # a PointCloud2 says nothing of which camera saw a point: one pose only
+        check_camera_source(options.points_frame, len(poses), msg.msg_type != POINTCLOUD2, "camera_poses")
+    except WireError as exc:
+        raise Problem(422, f"a {POINTCLOUD2} of points in the camera's frame takes one camera pose, "
+                      f"{len(poses)} are set: send a gpd_ros CloudSources (camera_source per point)",
+                      exc.field) from None
     expected = options.camera_frame_id if camera else options.robot_frame_id
     got = msg.header.frame_id
     if expected is not None and got and got.lstrip("/") != expected.lstrip("/"):

@@ -31,7 +31,7 @@ from pydantic import (
 from graspd.cloud import CloudError, ViewpointCloud
 from graspd.detector import Detection, DetectionParams
 from graspd.environment import Box, EnvironmentParams, Plane
-from graspd.frames import check_points_frame, pose_matrix
+from graspd.frames import check_camera_source, check_points_frame, pose_matrix
 from graspd.grasp import RANKING_RULE
 from graspd.hand import HAND_PRESETS, HandGeometry
 from graspd.inputs import CloudInput, apply_frames, finite_rows, keep_finite
@@ -193,6 +193,8 @@ class Cloud(BaseModel):
         """Frames are consistent (graspd.frames.check_points_frame; poses replace viewpoints), then rows with a
         NaN or infinite coordinate are dropped and counted (graspd.inputs.keep_finite; none left: cloud.points)."""
         check_points_frame(self.points_frame, self.camera_poses is not None, ".points_frame")
+        check_camera_source(self.points_frame, len(self.camera_poses or ()), self.camera_source is not None,
+                            ".camera_source")
         if self.camera_poses is not None and "viewpoints" in self.model_fields_set:
             raise WireError(".viewpoints", "give camera_poses or viewpoints, not both (with camera poses the "
                             "viewpoints are the cameras' positions in the robot frame)")
