@@ -30,6 +30,8 @@ OPENAPI_EXTRA: dict[str, Any] = {
         "content": {
             "application/json": {"schema": {"$ref": "#/components/schemas/DetectRequest"}},
             "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+            **{ct: {"schema": {"type": "string", "format": "binary"}} for ct in (
+                "application/x-pcd", "application/ply", "application/x-npy", "application/x-npz", "image/png")},
         },
     },
 }
