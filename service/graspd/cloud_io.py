@@ -277,8 +277,8 @@ def _npy_header(fp: io.BytesIO | IO[bytes], field: str) -> tuple[tuple[int, ...]
             shape, fortran, dtype = np.lib.format.read_array_header_1_0(fp)
         else:
             shape, fortran, dtype = np.lib.format.read_array_header_2_0(fp)
-    except (ValueError, OSError, SyntaxError) as exc:
-        raise CloudError(field, f"npy: unreadable header ({exc})") from None
+    except Exception as exc:  # numpy's header parser raises ValueError, SyntaxError, tokenize.TokenError, ...
+        raise CloudError(field, f"npy: unreadable header ({type(exc).__name__}: {exc})") from None
     if dtype.hasobject or dtype.kind not in "fiu" or dtype.fields is not None:
         raise CloudError(field, f"npy: numbers expected (float or integer), got dtype {dtype}")
     if int(np.prod(shape, dtype=np.float64)) > MAX_NPY_VALUES:
@@ -295,17 +295,21 @@ def parse_npy(data: bytes, field: str = "body") -> NDArray[Any]:
         raise CloudError(field, f"npy: header declares {shape} {dtype} ({need} bytes); the file holds "
                          f"{len(data) - fp.tell()}")
     fp.seek(0)
-    return np.asarray(np.load(fp, allow_pickle=False))
+    try:
+        return np.asarray(np.load(fp, allow_pickle=False))
+    except (ValueError, OSError, EOFError) as exc:
+        raise CloudError(field, f"npy: unreadable ({exc})") from None
 
 
 def parse_npz(data: bytes, field: str = "body") -> dict[str, NDArray[Any]]:
     """The NPZ_ARRAYS an .npz holds (each member's declared size and header checked before it is decompressed:
     a zip bomb is refused); 'points' is required."""
     import zipfile  # noqa: PLC0415
+    import zlib  # noqa: PLC0415
 
     try:
         archive = zipfile.ZipFile(io.BytesIO(data))
-    except (zipfile.BadZipFile, OSError, ValueError) as exc:
+    except (zipfile.BadZipFile, OSError, ValueError, NotImplementedError, RuntimeError) as exc:
         raise CloudError(field, f"npz: not a zip archive ({exc})") from None
     out: dict[str, NDArray[Any]] = {}
     with archive:
@@ -321,7 +325,8 @@ def parse_npz(data: bytes, field: str = "body") -> dict[str, NDArray[Any]]:
                                  "beyond the limit")
             try:
                 raw = archive.read(info)
-            except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+            except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError, RuntimeError,
+                    zlib.error) as exc:  # corrupt, an unknown compression, encrypted
                 raise CloudError(f"cloud.{name}", f"npz: {name} unreadable ({exc})") from None
             out[name] = parse_npy(raw, f"cloud.{name}")
     return out

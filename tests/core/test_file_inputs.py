@@ -37,6 +37,9 @@ def test_npy_reads_numbers_and_refuses_the_rest() -> None:
     lying = header.replace(b"(1, 3)", b"(" + str(MAX_NPY_VALUES).encode() + b", 3)")
     with pytest.raises(CloudError, match="exceeds the limit"):  # refused from the header, nothing allocated
         parse_npy(lying)
+    broken = header.replace(b"), }", b"   ").replace(b"(1, 3", b"(1, 3 ")  # numpy's parser: a TokenError
+    with pytest.raises(CloudError, match="unreadable header"):  # found by fuzzing: once a 500
+        parse_npy(broken)
 
 
 def test_npz_reads_the_cloud_arrays_and_refuses_a_bomb() -> None:
