@@ -142,7 +142,10 @@ def parse_options(payload: bytes | str | dict[str, Any], base: Mapping[str, Any]
                   viewpoints: NDArray[np.float64] | tuple[tuple[float, float, float], ...]) -> StreamOptions:
     """Stream options from JSON: DetectRequest fields other than cloud and crops (validated exactly like a
     DetectRequest's; Problem 400/422 naming the field), plus "viewpoints" [[x, y, z], ...] for PointCloud2
-    input.  They are laid over base (the settings' stream options): a put names what differs from the settings."""
+    input, or "camera_poses" and "points_frame" (as a request's cloud has them: the clouds are moved into the
+    robot frame) with "camera_frame_id" and "robot_frame_id" (CLOUD_OPTIONS, FRAME_ID_OPTIONS).  They are laid
+    over base (the settings' stream options): a put names what differs from the settings (null clears a frame
+    option)."""
     if isinstance(payload, bytes | str):
         size = len(payload)
         if size > MAX_CONFIG_BYTES:
