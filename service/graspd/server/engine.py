@@ -159,6 +159,7 @@ class DetectionEngine:
         self._lock = threading.Lock()
         self._pending = 0
         self._running = 0
+        self._detecting = 0  # running past parsing and admission (what shares the cores)
         self._avg_seconds = 1.0  # EWMA of a request's time on a worker (parse + detect), seconds
         self._trimmer = IdleTrimmer(trim_function(), busy=lambda: self._pending > 0)
         self.templates = TemplateService(settings)  # method "templates", and what feedback needs
@@ -235,12 +236,15 @@ class DetectionEngine:
             req = parse()
             wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
             held = self.budget.take(cost_of(req), self.retry_after(), wait)  # 413 / 503 before detection work
-            shared = max(1, self._running)  # detections sharing the cores now (graspd.parallel), this one included
-            expected = work_units(req) * self.budget.unit_seconds * shared  # 503 rather than start what cannot end
+            shared = 1 + self._detecting  # detections sharing the cores (graspd.parallel), this one included
+            lone = work_units(req) * self.budget.unit_seconds  # 503 rather than start what cannot end in time
             margin = TIME_MARGIN if shared > 1 or timings["queue"] > 1.0 else 1.0  # under load: a safety margin
-            if expected <= self.settings.deadline_s and time.perf_counter() + margin * expected > deadline:
-                raise Problem(503, f"server busy: this request takes about {expected:.0f} s and would not end "
-                              f"within the deadline of {self.settings.deadline_s:g} s", retry_after=self.retry_after())
+            if lone <= self.settings.deadline_s and time.perf_counter() + margin * lone * shared > deadline:
+                raise Problem(503, f"server busy: this request takes about {lone * shared:.0f} s now and would not "
+                              f"end within the deadline of {self.settings.deadline_s:g} s",
+                              retry_after=self.retry_after())
+            with self._lock:
+                self._detecting += 1
             units = work_units(req) * shared  # timed from here on (budget.observe learns seconds per lone unit)
             timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
             try:
@@ -295,6 +299,9 @@ class DetectionEngine:
                                                  model_fits_hand=fits, detection_id=detection_id,
                                                  frame=given.frame, warnings=input_warnings).to_json()
         finally:
+            if units:
+                with self._lock:
+                    self._detecting -= 1
             self.budget.give(held)
             elapsed = time.perf_counter() - start
             self.budget.observe(units, elapsed)
