@@ -154,8 +154,9 @@ class Cloud(BaseModel):
             raise ValueError("empty cloud (0 points); send at least one point")
         if len(v) > MAX_POINTS:
             raise ValueError(f"{len(v)} points exceeds the limit of {MAX_POINTS}")
-        finite = v[finite_rows(v)]  # the others are dropped (model validator): the bound is on what is kept
-        if len(finite) and np.abs(finite).max() > MAX_COORDINATE:
+        finite = finite_rows(v)  # the others are dropped (model validator): the bound is on what is kept
+        kept = v if finite.all() else v[finite]
+        if len(kept) and max(-float(kept.min()), float(kept.max())) > MAX_COORDINATE:
             raise ValueError(f"coordinates beyond +-{MAX_COORDINATE:g} m; send metres in a local frame")
         return v.astype(np.float32, copy=False)
 
