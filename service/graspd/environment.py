@@ -418,15 +418,8 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
             continue
         xy = points[inliers] @ axes2.T
         # one connected surface (1 cm cells, gaps of a cell bridged): objects' tops at one height are islands
-        ij = np.floor((xy - xy.min(axis=0)) / 0.01).astype(np.int64)
-        grid = np.zeros(tuple(ij.max(axis=0) + 1), bool)
-        grid[ij[:, 0], ij[:, 1]] = True
-        parts, count = ndimage.label(ndimage.binary_dilation(grid), structure=np.ones((3, 3), bool))
-        largest = 1
-        if count > 1:
-            cell_part = parts[ij[:, 0], ij[:, 1]]
-            largest = int(np.argmax(np.bincount(cell_part)[1:])) + 1
-            xy = xy[cell_part == largest]
+        island, occupied = _largest_island(xy)
+        xy = xy[island]
         spans = (_robust_span(xy[:, 0]), _robust_span(xy[:, 1]))
         if min(spans) < min_extent:
             continue
@@ -435,7 +428,6 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
             continue
         # how much of its footprint the level covers (1 cm cells): a raised level is a filled surface, not a
         # ring of rims or scattered object tops at one height
-        occupied = int((grid & (parts == largest)).sum())
         fill = occupied / max(float(np.prod(np.ceil(2.0 * half / 0.01))), 1.0)
         height = float(c @ up)
         if any(abs(height - lv.height) < 0.7 * params.support_distance for lv in levels):
@@ -444,6 +436,18 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
         ref_normal = plane.normal if ref_normal is None else ref_normal
     levels.sort(key=lambda lv: lv.height)
     return levels[:1] + [lv for lv in levels[1:] if lv.fill >= params.level_min_fill]
+
+
+def _largest_island(xy: F64, cell: float = 0.01) -> tuple[NDArray[np.bool_], int]:
+    """The points (N,2; m) of the largest connected patch of occupied cells (gaps of one cell bridged), and how
+    many cells it occupies: a floor or a table is one patch, objects' tops at one height are islands."""
+    ij = np.floor((xy - xy.min(axis=0)) / cell).astype(np.int64)
+    grid = np.zeros(tuple(ij.max(axis=0) + 1), bool)
+    grid[ij[:, 0], ij[:, 1]] = True
+    parts, count = ndimage.label(ndimage.binary_dilation(grid), structure=np.ones((3, 3), bool))
+    cell_part = parts[ij[:, 0], ij[:, 1]]
+    largest = int(np.argmax(np.bincount(cell_part)[1:])) + 1 if count > 1 else 1
+    return cell_part == largest, int((grid & (parts == largest)).sum())
 
 
 def _in_footprint(points: F64, level: Level, up: F64, grow: float) -> NDArray[np.bool_]:
@@ -642,25 +646,12 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
             surfaces.append(Surface("support", support, None, spans, int((labels == Label.SUPPORT).sum()),
                                     _ratio_conf(min(spans), min_extent)))
             level_heights = [0.0]
+            base_height = levels[0].height if levels else -support.offset
             for lv in levels[1:]:
                 assert up is not None
-                lv_h = lv.height - levels[0].height  # above the lowest support (m)
-                dl = lv.plane.distance(pts)
-                # seen points well under the level, inside its footprint: it is a board with room beneath (a
-                # shelf's ceiling), not a solid down to the table
-                beneath = _in_footprint(pts, lv, up, -0.02) & (dl < -0.02) & (labels == Label.OBJECT)
-                board = int(beneath.sum()) >= 30
-                depth = min(lv_h, max(0.02, -float(np.max(dl[beneath])) - 0.005)) if board else lv_h
-                slab = _level_box(lv, up, lv.height - depth - (0.0 if board else 0.01), 0.005)
-                # the level's own points and its sides: over its footprint, from its surface down the slab
-                on = _in_footprint(pts, lv, up, 0.01) & (dl <= p.support_distance) & (dl >= -depth - 0.005)
-                labels[on] = Label.SUPPORT
-                walls.append(slab)
-                if not board:
+                lv_h = _apply_level(lv, up, base_height, pts, labels, walls, surfaces, p, min_extent)
+                if lv_h is not None:
                     level_heights.append(lv_h)
-                # a floor has walls around it; a platform stands clear (named once the walls are known)
-                surfaces.append(Surface("board" if board else "floor", lv.plane, slab, lv.spans, int(on.sum()),
-                                        _ratio_conf(min(lv.spans), min_extent)))
             min_length = p.wall_min_length if p.wall_min_length is not None else 1.5 * hand.hand_outer_diameter
             found = find_walls(pts, normals, cams, support, p, min_length, rng, labels == Label.OBJECT,
                                tuple(level_heights))
@@ -674,9 +665,20 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
                         "environment_unsure", f"a vertical surface {length:.2f} m long does not stand on any "
                         "support level found; it is treated as environment (too large to grasp), but the "
                         "support may be wrong: declare the support or the container in the request"))
+            if up is not None and len(found) >= 2 and len(level_heights) == 1:
+                # a floor the level search missed (a deep container's floor is seen only in part): the lowest
+                # up-facing surface inside the walls
+                inner = find_inner_floor(pts, normals, up, support, [f[0] for f in found], labels, p, min_extent)
+                if inner is not None:
+                    lv_h = _apply_level(inner, up, base_height, pts, labels, walls, surfaces, p, 0.6 * min_extent)
+                    if lv_h is not None:
+                        level_heights.append(lv_h)
             rim_length = p.rim_min_length if p.rim_min_length is not None else min_length
-            for box, origin, direction, length, count in find_rims(pts, normals, support, p, rim_length, rng,
-                                                                    labels == Label.OBJECT):
+            # rims stand for walls whose faces went unseen: with two walls found, a long line of points at one
+            # height is the tops of objects in a row, not a rim
+            rims = [] if len(found) >= 2 else find_rims(pts, normals, support, p, rim_length, rng,
+                                                        labels == Label.OBJECT)
+            for box, origin, direction, length, count in rims:
                 labels[(labels == Label.OBJECT) & box.contains(pts, margin=0.003)] = Label.WALL
                 walls.append(box)
                 across = np.cross(support.normal, direction)
@@ -707,6 +709,66 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
     return Environment(labels=labels, support=support, walls=tuple(walls), boxes=tuple(p.boxes), up=up_out,
                        mode=p.mode, clearance=p.clearance, surfaces=tuple(surfaces), confidence=float(confidence),
                        warnings=tuple(warnings), support_distance=p.support_distance)
+
+
+def _apply_level(lv: Level, up: F64, base_height: float, pts: F64, labels: NDArray[np.int8], walls: list[Box],
+                 surfaces: list[Surface], p: EnvironmentParams, min_extent: float) -> float | None:
+    """Label a raised level's points and sides as support and add its solid (a slab down to the support, or a
+    thin board when seen room lies beneath it) to walls and its surface to surfaces.  Returns its height above
+    the support (m) when objects can stand on it (a floor or platform), None for a board."""
+    lv_h = lv.height - base_height  # above the lowest support (m)
+    dl = lv.plane.distance(pts)
+    # seen points well under the level, inside its footprint: it is a board with room beneath (a shelf's
+    # ceiling), not a solid down to the table
+    beneath = _in_footprint(pts, lv, up, -0.02) & (dl < -0.02) & (labels == Label.OBJECT)
+    board = int(beneath.sum()) >= 30
+    depth = min(lv_h, max(0.02, -float(np.max(dl[beneath])) - 0.005)) if board else lv_h
+    slab = _level_box(lv, up, lv.height - depth - (0.0 if board else 0.01), 0.005)
+    # the level's own points and its sides: over its footprint, from its surface down the slab
+    on = _in_footprint(pts, lv, up, 0.01) & (dl <= p.support_distance) & (dl >= -depth - 0.005)
+    labels[on] = Label.SUPPORT
+    walls.append(slab)
+    # a floor has walls around it; a platform stands clear (named once the walls are known)
+    surfaces.append(Surface("board" if board else "floor", lv.plane, slab, lv.spans, int(on.sum()),
+                            _ratio_conf(min(lv.spans), min_extent)))
+    return None if board else lv_h
+
+
+def find_inner_floor(points: F64, normals: F64, up: F64, support: Plane, wall_boxes: list[Box],
+                     labels: NDArray[np.int8], params: EnvironmentParams, min_extent: float) -> Level | None:
+    """A container's floor the level search missed: the lowest well-populated height of up-facing object points
+    inside the rectangle the walls enclose, between the support and 6 cm above it, spanning at least
+    0.6 x min_extent both ways (objects rest on the floor, so nothing of theirs lies below it)."""
+    a2 = _in_plane_axes(up)
+    corners = np.concatenate([(b.centre + (np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
+                                                      for sz in (-1, 1)]) * b.half_extents) @ b.rotation.T) @ a2.T
+                              for b in wall_boxes])
+    centre, axes, half = _min_area_rectangle(corners)
+    local = (points @ a2.T - centre) @ axes.T
+    h = support.distance(points)
+    cand = ((labels == Label.OBJECT) & ((normals @ up) > np.cos(np.radians(25.0)))
+            & np.all(np.abs(local) <= half - 0.01, axis=1) & (h > params.support_distance) & (h < 0.06))
+    if cand.sum() < 3 * params.level_min_points:
+        return None
+    bin_w = params.plane_distance
+    counts = np.bincount((h[cand] / bin_w).astype(np.int64))
+    smooth = counts + np.concatenate([[0], counts[:-1]]) + np.concatenate([counts[1:], [0]])
+    for b in np.flatnonzero(smooth >= params.level_min_points):  # lowest first: objects rest on the floor
+        near = cand & (np.abs(h - (b + 0.5) * bin_w) <= 1.5 * bin_w)
+        height_above = float(np.median(h[near]))
+        on = np.flatnonzero(cand & (np.abs(h - height_above) <= 0.6 * params.plane_distance))
+        if len(on) < params.level_min_points:
+            continue
+        xy = points[on] @ a2.T
+        island, _ = _largest_island(xy)
+        xy = xy[island]
+        spans = (_robust_span(xy[:, 0]), _robust_span(xy[:, 1]))
+        if min(spans) < 0.6 * min_extent:
+            continue
+        plane = Plane(support.normal, support.offset - height_above)
+        height = float(np.median(points[on[island]] @ up))
+        return Level(plane, height, centre, axes, half, spans, int(island.sum()), 1.0)
+    return None
 
 
 def _ratio_conf(value: float, threshold: float) -> float:
