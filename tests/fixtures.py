@@ -54,3 +54,15 @@ def write_mesh(path: Path, mesh: o3d.geometry.TriangleMesh) -> Path:
     """The mesh written to path (.ply, .stl, .obj by suffix), as a user's mesh file for instance models."""
     assert o3d.io.write_triangle_mesh(str(path), mesh)
     return path
+
+
+#: Where a camera that saw krylon.pcd could stand, in the cloud's frame.  The cloud is a 360-degree scan centred on
+#: the can: a viewpoint at its origin puts the camera inside the can, and every hand would reach into space the
+#: camera did not see.  One viewpoint outside it still leaves the far side unseen (the response says so).
+KRYLON_VIEWPOINT = (0.5, 0.0, 0.3)
+
+
+def krylon_camera_frame(points: np.ndarray) -> np.ndarray:
+    """krylon.pcd's points in the frame of a camera at KRYLON_VIEWPOINT (axes kept): what a PointCloud2 or an
+    upload without a viewpoint sends, the camera at the origin."""
+    return points - np.asarray(KRYLON_VIEWPOINT, points.dtype)

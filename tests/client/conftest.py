@@ -5,8 +5,10 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from fixtures import KRYLON_VIEWPOINT
 from graspd.cloud import ViewpointCloud
 from graspd.cloud_io import read_cloud
 from graspd.server.runner import free_port, serve_in_thread
@@ -15,7 +17,7 @@ from graspd.server.settings import Settings
 
 @pytest.fixture(scope="module")
 def krylon(real_data: Path) -> ViewpointCloud:
-    return read_cloud(real_data / "krylon.pcd")
+    return read_cloud(real_data / "krylon.pcd", viewpoints=np.array([KRYLON_VIEWPOINT], np.float32))
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fixtures import KRYLON_VIEWPOINT
 from graspd.cloud import ViewpointCloud
 from graspd.server.runner import free_port
 from graspd.server.settings import Settings
@@ -36,7 +37,7 @@ def test_sync_client_detect(server: Server, krylon: ViewpointCloud) -> None:
 def test_sync_client_file_upload(server: Server, real_data: Path) -> None:
     url, _, _ = server
     with GraspClient(url, timeout=60) as client:
-        g = client.detect_file((real_data / "krylon.pcd").read_bytes(), num_samples=60)
+        g = client.detect_file((real_data / "krylon.pcd").read_bytes(), num_samples=60, viewpoint=KRYLON_VIEWPOINT)
         assert len(g) > 0
 
 
@@ -67,7 +68,7 @@ def test_503_is_retried_after_retry_after(server: Server, krylon: ViewpointCloud
         time.sleep(0.15)  # the slow request holds the only worker; no queue
         with pytest.raises(ServerBusy):
             impatient.detect(krylon.points, num_samples=20)
-        assert len(patient.detect(krylon.points, num_samples=20)) > 0
+        assert len(patient.detect(krylon.points, krylon.viewpoints, num_samples=20)) > 0
         worker.join()
 
 

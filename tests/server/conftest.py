@@ -12,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
+from fixtures import KRYLON_VIEWPOINT
 from graspd import classifier
 from graspd.cloud import ViewpointCloud
 from graspd.cloud_io import read_cloud
@@ -29,11 +30,6 @@ def free_port() -> int:
 @pytest.fixture(scope="session")
 def krylon_path(real_data: Path) -> Path:
     return real_data / "krylon.pcd"
-
-
-#: Where the camera that saw krylon.pcd stood, in the cloud's frame (the cloud is centred on the can: a viewpoint
-#: at its origin puts the camera inside the can, and every hand would reach into space the camera did not see).
-KRYLON_VIEWPOINT = (0.5, 0.0, 0.3)
 
 
 @pytest.fixture(scope="session")

@@ -71,7 +71,7 @@ def test_binary_compressed_upload_is_accepted(client: TestClient, krylon: Viewpo
     path = tmp_path / "k.pcd"
     o3d.io.write_point_cloud(str(path), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(krylon.points)),
                              compressed=True)
-    r = client.post("/detect?num_samples=60", content=path.read_bytes(), headers=OCTET)
+    r = client.post("/detect?num_samples=60&viewpoint=0.5,0,0.3", content=path.read_bytes(), headers=OCTET)
     assert r.status_code == 200, r.text
     assert r.json()["num_points"] > 0 and len(r.json()["grasps"]) > 0
 

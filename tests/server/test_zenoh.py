@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from fixtures import krylon_camera_frame
 from graspd.cloud import ViewpointCloud
 from graspd.ros import Header, encode_pointcloud2
 from graspd.server.app import create_app
@@ -70,7 +71,7 @@ def test_garbage_gets_an_error_reply(zenoh_server: tuple[TestClient, str], paylo
 
 def test_cdr_pointcloud2_query(zenoh_server: tuple[TestClient, str], krylon: ViewpointCloud) -> None:
     _, endpoint = zenoh_server
-    payload = encode_pointcloud2(krylon.points, Header("camera_depth_optical_frame", (12, 34)))
+    payload = encode_pointcloud2(krylon_camera_frame(krylon.points), Header("camera_depth_optical_frame", (12, 34)))
     with ZenohGraspClient(connect=[endpoint], timeout=30) as zc:
         reply = zc.query(payload)
     assert reply["header"] == {"frame_id": "camera_depth_optical_frame", "stamp": {"sec": 12, "nanosec": 34}}
@@ -92,7 +93,7 @@ def test_streaming_cloud_to_grasps(zenoh_server: tuple[TestClient, str], krylon:
         sub = session.declare_subscriber("graspd/grasps", on_grasps)
         pub = session.declare_publisher("graspd/cloud")
         for _ in range(50):  # until the subscription has propagated
-            pub.put(encode_pointcloud2(krylon.points, Header("cam", (1, 2))))
+            pub.put(encode_pointcloud2(krylon_camera_frame(krylon.points), Header("cam", (1, 2))))
             if done.wait(0.2):
                 break
         assert done.wait(30)

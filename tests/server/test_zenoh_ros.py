@@ -22,6 +22,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 from scipy.spatial.transform import Rotation
 
+from fixtures import krylon_camera_frame
 from graspd.cloud import ViewpointCloud
 from graspd.ros import (
     Header,
@@ -205,7 +206,7 @@ def test_pointcloud2_stream_to_ros_outputs(session: Any, krylon: ViewpointCloud)
     listener = Listener(session)
     header = Header("camera_depth_optical_frame", (5, 6))
     try:
-        publish_until(session, "graspd/cloud", encode_pointcloud2(krylon.points, header), listener,
+        publish_until(session, "graspd/cloud", encode_pointcloud2(krylon_camera_frame(krylon.points), header), listener,
                       lambda: frames(listener), whole_frame=True)
         check_outputs(listener, header)
     finally:
