@@ -195,7 +195,7 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 DB_USER, DB_PASSWORD, DB_NAME = "cellrobot", "Sw0rdf1sh-db", "graspdlib"
 
 #: The audit's mesh: 204 bytes of ASCII PLY whose header declares 1e9 vertices.
-LYING_PLY = (b"ply\nformat ascii 1.0\ncomment a lying header\nelement vertex 1000000000\nproperty float x\n"
+LYING_PLY = (b"ply\nformat ascii 1.0\ncomment a lie!\nelement vertex 1000000000\nproperty float x\n"
              b"property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"
              b"end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
 
