@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from fixtures import KRYLON_VIEWPOINT
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd.viewer import PLOT_ID
@@ -40,7 +41,8 @@ def test_get_viewer_is_the_drop_page(client: TestClient) -> None:
 
 def test_post_viewer_draws_the_detection(client: TestClient, krylon_pcd: bytes) -> None:
     r = client.post("/viewer", files={"file": ("krylon.pcd", krylon_pcd, "application/octet-stream")},
-                    params={"num_samples": 60, "max_grasps": 7}, headers=AUTH)
+                    params={"num_samples": 60, "max_grasps": 7, "viewpoint": ",".join(map(str, KRYLON_VIEWPOINT))},
+                    headers=AUTH)
     assert r.status_code == 200, r.text[:300]
     assert r.headers["content-type"].startswith("text/html")
     page = r.text
