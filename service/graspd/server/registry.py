@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from graspd import classifier
+from graspd.database import scrub
 from graspd.detector import GraspDetector
 from graspd.hand import HandGeometry
 
@@ -41,18 +42,20 @@ class ModelRegistry:
         cascade: the first-pass model's name (used only if it loaded; else logged and off)."""
 
         models, errors = classifier.load_models_checked(models_dir, threads=threads)
+        errors = {name: scrub(why) for name, why in errors.items()}  # answers and logs hold no path (issue 23)
         for name, why in sorted(errors.items()):
-            log.error("model failed to load", extra={"model": name, "error": why, "models_dir": str(models_dir)})
+            log.error("model failed to load", extra={"model": name, "error": why})
         wanted = default or classifier.default_model_name()
         load_error = None
         if wanted in errors:
             load_error = f"default model {wanted!r} failed to load: {errors[wanted]}"
         elif wanted not in models and not (allow_unscored and default is None):
-            load_error = f"default model {wanted!r} is not in {models_dir} (models there: {sorted(models)})"
+            load_error = (f"default model {wanted!r} is not in the models folder (GRASPD_MODELS_DIR; models there: "
+                          f"{sorted(models)})")
         if load_error is not None:
             log.error("default model unavailable: not ready", extra={"model": wanted, "error": load_error})
         if cascade is not None and cascade not in models:
-            log.warning("cascade model not loaded: no cascade", extra={"model": cascade, "models_dir": str(models_dir)})
+            log.warning("cascade model not loaded: no cascade", extra={"model": cascade})
             cascade = None
         return cls(models, wanted if wanted in models else None, load_error, errors, wanted, allow_unscored, cascade)
 
