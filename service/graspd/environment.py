@@ -520,6 +520,8 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         s0, s1 = min(a for a, _ in runs), max(b for _, b in runs)
         run = patch[(patch @ along >= s0) & (patch @ along <= s1)]
         h = support.distance(run)
+        if not _level_top(run @ along, h):
+            continue  # faces of several objects that happen to line up: their tops are at many heights
         foot = float(np.percentile(h, 1.0))
         stands = any(abs(foot - lv) <= params.wall_base_gap or foot <= lv + params.wall_base_gap
                      for lv in level_heights)
@@ -540,6 +542,16 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         half = np.array([(front + back) / 2.0, (s1 - s0) / 2.0 + 0.01, (top - base) / 2.0])
         walls.append((Box(centre, rotation, half), Plane(across, -face), longest, len(run), top - 0.01, stands))
     return walls
+
+
+def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0.015, share: float = 0.7) -> bool:
+    """Whether a vertical patch has a straight, level top as a wall has: in step-wide (m) slices along it, the
+    highest point lies within tolerance (m) of the median top in at least share of the slices."""
+    cells = np.floor((along - along.min()) / step).astype(np.int64)
+    tops = np.full(int(cells.max()) + 1, -np.inf)
+    np.maximum.at(tops, cells, height)
+    tops = tops[np.isfinite(tops)]
+    return bool(len(tops) >= 3 and np.mean(np.abs(tops - np.median(tops)) <= tolerance) >= share)
 
 
 def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentParams, min_length: float,
