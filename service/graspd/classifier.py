@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 #: The model the service uses when none is named: trained on cluttered scenes (issue 13), 15-channel images, GPD hand.
-DEFAULT_MODEL_NAME = "scene15"
+DEFAULT_MODEL_NAME = "container15"
 #: Environment variable that overrides the models folder.
 MODELS_DIR_ENV = "GRASPD_MODELS_DIR"
 _REQUIRED_CARD_KEYS = ("name", "representation", "channels", "image_size", "input", "output")

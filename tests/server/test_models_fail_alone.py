@@ -18,8 +18,9 @@ from graspd.server.app import create_app
 from graspd.server.settings import Settings
 
 SHIPPED = classifier.default_models_dir()
-needs_models = pytest.mark.skipif(not {"scene15", "box15"} <= set(classifier.available_models(SHIPPED)),
-                                  reason="the shipped models scene15 and box15 are not in models/")
+DEFAULT = classifier.default_model_name()
+needs_models = pytest.mark.skipif(not {DEFAULT, "box15"} <= set(classifier.available_models(SHIPPED)),
+                                  reason="the shipped default model and box15 are not in models/")
 
 
 @pytest.fixture
@@ -27,7 +28,7 @@ def models(tmp_path: Path) -> Path:
     """A copy of the shipped models (networks and cards) to break."""
     out = tmp_path / "models"
     out.mkdir()
-    for name in ("scene15", "box15", "cylinder15"):
+    for name in (DEFAULT, "box15", "cylinder15"):
         for suffix in (".onnx", ".json"):
             if (SHIPPED / f"{name}{suffix}").is_file():
                 shutil.copy(SHIPPED / f"{name}{suffix}", out / f"{name}{suffix}")
@@ -65,11 +66,11 @@ def test_one_broken_model_fails_alone(make_settings: Callable[..., Settings], mo
         ready = c.get("/readyz")
         assert ready.status_code == 200, ready.text
         out = ready.json()
-        assert out["default_model"] == "scene15" and "box15" not in out["models"]
+        assert out["default_model"] == DEFAULT and "box15" not in out["models"]
         assert "box15" in out["model_errors"] and out["model_errors"]["box15"]
         assert any(getattr(r, "model", None) == "box15" for r in caplog.records if r.levelno == logging.ERROR)
         scored = c.post("/detect", json=body).json()
-        assert scored["scored"] is True and scored["model"] == "scene15"
+        assert scored["scored"] is True and scored["model"] == DEFAULT
         r = c.post("/detect", json={**body, "model": "box15"})
         assert r.status_code == 503 and r.json()["field"] == "model" and "failed to load" in r.json()["error"]
         assert c.post("/detect", json={**body, "model": "nope"}).status_code == 422
@@ -80,15 +81,15 @@ def test_one_broken_model_fails_alone(make_settings: Callable[..., Settings], mo
 def test_default_model_missing_means_not_ready(make_settings: Callable[..., Settings], models: Path,
                                                body: dict[str, Any], how: str) -> None:
     if how.startswith("onnx deleted"):
-        (models / "scene15.onnx").unlink()
+        (models / f"{DEFAULT}.onnx").unlink()
     else:
-        truncate(models / "scene15.onnx")
+        truncate(models / f"{DEFAULT}.onnx")
     with TestClient(create_app(make_settings(models_dir=models, allow_unscored=True))) as c:  # broken: never allowed
         ready = c.get("/readyz")
         assert ready.status_code == 503
-        assert "scene15" in " ".join(ready.json()["problems"]) and "scene15" in ready.json()["model_errors"]
+        assert DEFAULT in " ".join(ready.json()["problems"]) and DEFAULT in ready.json()["model_errors"]
         r = c.post("/detect", json=body)
-        assert r.status_code == 503 and r.json()["field"] == "model" and "scene15" in r.json()["error"]
+        assert r.status_code == 503 and r.json()["field"] == "model" and DEFAULT in r.json()["error"]
         assert "box15" in ready.json()["models"]  # the others serve when named
         assert c.post("/detect", json={**body, "model": "box15"}).json()["scored"] is True
         plain = c.post("/detect", json={**body, "use_classifier": False})  # unscored only when asked
