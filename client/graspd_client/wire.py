@@ -102,6 +102,7 @@ def build_detect_request(
     camera_poses: Sequence[Any] | ArrayLike | None = None,
     points_frame: str | None = None,
     normals: ArrayLike | None = None,
+    unknown_space: str | None = None,
 ) -> dict[str, Any]:
     """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
 
@@ -115,7 +116,8 @@ def build_detect_request(
     "boxes": [[xmin, xmax, ymin, ymax, zmin, zmax], ...]}; approach_distance (m) the pre-grasp distance.
     camera_poses: one camera-to-robot transform per camera (4x4, or {"position", "quat_xyzw"}, or 7 numbers x, y,
     z, qx, qy, qz, qw) with points_frame "camera" or "robot" (see the module's note on frames); viewpoints are
-    then left out.  normals (N,3): optional unit normals pointing toward the cameras.
+    then left out.  normals (N,3): optional unit normals pointing toward the cameras.  unknown_space "avoid" (the
+    server's default: a hand reaching into space no camera saw collides) or "allow" (seen points only).
     """
     body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source, camera_poses=camera_poses,
                                                  points_frame=points_frame, normals=normals)}
@@ -130,7 +132,7 @@ def build_detect_request(
     options = {"model": model, "num_samples": num_samples, "max_grasps": max_grasps, "min_score": min_score,
                "selection": selection, "seed": seed, "clustering": clustering, "use_classifier": use_classifier,
                "exclude_support_plane": exclude_support_plane, "min_aperture": min_aperture,
-               "max_aperture": max_aperture, "approach_distance": approach_distance}
+               "max_aperture": max_aperture, "approach_distance": approach_distance, "unknown_space": unknown_space}
     body.update({k: v for k, v in options.items() if v is not None})
     if environment is not None:
         body["environment"] = environment if isinstance(environment, str) else dict(environment)
