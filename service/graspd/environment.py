@@ -709,6 +709,13 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
     if p.mode == "declared" and p.support is not None:
         surfaces.insert(0, Surface("support", p.support, None, (0.0, 0.0),
                                    int((labels == Label.SUPPORT).sum()), 1.0))
+    if p.mode == "auto" and support is not None and up is not None:
+        lined = [side for lv in levels[1:] for side in _lined_edges(pts, labels, lv, up)]
+        if lined:
+            warnings.append(DetectionWarning(
+                "container_as_object", f"object points line {len(lined)} edge(s) of a raised level "
+                f"({', '.join(f'{x:.2f} m' for x in lined)} long) like a wall the stage did not recognise: a "
+                "container may be among the objects; declare its walls as boxes if grasps land on it"))
     found_conf = [s.confidence for s in surfaces if s.kind != "declared"]
     confidence = 0.0 if (p.mode == "auto" and support is None) else min(found_conf, default=1.0)
     if p.mode == "auto" and support is not None and confidence < 0.3 and not warnings:
@@ -781,6 +788,27 @@ def find_inner_floor(points: F64, normals: F64, up: F64, support: Plane, wall_bo
         height = float(np.median(points[on[island]] @ up))
         return Level(plane, height, centre, axes, half, spans, int(island.sum()), 1.0)
     return None
+
+
+def _lined_edges(points: F64, labels: NDArray[np.int8], level: Level, up: F64, rise: float = 0.02,
+                 share: float = 0.8, step: float = 0.02) -> list[float]:
+    """Lengths (m) of the sides of a raised level's footprint along which object points stand more than rise (m)
+    above the level in at least share of the step-wide (m) slices, within 2 cm of the side: a wall kept as
+    objects (a platform's edge has nothing standing along all of it)."""
+    obj = labels == Label.OBJECT
+    local = (points[obj] @ _in_plane_axes(up).T - level.centre) @ level.axes.T
+    high = (points[obj] @ up) > level.height + rise
+    out = []
+    for axis in (0, 1):
+        other = 1 - axis
+        for sign in (-1.0, 1.0):
+            near = high & (np.abs(local[:, axis] - sign * level.half[axis]) <= 0.02)
+            slices = np.floor((local[near, other] + level.half[other]) / step).astype(np.int64)
+            total = int(np.ceil(2.0 * level.half[other] / step))
+            covered = len(np.unique(slices[(slices >= 0) & (slices < total)]))
+            if total >= 5 and covered >= share * total:
+                out.append(2.0 * float(level.half[other]))
+    return out
 
 
 def _ratio_conf(value: float, threshold: float) -> float:

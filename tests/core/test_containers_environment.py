@@ -16,7 +16,7 @@ import pytest
 from graspd.candidates import search_hands
 from graspd.classifier import DEFAULT_CASCADE_MODEL, default_model_name, load_model
 from graspd.detector import Detection, DetectionParams, GraspDetector, environment_conflicts
-from graspd.environment import Label
+from graspd.environment import EnvironmentParams, Label
 from graspd.hand import HandGeometry
 from graspd.occlusion import hand_samples
 from graspd.selection import feasible_mask
@@ -167,3 +167,18 @@ def test_unknown_space_allowed_reproduces_the_seen_points_only_check(hidden_scen
     assert np.isnan(allowed.unknown_share).all()
     avoided, _ = det.search(prep, prep.sampling, DetectionParams(num_samples=200, use_classifier=False), HAND)
     assert 0 < len(avoided) < len(allowed)
+
+
+def test_walls_the_stage_misses_are_said_not_kept_silently() -> None:
+    """With wall finding switched off, the raised tray floor's edges are lined by wall points kept as objects:
+    the answer warns container_as_object; with the default stage it finds the walls and warns of nothing."""
+    world, cloud = _scene(_container("tray", floor_height=0.02))
+    try:
+        ws = world.workspace()
+        blind = EnvironmentParams(wall_rounds=0, rim_min_length=10.0)
+        missed = GraspDetector(None, HAND).prepare(cloud, DetectionParams(workspace=ws, environment=blind), HAND)
+        found = GraspDetector(None, HAND).prepare(cloud, DetectionParams(workspace=ws), HAND)
+    finally:
+        world.close()
+    assert [w.code for w in missed.environment.warnings] == ["container_as_object"]
+    assert found.environment.warnings == () and [s.kind for s in found.environment.surfaces].count("wall") >= 3
