@@ -672,7 +672,7 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
                 walls.append(box)
                 conf = _ratio_conf(length, min_length) * (1.0 if stands else 0.4)
                 surfaces.append(Surface("wall", plane, box, (length, top), count, conf))
-                if not stands:
+                if not stands and not any(w.code == "environment_unsure" for w in warnings):
                     warnings.append(DetectionWarning(
                         "environment_unsure", f"a vertical surface {length:.2f} m long does not stand on any "
                         "support level found; it is treated as environment (too large to grasp), but the "
