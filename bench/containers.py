@@ -279,7 +279,15 @@ def scene_pictures(path: Path, styles: list[str], setting_for: dict[str, Setting
         axes[0, col].axis("off")
         ax.set_title(f"{detector.name}: top {len(top)} ({sum(v == 'ok' for v in verdicts)} pass); "
                      f"{len(cloud)} points", fontsize=9)
-    fig.tight_layout()
+    from matplotlib.lines import Line2D  # noqa: PLC0415
+
+    handles = [Line2D([], [], ls="", marker="o", ms=4, color="#1f4e9c", label="object points (true meshes)"),
+               Line2D([], [], ls="", marker="o", ms=4, color="#999999",
+                      label="container and table points (grey: darker is higher)"),
+               Line2D([], [], color="#1a9641", lw=1.6, label="gripper (number = rank): passes the analytic check"),
+               Line2D([], [], color="#d7191c", lw=1.6, label="gripper: fails it (environment, collision, no pinch)")]
+    fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0.0, 0.06, 1.0, 1.0))
     fig.savefig(path, dpi=80)
     plt.close(fig)
 
