@@ -756,8 +756,9 @@ def _apply_level(lv: Level, up: F64, base_height: float, pts: F64, labels: NDArr
 def find_inner_floor(points: F64, normals: F64, up: F64, support: Plane, wall_boxes: list[Box],
                      labels: NDArray[np.int8], params: EnvironmentParams, min_extent: float) -> Level | None:
     """A container's floor the level search missed: the lowest well-populated height of up-facing object points
-    inside the rectangle the walls enclose, between the support and 6 cm above it, spanning at least
-    0.6 x min_extent both ways (objects rest on the floor, so nothing of theirs lies below it)."""
+    inside the rectangle the walls enclose, between the support and 6 cm above it, one connected surface spanning
+    at least 0.6 x min_extent both ways and covering level_min_fill of the enclosure (objects rest on the floor,
+    so nothing of theirs lies below it)."""
     a2 = _in_plane_axes(up)
     corners = np.concatenate([(b.centre + (np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
                                                       for sz in (-1, 1)]) * b.half_extents) @ b.rotation.T) @ a2.T
@@ -779,11 +780,11 @@ def find_inner_floor(points: F64, normals: F64, up: F64, support: Plane, wall_bo
         if len(on) < params.level_min_points:
             continue
         xy = points[on] @ a2.T
-        island, _ = _largest_island(xy)
+        island, cells = _largest_island(xy)
         xy = xy[island]
         spans = (_robust_span(xy[:, 0]), _robust_span(xy[:, 1]))
-        if min(spans) < 0.6 * min_extent:
-            continue
+        if min(spans) < 0.6 * min_extent or cells < params.level_min_fill * float(np.prod(2.0 * half / 0.01)):
+            continue  # too small a share of the container to be its floor: flat objects' tops
         plane = Plane(support.normal, support.offset - height_above)
         height = float(np.median(points[on[island]] @ up))
         return Level(plane, height, centre, axes, half, spans, int(island.sum()), 1.0)
