@@ -59,6 +59,7 @@ from numpy.typing import NDArray  # noqa: E402
 import clutter  # noqa: E402  (bench/clutter.py: service start, detectors, round log, formatting)
 from graspd.grasp import GraspSet  # noqa: E402
 from graspd.hand import HandGeometry  # noqa: E402
+from graspd.progress import Progress  # noqa: E402
 from graspd.sim.containers import (  # noqa: E402
     HELD_OUT_STYLES,
     SPLITS,
@@ -381,13 +382,16 @@ def main(argv: list[str] | None = None) -> int:
                     clutter.record_round(log, spec, setting, out[0], precision=out[1])
                     done[job_seed] = {"round": out[0].to_dict(), "precision": out[1]}
 
-                if args.jobs > 1:
-                    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-                        for j, out in zip(jobs, pool.map(_one_round, jobs), strict=True):
+                pool = ProcessPoolExecutor(max_workers=args.jobs) if args.jobs > 1 else None
+                finished = pool.map(_one_round, jobs) if pool is not None else map(_one_round, jobs)
+                try:
+                    with Progress(len(jobs), spec, "round") as bar:  # a bar on a terminal, a line a minute in logs
+                        for j, out in zip(jobs, finished, strict=True):
                             keep(j[-1], out)
-                else:
-                    for j in jobs:
-                        keep(j[-1], _one_round(j))
+                            bar.update(1)
+                finally:
+                    if pool is not None:
+                        pool.shutdown()
                 results = [RoundResult(**done[s]["round"]) for s in seeds]
                 precision = [done[s]["precision"] for s in seeds]
                 summary, psum = summarize(results), precision_summary(precision)
