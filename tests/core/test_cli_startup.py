@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from graspd.classifier import default_models_dir
+from graspd.classifier import default_model_name, default_models_dir
 from graspd.cli import LAZY_SUBCOMMANDS, build_parser, main
 
 #: Modules whose import costs most of a second; `graspd --help` must not load any of them.
@@ -81,18 +81,18 @@ def test_empty_or_missing_models_dir_exits_nonzero(real_data: Path, tmp_path: Pa
 
 def test_a_model_that_cannot_load_exits_nonzero(real_data: Path, tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
-    shipped = default_models_dir()
-    shutil.copy(shipped / "scene15.json", tmp_path / "scene15.json")
-    (tmp_path / "scene15.onnx").write_bytes((shipped / "scene15.onnx").read_bytes()[:200])  # truncated
+    shipped, name = default_models_dir(), default_model_name()
+    shutil.copy(shipped / f"{name}.json", tmp_path / f"{name}.json")
+    (tmp_path / f"{name}.onnx").write_bytes((shipped / f"{name}.onnx").read_bytes()[:200])  # truncated
     rc, err = _detect(real_data / "krylon.pcd", tmp_path, capsys)
-    assert rc != 0 and "scene15" in err and "restore" in err
+    assert rc != 0 and name in err and "restore" in err
     # the default model absent, another one there: say which are there instead of running unscored
-    (tmp_path / "scene15.onnx").unlink()
-    (tmp_path / "scene15.json").unlink()
+    (tmp_path / f"{name}.onnx").unlink()
+    (tmp_path / f"{name}.json").unlink()
     for suffix in (".onnx", ".json"):
         shutil.copy(shipped / f"generic15{suffix}", tmp_path / f"generic15{suffix}")
     rc, err = _detect(real_data / "krylon.pcd", tmp_path, capsys)
-    assert rc != 0 and "'scene15' is not in" in err and "generic15" in err and "--model" in err
+    assert rc != 0 and f"'{name}' is not in" in err and "generic15" in err and "--model" in err
 
 
 def test_empty_models_dir_through_the_entry_point(real_data: Path, tmp_path: Path) -> None:

@@ -61,7 +61,7 @@ class MeanScorer:
 def test_detection_does_not_depend_on_the_thread_budget(monkeypatch: pytest.MonkeyPatch, cores: int) -> None:
     cloud = warmup_cloud()
     # no environment model: open3d's RANSAC plane fit runs on OpenMP threads and varies a little between runs
-    params = DetectionParams(num_samples=120, score_batch=300, environment=EnvironmentParams(mode="none"))
+    params = DetectionParams(num_samples=200, score_batch=300, environment=EnvironmentParams(mode="none"))
     monkeypatch.setattr(parallel.THREADS, "cores", 1)
     serial = GraspDetector(MeanScorer()).detect(cloud, params)
     monkeypatch.setattr(parallel.THREADS, "cores", cores)

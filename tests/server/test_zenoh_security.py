@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from fixtures import box_top_grasp
+from fixtures import KRYLON_VIEWPOINT, box_top_grasp
 from graspd.cloud import ViewpointCloud
 from graspd.server.app import create_app
 from graspd.server.engine import parse_request
@@ -180,7 +180,7 @@ def test_stream_without_the_token_is_dropped(guarded: tuple[TestClient, str], kr
         got.append(json.loads(sample.payload.to_bytes()))
         done.set()
 
-    payload = json.dumps({"cloud": {"points": krylon.points.tolist(), "viewpoints": [[0, 0, 0]]},
+    payload = json.dumps({"cloud": {"points": krylon.points.tolist(), "viewpoints": [list(KRYLON_VIEWPOINT)]},
                           "num_samples": 20}).encode()
     with zenoh.open(client_config(connect=[endpoint])) as session, \
             ZenohGraspClient(connect=[endpoint], timeout=30, token=TOKEN) as robot:

@@ -65,7 +65,7 @@ def test_a_mesh_in_metres_is_read_centred_with_its_size(tmp_path: Path) -> None:
     ("wide.ply", "wide", "aperture"),
     ("cloud.ply", "points", "no triangles"),
     ("empty.obj", b"", "empty"),
-    ("junk.stl", b"not a mesh at all", "no triangles"),
+    ("junk.stl", b"not a mesh at all", "no triangles|declaring 0 triangles"),
     ("nan.obj", b"v 0 0 0\nv 0.05 0 0\nv 0 nan 0\nf 1 2 3\n", "non-finite"),
     ("bad_index.obj", b"v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nf 1 2 9\n", "no triangles|index"),
     ("box.step", b"ISO-10303-21;", ".obj, .stl, .ply"),
