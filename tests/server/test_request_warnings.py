@@ -5,7 +5,6 @@ same codes and sentences over HTTP JSON, a PCD upload and Zenoh."""
 from __future__ import annotations
 
 import json
-import socket
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -17,17 +16,12 @@ from fastapi.testclient import TestClient
 from graspd.cli import main as cli_main
 from graspd.cloud_io import read_cloud
 from graspd.server.app import create_app
+from graspd.server.runner import free_port
 from graspd.server.settings import Settings
 from graspd_client import Grasps, build_detect_request
 from graspd_client.zenoh_client import ZenohGraspClient
 
 SAMPLES = 100
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +33,7 @@ def mug_path(real_data: Path) -> Path:
 def server(make_settings: Callable[..., Settings], models_and_default: tuple[Path, str]
            ) -> Iterator[tuple[TestClient, str]]:
     """A scored app (the shipped models) with its Zenoh node listening on a free local port."""
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     settings = make_settings(zenoh_enabled=True, zenoh_listen=[endpoint], zenoh_instance="warn",
                              models_dir=models_and_default[0])
     with TestClient(create_app(settings)) as c:
