@@ -125,14 +125,14 @@ async def viewer(request: Request, state: State) -> HTMLResponse:
             state.engine.release()
             raise
         q = request.query_params
-        query, viewpoints = {k: q[k] for k in q}, q.getlist("viewpoint")
+        query, viewpoints, poses = {k: q[k] for k in q}, q.getlist("viewpoint"), q.getlist("camera_pose")
         if query.get("method", "gpd") != "gpd":
             state.engine.release()
             raise Problem(422, "the viewer draws method \"gpd\" detections", "method")
         captured: dict[str, Any] = {}
 
         def parse() -> DetectRequest:
-            captured["req"] = parse_body(data, content_type, query, viewpoints)
+            captured["req"] = parse_body(data, content_type, query, viewpoints, poses)
             return captured["req"]
 
         def keep(det: Detection | TemplateDetection, cloud: ViewpointCloud, hand: HandGeometry) -> None:
