@@ -544,6 +544,13 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     return walls
 
 
+def _freestanding_sheet(box: Box, length: float, min_length: float, p: EnvironmentParams) -> bool:
+    """Whether a lone wall (no other wall, no raised floor) is too short to be more than a long object standing
+    on the table: its gap-free run is under 2.5 x min_length (a container shows two walls or a floor, a fence
+    or a backboard runs longer)."""
+    return bool(length < 2.5 * min_length)
+
+
 def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0.015, share: float = 0.7) -> bool:
     """Whether a vertical patch has a straight, level top as a wall has: in step-wide (m) slices along it, the
     highest point lies within tolerance (m) of the median top in at least share of the slices."""
@@ -667,6 +674,9 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
             min_length = p.wall_min_length if p.wall_min_length is not None else 1.5 * hand.hand_outer_diameter
             found = find_walls(pts, normals, cams, support, p, min_length, rng, labels == Label.OBJECT,
                                tuple(level_heights))
+            if len(found) == 1 and len(level_heights) == 1 and _freestanding_sheet(found[0][0], found[0][2],
+                                                                                  min_length, p):
+                found = []  # one short face standing alone on the table: a long object (a board, a box), not a wall
             for box, plane, length, count, top, stands in found:
                 labels[(labels == Label.OBJECT) & box.contains(pts, margin=0.003)] = Label.WALL
                 walls.append(box)
