@@ -6,7 +6,11 @@ Importable as `fixtures` (pyproject.toml: [tool.pytest.ini_options] pythonpath =
 
 from __future__ import annotations
 
+import socket
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from urllib.parse import urlparse
 
 import numpy as np
 import open3d as o3d
@@ -66,3 +70,26 @@ def krylon_camera_frame(points: np.ndarray) -> np.ndarray:
     """krylon.pcd's points in the frame of a camera at KRYLON_VIEWPOINT (axes kept): what a PointCloud2 or an
     upload without a viewpoint sends, the camera at the origin."""
     return points - np.asarray(KRYLON_VIEWPOINT, points.dtype)
+
+
+@contextmanager
+def connect(url: str, timeout: float = 10) -> Iterator[socket.socket]:
+    """A raw TCP connection to an http://host:port URL (for tests that speak HTTP/1.1 byte by byte)."""
+    u = urlparse(url)
+    with socket.create_connection((u.hostname, u.port), timeout=timeout) as s:
+        yield s
+
+
+def read_response(s: socket.socket) -> tuple[int, dict[str, str], bytes]:
+    """One HTTP/1.1 response (Content-Length framed) from a raw socket: status, headers (lower-case), body."""
+    data = b""
+    while b"\r\n\r\n" not in data:
+        chunk = s.recv(65536)
+        assert chunk, f"connection closed after {data!r}"
+        data += chunk
+    head, _, rest = data.partition(b"\r\n\r\n")
+    lines = head.decode().split("\r\n")
+    headers = {k.lower(): v.strip() for k, _, v in (line.partition(":") for line in lines[1:])}
+    while len(rest) < int(headers.get("content-length", 0)):
+        rest += s.recv(65536)
+    return int(lines[0].split()[1]), headers, rest

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from enum import IntEnum
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -85,6 +85,14 @@ class Box:
         if not np.isfinite(b).all() or np.any(b[:, 1] < b[:, 0]):
             raise ValueError("a box is [xmin, xmax, ymin, ymax, zmin, zmax] with each max >= its min")
         return Box(b.mean(axis=1), np.eye(3), (b[:, 1] - b[:, 0]) / 2.0)
+
+    #: Corner signs (8, 3) along the box axes, in the order corners() returns them.
+    CORNER_SIGNS: ClassVar[F64] = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
+                                           np.float64)
+
+    def corners(self) -> F64:
+        """The 8 corners (8, 3) of the box in the cloud frame (m), in the order of CORNER_SIGNS."""
+        return np.asarray(self.centre + (self.CORNER_SIGNS * self.half_extents) @ self.rotation.T)
 
     def contains(self, points: NDArray[np.floating], margin: float = 0.0) -> NDArray[np.bool_]:
         """Whether each point (N,3) lies inside the box grown by margin (m)."""
@@ -373,8 +381,7 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
     bin_w = params.plane_distance
     hu = h[upf]
     lo = float(hu.min()) - bin_w
-    counts = np.bincount(((hu - lo) / bin_w).astype(np.int64))
-    smooth = counts + np.concatenate([[0], counts[:-1]]) + np.concatenate([counts[1:], [0]])
+    smooth = _smoothed_counts(hu - lo, bin_w)
     axes2 = _in_plane_axes(up)
     levels: list[Level] = []
     ref_normal: F64 | None = None
@@ -436,6 +443,13 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
         ref_normal = plane.normal if ref_normal is None else ref_normal
     levels.sort(key=lambda lv: lv.height)
     return levels[:1] + [lv for lv in levels[1:] if lv.fill >= params.level_min_fill]
+
+
+def _smoothed_counts(heights: F64, bin_w: float) -> NDArray[np.int64]:
+    """Counts of non-negative heights (m) in bin_w-wide bins from 0, each summed with its two neighbours: the
+    histogram whose peaks are candidate levels."""
+    counts = np.bincount((heights / bin_w).astype(np.int64))
+    return np.asarray(counts + np.concatenate([[0], counts[:-1]]) + np.concatenate([counts[1:], [0]]))
 
 
 def _largest_island(xy: F64, cell: float = 0.01) -> tuple[NDArray[np.bool_], int]:
@@ -770,9 +784,7 @@ def find_inner_floor(points: F64, normals: F64, up: F64, support: Plane, wall_bo
     at least 0.6 x min_extent both ways and covering level_min_fill of the enclosure (objects rest on the floor,
     so nothing of theirs lies below it)."""
     a2 = _in_plane_axes(up)
-    corners = np.concatenate([(b.centre + (np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
-                                                      for sz in (-1, 1)]) * b.half_extents) @ b.rotation.T) @ a2.T
-                              for b in wall_boxes])
+    corners = np.concatenate([b.corners() @ a2.T for b in wall_boxes])
     centre, axes, half = _min_area_rectangle(corners)
     local = (points @ a2.T - centre) @ axes.T
     h = support.distance(points)
@@ -781,8 +793,7 @@ def find_inner_floor(points: F64, normals: F64, up: F64, support: Plane, wall_bo
     if cand.sum() < 3 * params.level_min_points:
         return None
     bin_w = params.plane_distance
-    counts = np.bincount((h[cand] / bin_w).astype(np.int64))
-    smooth = counts + np.concatenate([[0], counts[:-1]]) + np.concatenate([counts[1:], [0]])
+    smooth = _smoothed_counts(h[cand], bin_w)
     for b in np.flatnonzero(smooth >= params.level_min_points):  # lowest first: objects rest on the floor
         near = cand & (np.abs(h - (b + 0.5) * bin_w) <= 1.5 * bin_w)
         height_above = float(np.median(h[near]))

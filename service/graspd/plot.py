@@ -59,8 +59,7 @@ def gripper_segments(grasps: GraspSet, hand: HandGeometry, stem: float = 0.04) -
 
 def box_edges(box: Box) -> F64:
     """The 12 edges (12, 2, 3) of an oriented box in the cloud frame (m)."""
-    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64)
-    corners = box.centre + (signs * box.half_extents) @ box.rotation.T
+    signs, corners = Box.CORNER_SIGNS, box.corners()
     pairs = [(a, b) for a in range(8) for b in range(a + 1, 8) if np.sum(signs[a] != signs[b]) == 1]
     return np.stack([corners[[a, b]] for a, b in pairs])
 

@@ -8,13 +8,12 @@ import json
 import logging
 import socket
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from typing import Any
-from urllib.parse import urlparse
 
 import pytest
 
+from fixtures import connect, read_response
 from graspd.server.app import create_app
 from graspd.server.engine import parse_request
 from graspd.server.logs import RequestIdFilter
@@ -22,28 +21,6 @@ from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
 
 FAST = {"http_keep_alive_s": 1.0, "http_header_timeout_s": 1.5, "http_body_timeout_s": 1.0}
-
-
-@contextmanager
-def connect(url: str) -> Iterator[socket.socket]:
-    u = urlparse(url)
-    with socket.create_connection((u.hostname, u.port), timeout=10) as s:
-        yield s
-
-
-def read_response(s: socket.socket) -> tuple[int, dict[str, str], bytes]:
-    """One HTTP/1.1 response (Content-Length framed) from a raw socket."""
-    data = b""
-    while b"\r\n\r\n" not in data:
-        chunk = s.recv(65536)
-        assert chunk, f"connection closed after {data!r}"
-        data += chunk
-    head, _, rest = data.partition(b"\r\n\r\n")
-    lines = head.decode().split("\r\n")
-    headers = {k.lower(): v.strip() for k, _, v in (line.partition(":") for line in lines[1:])}
-    while len(rest) < int(headers.get("content-length", 0)):
-        rest += s.recv(65536)
-    return int(lines[0].split()[1]), headers, rest
 
 
 def closed_after(s: socket.socket, limit: float) -> float:

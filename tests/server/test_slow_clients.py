@@ -7,40 +7,19 @@ from __future__ import annotations
 import json
 import socket
 import time
-from collections.abc import Callable, Iterator
-from contextlib import ExitStack, contextmanager
-from urllib.parse import urlparse
+from collections.abc import Callable
+from contextlib import ExitStack
 
+from fixtures import connect, read_response
 from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
-
-
-@contextmanager
-def connect(url: str, timeout: float = 10) -> Iterator[socket.socket]:
-    u = urlparse(url)
-    with socket.create_connection((u.hostname, u.port), timeout=timeout) as s:
-        yield s
-
-
-def read_response(s: socket.socket) -> tuple[int, bytes]:
-    data = b""
-    while b"\r\n\r\n" not in data:
-        chunk = s.recv(65536)
-        assert chunk, f"connection closed after {data!r}"
-        data += chunk
-    head, _, rest = data.partition(b"\r\n\r\n")
-    length = next((int(line.split(b":")[1]) for line in head.split(b"\r\n") if line.lower().startswith(
-        b"content-length:")), 0)
-    while len(rest) < length:
-        rest += s.recv(65536)
-    return int(head.split()[1]), rest
 
 
 def healthz_seconds(url: str) -> float:
     t0 = time.monotonic()
     with connect(url, timeout=5) as s:
         s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
-        status, body = read_response(s)
+        status, _, body = read_response(s)
     assert status == 200 and json.loads(body) == {"status": "ok"}
     return time.monotonic() - t0
 
