@@ -8,7 +8,7 @@ Writes OUT/classifier.md (tables) and PNG precision-recall curves:
 
   PYTHONPATH=service .venv/bin/python bench/classifier.py --dataset DATA --models-dir models --out models/evaluation
 
-Issue 13 adds the top of the ranking on cluttered scenes (graspd.training.scene_eval), measured against the
+Issue 13 adds the top of the ranking on cluttered scenes (graspd_lab.training.scene_eval), measured against the
 true meshes: precision@1/5/10 per scene of the service's answer (defaults, the model under test) and of the
 classifier's own score ranking, on scenes of objects no training scene holds, and a reliability diagram with
 the expected calibration error of the scores on those scenes' candidates:
@@ -31,17 +31,17 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-
-from graspd.classifier import OnnxGraspClassifier, available_models, load_model  # noqa: E402
-from graspd.training.dataset import CATEGORIES, derive_images, read_manifest  # noqa: E402
-from graspd.training.evaluate import (  # noqa: E402
+from graspd_lab.training.dataset import CATEGORIES, derive_images, read_manifest  # noqa: E402
+from graspd_lab.training.evaluate import (  # noqa: E402
     classification_metrics,
     expected_calibration_error,
     pr_curve,
     reliability_bins,
 )
-from graspd.training.rows import load_rows  # noqa: E402
+from graspd_lab.training.rows import load_rows  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+
+from graspd.gpd.classifier import OnnxGraspClassifier, available_models, load_model  # noqa: E402
 
 REPRESENTATIONS = ("15", "12", "3", "herzog")
 CATEGORY_MODELS = {"box": "box15", "cylinder": "cylinder15"}
@@ -121,7 +121,7 @@ def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str
                   ) -> tuple[list[str], dict[str, float]]:
     """The issue-13 tables: precision@k on evaluation scenes for each model, and their reliability diagram.
     A name FIRST+FULL is the cascade (issue 15): FIRST scores every candidate, FULL the kept ones."""
-    from graspd.training.scene_eval import SceneEvalParams, evaluate_scenes, evaluation_views  # noqa: PLC0415
+    from graspd_lab.training.scene_eval import SceneEvalParams, evaluate_scenes, evaluation_views  # noqa: PLC0415
 
     t0 = time.perf_counter()
     views = evaluation_views(SceneEvalParams(scenes=scenes, objects=objects))
@@ -168,7 +168,7 @@ def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str
 def scene_data_main(args: argparse.Namespace, ev: Evaluator) -> int:
     """Tables for a scene dataset: every --scene-models model on the view and object splits' test parts
     (accuracy, RA99P, AP, ECE, precision-recall curves), then the scene precision@k section if --scenes."""
-    lines = [f"# Grasp classifier evaluation on scene data\n\nDataset: `{args.dataset}` (graspd.training.scene_data); "
+    lines = [f"# Grasp classifier evaluation on scene data\n\nDataset: `{args.dataset}` (graspd_lab.training.scene_data); "
              "test parts of its splits: view = new scenes and views of training objects, object = scenes of objects "
              "no training scene holds.  RA99P = recall at 99% precision; ECE = expected calibration error "
              f"(10 bins); s per 1k = onnxruntime on {args.threads} threads, median of 7, load average "

@@ -1,19 +1,19 @@
 """Containers benchmark (issue 22): the clutter protocol and precision@1/5 on the container family's held-out
 styles, graspd beside the top-down baseline, one table per style and a headline over held-out styles only.
 
-Scenes: graspd.sim.containers (the split is written down there, once): each round's container is drawn
+Scenes: graspd_lab.sim.containers (the split is written down there, once): each round's container is drawn
 from the seed (scene_container: style, size, walls, floor height, yaw), the held-out test objects
 (random_urdfs 900-999) are dropped into it, and the passive cameras see it with the table around it.
 Per round and detector:
 
-  (a) the clutter protocol (graspd.sim.protocol.run_round, IJRR Table 1): detect, execute the first feasible
+  (a) the clutter protocol (graspd_lab.sim.protocol.run_round, IJRR Table 1): detect, execute the first feasible
       grasp with the simulated hand, repeat until the container is empty or the stopping rules end the
       round; success = successes / attempts, cleared = objects lifted out / objects in the scene, both with
       95% bootstrap intervals over rounds.  A hand that touches a container body or the table on its way in
       is a collision.
   (b) precision@1 / @5 of the first detection of the scene (the same cloud the round starts with): each of
       the top 5 returned grasps, best first, is checked against the true meshes with the training labels
-      (graspd.training.labels.label_grasps with scene_labels(): contacts antipodal within friction cones on
+      (graspd_lab.training.labels.label_grasps with scene_labels(): contacts antipodal within friction cones on
       one object, nothing hit by the hand or on its approach path), and fails as well when the open hand,
       swept along its approach path, enters a static body (walls, floor slab, platform, ceiling, table) by
       more than 2 mm or a finger's first contact is a static body.  Failure classes: "environment" (touches
@@ -54,13 +54,7 @@ for sub in ("service", "client", "bench"):
         sys.path.insert(0, str(REPO / sub))
 
 import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-
-import clutter  # noqa: E402  (bench/clutter.py: service start, detectors, round log, formatting)
-from graspd.grasp import GraspSet  # noqa: E402
-from graspd.hand import HandGeometry  # noqa: E402
-from graspd.progress import Progress  # noqa: E402
-from graspd.sim.containers import (  # noqa: E402
+from graspd_lab.sim.containers import (  # noqa: E402
     HELD_OUT_STYLES,
     SPLITS,
     STYLES,
@@ -68,8 +62,8 @@ from graspd.sim.containers import (  # noqa: E402
     TUNED_ON,
     scene_container,
 )
-from graspd.sim.detectors import SimDetector  # noqa: E402
-from graspd.sim.protocol import (  # noqa: E402
+from graspd_lab.sim.detectors import SimDetector  # noqa: E402
+from graspd_lab.sim.protocol import (  # noqa: E402
     SENSINGS,
     RoundResult,
     Setting,
@@ -79,12 +73,18 @@ from graspd.sim.protocol import (  # noqa: E402
     setting_scene,
     summarize,
 )
-from graspd.sim.sensing import observe, render_rgb  # noqa: E402
-from graspd.sim.world import SimWorld  # noqa: E402
-from graspd.training.labels import label_grasps  # noqa: E402
-from graspd.training.scene_data import scene_labels  # noqa: E402
-from graspd.training.scene_eval import precision_at_k  # noqa: E402
-from graspd.world.noise import DepthNoise  # noqa: E402
+from graspd_lab.sim.sensing import observe, render_rgb  # noqa: E402
+from graspd_lab.sim.world import SimWorld  # noqa: E402
+from graspd_lab.training.labels import label_grasps  # noqa: E402
+from graspd_lab.training.scene_data import scene_labels  # noqa: E402
+from graspd_lab.training.scene_eval import precision_at_k  # noqa: E402
+from graspd_lab.world.noise import DepthNoise  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+
+import clutter  # noqa: E402  (bench/clutter.py: service start, detectors, round log, formatting)
+from graspd.core.grasp import GraspSet  # noqa: E402
+from graspd.core.hand import HandGeometry  # noqa: E402
+from graspd.core.progress import Progress  # noqa: E402
 
 DETECTORS = ("gpd", "baseline", "gpd-noclass")
 TOP_K = 5
@@ -206,7 +206,7 @@ def markdown(per_style: dict[str, dict[str, tuple[Summary, dict[str, Any]]]],
         f"- commit: `{meta['commit']}`, date: {meta['date']}, {meta['cpus']} CPUs, jobs: {meta['jobs']}",
         f"- gpd: {meta['gpd']}; models: " + (", ".join(f"{k}: {v}" for k, v in meta["models"].items() if v)
                                             or "none"),
-        f"- split: {meta['split']} parameter ranges (graspd.sim.containers.RANGES); held-out styles "
+        f"- split: {meta['split']} parameter ranges (graspd_lab.sim.containers.RANGES); held-out styles "
         f"{', '.join(HELD_OUT_STYLES)}; training styles {', '.join(TRAINING_STYLES)} are marked \"tuned on\"",
         f"- scenes: {meta['objects']} held-out objects (random_urdfs 900-999) dropped into each round's container, "
         f"{meta['sensing']} cameras, benchmark depth noise; workspace = container + 5 cm of table",
@@ -242,7 +242,7 @@ def scene_pictures(path: Path, styles: list[str], setting_for: dict[str, Setting
     import matplotlib.pyplot as plt  # noqa: PLC0415
     from matplotlib.collections import LineCollection  # noqa: PLC0415
 
-    from graspd.plot import gripper_segments  # noqa: PLC0415
+    from graspd.viz.plot import gripper_segments  # noqa: PLC0415
 
     fig, axes = plt.subplots(2, len(styles), figsize=(4.6 * len(styles), 8.6), squeeze=False)
     for col, style in enumerate(styles):
@@ -308,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rounds", type=int, default=30, help="rounds per style and detector (seeds seed..)")
     ap.add_argument("--split", choices=SPLITS, default="held_out", help="which parameter ranges the containers "
-                    "are drawn from (graspd.sim.containers.RANGES)")
+                    "are drawn from (graspd_lab.sim.containers.RANGES)")
     ap.add_argument("--styles", nargs="+", default=None, help=f"container styles {STYLES} (default: the held-out "
                     "styles; with --split training, the training styles)")
     ap.add_argument("--detectors", default="gpd,baseline", help=f"comma-separated, of {DETECTORS}")

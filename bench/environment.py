@@ -30,20 +30,20 @@ for sub in ("service", "client"):
 
 import numpy as np  # noqa: E402
 
-from graspd.detector import DetectionParams, GraspDetector  # noqa: E402
-from graspd.environment import model_environment  # noqa: E402
-from graspd.hand import HandGeometry  # noqa: E402
-from graspd.occlusion import unknown_share  # noqa: E402
-from graspd.preprocess import PreprocessParams, preprocess  # noqa: E402
-from graspd.scene import Scene, unobserved_grid  # noqa: E402
+from graspd.core.hand import HandGeometry  # noqa: E402
+from graspd.gpd.detector import DetectionParams, GraspDetector  # noqa: E402
+from graspd.gpd.environment import model_environment  # noqa: E402
+from graspd.gpd.occlusion import unknown_share  # noqa: E402
+from graspd.gpd.preprocess import PreprocessParams, preprocess  # noqa: E402
+from graspd.gpd.scene import Scene, unobserved_grid  # noqa: E402
 
 HAND = HandGeometry()
 TARGET_MS = 60.0
 
 
 def baseline_environment(commit: str) -> types.ModuleType:
-    """graspd.environment as it was at commit (git show), loaded as a module of the graspd package."""
-    source = subprocess.run(["git", "-C", str(REPO), "show", f"{commit}:service/graspd/environment.py"],
+    """graspd.gpd.environment as it was at commit (git show), loaded as a module of the graspd package."""
+    source = subprocess.run(["git", "-C", str(REPO), "show", f"{commit}:service/graspd/gpd/environment.py"],
                             check=True, capture_output=True, text=True).stdout
     spec = importlib.util.spec_from_loader("graspd._environment_baseline", loader=None)
     assert spec is not None
@@ -64,18 +64,19 @@ def median_ms(fn: Any, repeats: int) -> float:
 
 
 def tabletop(points: int) -> Any:
-    from graspd.world.scenes import cluttered_tabletop, subsample  # noqa: PLC0415
+    from graspd_lab.world.scenes import cluttered_tabletop, subsample  # noqa: PLC0415
 
     return subsample(cluttered_tabletop(num_objects=8, seed=1), points, seed=1), None
 
 
 def container_scene() -> Any:
-    from graspd.sim.containers import sample_container  # noqa: PLC0415 - pybullet
-    from graspd.sim.sensing import observe  # noqa: PLC0415
-    from graspd.sim.world import build_scene  # noqa: PLC0415
-    from graspd.world.cameras import sensing_cameras  # noqa: PLC0415
-    from graspd.world.noise import DepthNoise  # noqa: PLC0415
-    from graspd.world.objects import TRAINING_URDFS  # noqa: PLC0415
+    from graspd_lab.sim.containers import sample_container  # noqa: PLC0415 - pybullet
+    from graspd_lab.sim.sensing import observe  # noqa: PLC0415
+    from graspd_lab.sim.world import build_scene  # noqa: PLC0415
+    from graspd_lab.world.noise import DepthNoise  # noqa: PLC0415
+    from graspd_lab.world.objects import TRAINING_URDFS  # noqa: PLC0415
+
+    from graspd.core.camera import sensing_cameras  # noqa: PLC0415
 
     spec = sample_container("tray", np.random.default_rng(3), "training")
     world = build_scene("container", 6, 3, HAND, object_ids=tuple(TRAINING_URDFS[:300]), container=spec)

@@ -58,7 +58,7 @@ def detect_seconds(body: dict[str, Any]) -> float:
 
 def make_cloud(num_points: int, seed: int) -> Any:
     """A rendered cluttered tabletop (two cameras, depth noise) subsampled to num_points."""
-    from graspd.world.scenes import cluttered_tabletop, subsample
+    from graspd_lab.world.scenes import cluttered_tabletop, subsample
 
     return subsample(cluttered_tabletop(num_objects=8, seed=seed), num_points, seed=seed)
 
@@ -317,9 +317,9 @@ def run(args: argparse.Namespace, out: Path, results: Path) -> int:
             time.sleep(0.5)
 
         # in-process detection of the same cloud with the same options (this process, no transport)
-        from graspd.cloud import ViewpointCloud
-        from graspd.server.engine import parse_request
-        from graspd.server.registry import ModelRegistry
+        from graspd.core.cloud import ViewpointCloud
+        from graspd.server.services.engine import parse_request
+        from graspd.server.services.registry import ModelRegistry
         from graspd.server.settings import Settings
 
         registry = ModelRegistry.load(Settings().resolved_models_dir())

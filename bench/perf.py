@@ -1,7 +1,7 @@
 """Reproduce Table 2 of the IJRR paper on this machine: time to generate and to encode 1k candidates.
 
 Clouds: a cluttered tabletop of procedural objects rendered by the project's own depth-camera model
-(graspd.world.scenes.cluttered_tabletop: two cameras 53 degrees apart, Kinect-like noise), subsampled
+(graspd_lab.world.scenes.cluttered_tabletop: two cameras 53 degrees apart, Kinect-like noise), subsampled
 uniformly to the paper's ~39k and ~66k points; 3 mm voxels, as GPD.  Also: the real table_mug.pcd
 (500 samples, as in the reference C++ run), growth with cloud size (10k -> 300k points) and with the
 number of samples, and peak memory.  Prints markdown tables, writes bench/results/perf.md and perf.png.
@@ -29,17 +29,18 @@ import tempfile
 import time
 from pathlib import Path
 
-from graspd.candidates import SamplingParams, search_hands
-from graspd.cloud import ViewpointCloud
-from graspd.cloud_io import read_cloud
-from graspd.detector import Detection, DetectionParams, GraspDetector
-from graspd.environment import Environment, EnvironmentParams, model_environment
-from graspd.hand import HandGeometry
-from graspd.images import encode_images
-from graspd.preprocess import PreprocessParams, preprocess
-from graspd.progress import track
-from graspd.scene import Scene
-from graspd.world.scenes import cluttered_tabletop, subsample
+from graspd_lab.world.scenes import cluttered_tabletop, subsample
+
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.core.progress import track
+from graspd.gpd.candidates import SamplingParams, search_hands
+from graspd.gpd.detector import Detection, DetectionParams, GraspDetector
+from graspd.gpd.environment import Environment, EnvironmentParams, model_environment
+from graspd.gpd.images import encode_images
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.gpd.scene import Scene
+from graspd.io.cloud_files import read_cloud
 
 HAND = HandGeometry()
 REPO = Path(__file__).resolve().parents[1]
@@ -58,7 +59,7 @@ def _median_time(fn, repeats: int) -> tuple[float, object]:
 
 def _load_scorers() -> dict[str, object]:
     """The shipped default classifier (fast network) and the paper's LeNet, when present in models/."""
-    from graspd.classifier import available_models, default_model_name, load_model
+    from graspd.gpd.classifier import available_models, default_model_name, load_model
 
     names = [n for n in (default_model_name(), "lenet15") if n in available_models()]
     if not names:
@@ -300,7 +301,7 @@ def main() -> None:
             "preprocess", "environment", "scene", "unobserved"]
     emit(table(rows, cols))
     emit("\nTargets (2 cores): sample 1k <= 0.3 s, encode 1k 15-channel <= 0.3 s at 66k points; the environment "
-         "stage (support plane, walls: graspd.environment.model_environment) <= 0.05 s at 66k points. "
+         "stage (support plane, walls: graspd.gpd.environment.model_environment) <= 0.05 s at 66k points. "
          "Paper (4-core desktop + GPU): sample 1k 0.8 s / 1.7 s, classify 1k (15 ch) 4.3 s / 6.2 s at 39k / 66k.\n")
 
     if SHARED_MUG.exists():

@@ -33,7 +33,7 @@ def median_ms(values: list[float]) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from graspd.ros import Header, encode_cloud_sources
+    from graspd.io.ros import Header, encode_cloud_sources
     from graspd.server.runner import free_port, serve_in_thread
     from graspd.server.settings import Settings
     from graspd_client import ZenohGraspClient, build_detect_request

@@ -13,9 +13,9 @@ template it matched, as in the paper's Fig. 4).
 --http also serves the same library (graspd's app on a loopback port, one detect worker) and times each query
 as a robot sees it: GraspClient.detect(..., method="templates") round trips, with the server's own total.
 
-The paper's simulated experiments (scripted demonstrations in graspd.sim's pybullet world, (a) generalisation
+The paper's simulated experiments (scripted demonstrations in graspd_lab.sim's pybullet world, (a) generalisation
 to held-out objects, (b) improvement over time with failure feedback) run from here too, with the arguments of
-graspd.sim.experiments:
+graspd_lab.sim.experiments:
 
     PYTHONPATH=service:client .venv/bin/python bench/templates.py experiment a --demos 15 --objects 7 --tests 30
     PYTHONPATH=service:client .venv/bin/python bench/templates.py experiment b --trials 34 --object 905
@@ -31,19 +31,19 @@ import time
 from pathlib import Path
 
 import numpy as np
+from graspd_lab.world.meshes import table_mesh
+from graspd_lab.world.objects import sized_urdf_mesh as random_urdf_mesh
+from graspd_lab.world.render import render_cloud
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
-from graspd.cloud import ViewpointCloud
-from graspd.hand import HandGeometry
-from graspd.progress import track
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.core.progress import track
 from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
 from graspd.templates import TemplateDetector, TemplateError, TemplateLibrary, TemplateParams
 from graspd.templates.geometry import candidate_templates, prepare_scene
-from graspd.world.meshes import table_mesh
-from graspd.world.objects import sized_urdf_mesh as random_urdf_mesh
-from graspd.world.render import render_cloud
 from graspd_client import GraspClient
 
 CAMERA = np.array([[0.45, 0.1, 0.45]])
@@ -174,7 +174,7 @@ def plot(rows: list[tuple[str, int, dict[str, float]]], lib: TemplateLibrary, de
 def main() -> None:
     """Time template detection (or, with `experiment ...`, run a simulated experiment)."""
     if sys.argv[1:2] == ["experiment"]:
-        from graspd.sim import experiments  # noqa: PLC0415 - pybullet: only for the simulated experiments
+        from graspd_lab.sim import experiments  # noqa: PLC0415 - pybullet: only for the simulated experiments
 
         experiments.main(sys.argv[2:])
         return

@@ -26,10 +26,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "service"))
 
-from graspd.cloud import ViewpointCloud  # noqa: E402
-from graspd.cloud_io import read_cloud  # noqa: E402
-from graspd.detector import DetectionParams, GraspDetector  # noqa: E402
-from graspd.viewer import PLOT_ID, viewer_html  # noqa: E402
+from graspd.core.cloud import ViewpointCloud  # noqa: E402
+from graspd.gpd.detector import DetectionParams, GraspDetector  # noqa: E402
+from graspd.io.cloud_files import read_cloud  # noqa: E402
+from graspd.viz.viewer import PLOT_ID, viewer_html  # noqa: E402
 
 CLOUD = REPO.parent / "shared" / "data" / "real" / "table_mug.pcd"
 

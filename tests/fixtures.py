@@ -1,5 +1,5 @@
 """Scripted hand poses on the synthetic box scenes of the template tests (tests/conftest.py renders them with
-graspd.world): a top-down and a side grasp on a box, and the angle between two hand orientations.
+graspd_lab.world): a top-down and a side grasp on a box, and the angle between two hand orientations.
 Metres, world frame, z up; hand rotation columns [approach, binormal, axis] (DESIGN.md).
 
 Importable as `fixtures` (pyproject.toml: [tool.pytest.ini_options] pythonpath = ["tests"])."""
@@ -14,9 +14,8 @@ from urllib.parse import urlparse
 
 import numpy as np
 import open3d as o3d
+from graspd_lab.world.meshes import pose_from
 from numpy.typing import NDArray
-
-from graspd.world.meshes import pose_from
 
 F64 = NDArray[np.float64]
 

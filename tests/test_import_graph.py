@@ -1,5 +1,5 @@
 """The graspd import graph, read from the source with ast: no loops among its modules' top-level imports
-(the whole tree, and the template package counting every import), no import of graspd.sim by the templates,
+(the whole tree, and the template package counting every import), no import of graspd_lab.sim by the templates,
 the outcome store and database below the templates, and training reading outcomes without graspd.templates."""
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ def test_template_modules_import_no_loop() -> None:
 
 def test_templates_do_not_import_sim() -> None:
     for name, deps in graph(sorted((PACKAGE / "templates").glob("*.py"))).items():
-        assert not any(d == "graspd.sim" or d.startswith("graspd.sim.") for d in deps), name
+        assert not any(d == "graspd_lab.sim" or d.startswith("graspd_lab.sim.") for d in deps), name
 
 
 def test_outcome_store_and_database_do_not_import_templates() -> None:
@@ -105,7 +105,7 @@ def test_graspd_modules_import_no_loop_at_top_level() -> None:
     """No cycle among the imports every graspd module runs when it is imported (the lazy ones, inside
     functions, load the heavy optional stacks and are not counted)."""
     edges = graph(sorted(PACKAGE.rglob("*.py")), top_level_only=True)
-    assert {"graspd.server.app", "graspd.detector", "graspd.world.scenes", "graspd.outcomes"} <= edges.keys()
+    assert {"graspd.server.app", "graspd.gpd.detector", "graspd_lab.world.scenes", "graspd.store.outcomes"} <= edges.keys()
     assert find_cycle(edges) is None, find_cycle(edges)
 
 

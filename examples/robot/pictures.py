@@ -24,13 +24,13 @@ from typing import Any
 import numpy as np
 from fastapi.testclient import TestClient
 
-from graspd.cloud import ViewpointCloud
-from graspd.cloud_io import read_cloud
-from graspd.detector import DetectionParams, GraspDetector
-from graspd.frames import pose_matrix
-from graspd.grasp import GraspSet, Ranking
-from graspd.hand import HandGeometry
-from graspd.plot import plot_grasps
+from graspd.core.cloud import ViewpointCloud
+from graspd.io.cloud_files import read_cloud
+from graspd.gpd.detector import DetectionParams, GraspDetector
+from graspd.core.frames import pose_matrix
+from graspd.core.grasp import GraspSet, Ranking
+from graspd.core.hand import HandGeometry
+from graspd.viz.plot import plot_grasps
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd_client import build_detect_request

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from fixtures import KRYLON_VIEWPOINT
-from graspd.cloud import ViewpointCloud
-from graspd.cloud_io import read_cloud
+from graspd.core.cloud import ViewpointCloud
+from graspd.io.cloud_files import read_cloud
 from graspd.server.runner import free_port, serve_in_thread
 from graspd.server.settings import Settings
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from fixtures import KRYLON_VIEWPOINT
-from graspd.cloud import ViewpointCloud
+from graspd.core.cloud import ViewpointCloud
 from graspd.server.runner import free_port
 from graspd.server.settings import Settings
 from graspd_client import AsyncGraspClient, GraspClient, RequestRejected, ServerBusy, TransportError

@@ -8,10 +8,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+from graspd_lab.world.meshes import pose_from, rot_z
 
 from fixtures import box_top_grasp
 from graspd.server.settings import Settings
-from graspd.world.meshes import pose_from, rot_z
 from graspd_client import AsyncGraspClient, GraspClient, RequestRejected
 from graspd_client.zenoh_client import ZenohGraspClient
 

@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from graspd.cloud import ViewpointCloud
+from graspd.core.cloud import ViewpointCloud
 
 
 def _visible(points: np.ndarray, normals: np.ndarray, camera: np.ndarray,

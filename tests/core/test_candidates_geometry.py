@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from graspd.candidates import SamplingParams, darboux_frames, sample_candidates, search_hands
-from graspd.cloud import ViewpointCloud
-from graspd.hand import HandGeometry
-from graspd.preprocess import PreprocessParams, preprocess
-from graspd.scene import Scene
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.gpd.candidates import SamplingParams, darboux_frames, sample_candidates, search_hands
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.gpd.scene import Scene
 
 HAND = HandGeometry()
 

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from graspd.classifier import default_model_name, default_models_dir
-from graspd.cli import LAZY_SUBCOMMANDS, build_parser, main
+from graspd.cli.main import LAZY_SUBCOMMANDS, build_parser, main
+from graspd.gpd.classifier import default_model_name, default_models_dir
 
 #: Modules whose import costs most of a second; `graspd --help` must not load any of them.
 HEAVY = ("numpy", "scipy", "open3d", "onnxruntime", "fastapi", "pydantic", "torch", "matplotlib", "sqlalchemy",
@@ -22,7 +22,7 @@ HEAVY = ("numpy", "scipy", "open3d", "onnxruntime", "fastapi", "pydantic", "torc
 
 _PROBE = """
 import sys
-from graspd.cli import main
+from graspd.cli.main import main
 try:
     main([{arg!r}])
 except SystemExit:

@@ -8,8 +8,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from graspd.cloud import CloudError, ViewpointCloud
-from graspd.cloud_io import parse_pcd, parse_ply, read_cloud, save_npz
+from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.io.cloud_files import parse_pcd, parse_ply, read_cloud, save_npz
 
 
 def _pcd_header(n: int, kind: str, viewpoint: str = "0 0 0 1 0 0 0") -> bytes:

@@ -1,5 +1,5 @@
 """Any container, any support (issue 22): the environment stage finds raised floors, walls of any height, thin
-walls and two-wall corners of the container family (graspd.sim.containers), no top grasp closes on or enters
+walls and two-wall corners of the container family (graspd_lab.sim.containers), no top grasp closes on or enters
 them, a platform's top is the support, and no hand reaches into space no camera saw unless asked to.
 
 Scenes are the simulator's own (pybullet, passive camera pair with the benchmark's noise, training objects),
@@ -12,21 +12,21 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 import pytest
+from graspd_lab.sim.containers import ContainerSpec, sample_container
+from graspd_lab.sim.sensing import observe
+from graspd_lab.sim.world import SimWorld, build_scene
+from graspd_lab.world.noise import DepthNoise
+from graspd_lab.world.objects import TRAINING_URDFS
+from graspd_lab.world.render import render_scene
 
-from graspd.candidates import search_hands
-from graspd.classifier import DEFAULT_CASCADE_MODEL, default_model_name, load_model
-from graspd.detector import Detection, DetectionParams, GraspDetector, environment_conflicts
-from graspd.environment import EnvironmentParams, Label
-from graspd.hand import HandGeometry
-from graspd.occlusion import hand_samples
-from graspd.selection import feasible_mask
-from graspd.sim.containers import ContainerSpec, sample_container
-from graspd.sim.sensing import observe
-from graspd.sim.world import SimWorld, build_scene
-from graspd.world.cameras import sensing_cameras, tabletop_cameras
-from graspd.world.noise import DepthNoise
-from graspd.world.objects import TRAINING_URDFS
-from graspd.world.render import render_scene
+from graspd.core.camera import sensing_cameras, tabletop_cameras
+from graspd.core.hand import HandGeometry
+from graspd.gpd.candidates import search_hands
+from graspd.gpd.classifier import DEFAULT_CASCADE_MODEL, default_model_name, load_model
+from graspd.gpd.detector import Detection, DetectionParams, GraspDetector, environment_conflicts
+from graspd.gpd.environment import EnvironmentParams, Label
+from graspd.gpd.occlusion import hand_samples
+from graspd.gpd.selection import feasible_mask
 
 HAND = HandGeometry()
 OBJECTS = tuple(TRAINING_URDFS[:300])

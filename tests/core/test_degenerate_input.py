@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graspd.cloud import CloudError, ViewpointCloud
-from graspd.detector import DetectionParams, GraspDetector
-from graspd.hand import HandGeometry
-from graspd.preprocess import preprocess
-from graspd.scene import Scene
+from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.gpd.detector import DetectionParams, GraspDetector
+from graspd.gpd.preprocess import preprocess
+from graspd.gpd.scene import Scene
 
 VP = np.array([[0.5, 0.0, 0.5]], np.float32)
 

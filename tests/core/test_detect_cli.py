@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graspd.cli import main
+from graspd.cli.main import main
 
 
 def _check_grasps(grasps: list[dict]) -> None:

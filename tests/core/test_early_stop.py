@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from graspd.candidates import SamplingParams, sample_point_indices
-from graspd.detector import DetectionParams, GraspDetector, sample_rounds
-from graspd.environment import EnvironmentParams
-from graspd.server.warmup import warmup_cloud
+from graspd.gpd.candidates import SamplingParams, sample_point_indices
+from graspd.gpd.detector import DetectionParams, GraspDetector, sample_rounds
+from graspd.gpd.environment import EnvironmentParams
+from graspd.server.services.warmup import warmup_cloud
 
 
 class BrightScorer:

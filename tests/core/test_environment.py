@@ -10,19 +10,19 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 import pytest
+from graspd_lab.world.noise import DepthNoise
+from graspd_lab.world.render import render_scene
 
-from graspd.candidates import SamplingParams, search_hands
-from graspd.classifier import load_model
-from graspd.cloud import ViewpointCloud
-from graspd.cloud_io import read_cloud
-from graspd.detector import Detection, DetectionParams, GraspDetector
-from graspd.environment import Box, EnvironmentParams, Label, hand_hits_environment, model_environment
-from graspd.hand import HandGeometry
-from graspd.preprocess import PreprocessParams, preprocess
-from graspd.scene import Scene
-from graspd.world.cameras import tabletop_cameras
-from graspd.world.noise import DepthNoise
-from graspd.world.render import render_scene
+from graspd.core.camera import tabletop_cameras
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.gpd.candidates import SamplingParams, search_hands
+from graspd.gpd.classifier import load_model
+from graspd.gpd.detector import Detection, DetectionParams, GraspDetector
+from graspd.gpd.environment import Box, EnvironmentParams, Label, hand_hits_environment, model_environment
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.gpd.scene import Scene
+from graspd.io.cloud_files import read_cloud
 
 HAND = HandGeometry()
 MUG = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "table_mug.pcd"

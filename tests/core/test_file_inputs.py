@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from graspd.cloud import CloudError
-from graspd.cloud_io import MAX_NPY_VALUES, array_cloud, parse_npy, parse_npz
-from graspd.depth import Intrinsics, depth_metres, depth_points, read_depth_png
-from graspd.world.cameras import Camera, backproject, camera_intrinsics, camera_pose, depth_image
+from graspd.core.camera import Camera, backproject, camera_intrinsics, camera_pose, depth_image
+from graspd.core.cloud import CloudError
+from graspd.io.cloud_files import MAX_NPY_VALUES, array_cloud, parse_npy, parse_npz
+from graspd.io.depth import Intrinsics, depth_metres, depth_points, read_depth_png
 
 
 def npy(array: np.ndarray) -> bytes:
@@ -116,4 +116,4 @@ def test_depth_inputs_that_hold_no_depth_are_refused() -> None:
     assert err.value.field == "intrinsics"
     nan = np.full((3, 3), 0.5, np.float32)
     nan[1, 1] = np.nan
-    assert np.isnan(depth_points(nan, Intrinsics(100, 100, 1, 1))).any()  # kept: graspd.inputs counts it
+    assert np.isnan(depth_points(nan, Intrinsics(100, 100, 1, 1))).any()  # kept: graspd.io.inputs counts it

@@ -1,4 +1,4 @@
-"""graspd.frames and graspd.inputs: camera poses in every accepted form mean the same transform, bad ones are
+"""graspd.core.frames and graspd.io.inputs: camera poses in every accepted form mean the same transform, bad ones are
 refused naming the field, camera-frame points move into the robot frame with their own camera's pose, and
 non-finite rows are dropped and counted one way."""
 
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from graspd.cloud import CloudError
-from graspd.cloud_io import read_input
-from graspd.frames import check_pose, pose_matrices, pose_matrix, to_robot
-from graspd.inputs import cloud_input, non_finite_warning
+from graspd.core.cloud import CloudError
+from graspd.core.frames import check_pose, pose_matrices, pose_matrix, to_robot
+from graspd.io.cloud_files import read_input
+from graspd.io.inputs import cloud_input, non_finite_warning
 from graspd_client.codec import WireError
 
 ROT = Rotation.from_euler("xyz", [30, -50, 120], degrees=True)

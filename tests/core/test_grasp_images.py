@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graspd.candidates import SamplingParams, search_hands
-from graspd.cloud import ViewpointCloud
-from graspd.hand import HandGeometry
-from graspd.images import REPRESENTATIONS, channel_layout, encode_batches, encode_images
-from graspd.preprocess import PreprocessParams, preprocess
-from graspd.scene import ClosingRegionPoints, Scene
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.gpd.candidates import SamplingParams, search_hands
+from graspd.gpd.images import REPRESENTATIONS, channel_layout, encode_batches, encode_images
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.gpd.scene import ClosingRegionPoints, Scene
 
 HAND = HandGeometry()
 

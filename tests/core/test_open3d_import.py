@@ -1,4 +1,4 @@
-"""open3d without its dash/plotly drawing module until it is used (graspd.open3d_import)."""
+"""open3d without its dash/plotly drawing module until it is used (graspd.core.open3d_import)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ def _run(code: str) -> str:
 def test_detector_imports_open3d_without_dash_and_drawing_still_works() -> None:
     out = _run(
         "import sys\n"
-        "import graspd.detector, graspd.preprocess\n"
+        "import graspd.gpd.detector, graspd.gpd.preprocess\n"
         "import open3d as o3d\n"
         "print('dash' in sys.modules, 'plotly' in sys.modules)\n"
         "pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]))\n"
@@ -30,5 +30,5 @@ def test_detector_imports_open3d_without_dash_and_drawing_still_works() -> None:
 
 
 def test_no_stand_in_once_open3d_is_loaded() -> None:
-    out = _run("import open3d\nfrom graspd.open3d_import import defer_plotly_drawing\nprint(defer_plotly_drawing())")
+    out = _run("import open3d\nfrom graspd.core.open3d_import import defer_plotly_drawing\nprint(defer_plotly_drawing())")
     assert out == "False"

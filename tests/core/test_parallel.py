@@ -1,4 +1,4 @@
-"""The process thread budget (graspd.parallel): shares, mapping, and detections that do not depend on it."""
+"""The process thread budget (graspd.core.parallel): shares, mapping, and detections that do not depend on it."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-import graspd.parallel as parallel
-from graspd.detector import DetectionParams, GraspDetector
-from graspd.environment import EnvironmentParams
-from graspd.parallel import ThreadBudget
-from graspd.server.warmup import warmup_cloud
+import graspd.core.parallel as parallel
+from graspd.core.parallel import ThreadBudget
+from graspd.gpd.detector import DetectionParams, GraspDetector
+from graspd.gpd.environment import EnvironmentParams
+from graspd.server.services.warmup import warmup_cloud
 
 
 def test_share_divides_the_cores_among_running_requests() -> None:

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graspd.cli import _drawn
-from graspd.cloud_io import read_cloud
-from graspd.detector import Detection, DetectionParams, GraspDetector
-from graspd.plot import RANK_BAR_LABEL, grasp_caption, plot_grasps, score_colours
-from graspd.preprocess import PreprocessParams, preprocess
+from graspd.cli.main import _drawn
+from graspd.gpd.detector import Detection, DetectionParams, GraspDetector
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.io.cloud_files import read_cloud
+from graspd.viz.plot import RANK_BAR_LABEL, grasp_caption, plot_grasps, score_colours
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""graspd.progress: a bar on a terminal; in logs, plain lines at most every so often and never a carriage
+"""graspd.core.progress: a bar on a terminal; in logs, plain lines at most every so often and never a carriage
 return; GRASPD_PROGRESS overrides."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import io
 
 import pytest
 
-from graspd.progress import Progress, progress_mode, track
+from graspd.core.progress import Progress, progress_mode, track
 
 
 class Terminal(io.StringIO):

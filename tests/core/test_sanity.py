@@ -1,4 +1,4 @@
-"""graspd.sanity: the request-level checks on real and rendered clouds: a viewpoint that could not have seen
+"""graspd.gpd.sanity: the request-level checks on real and rendered clouds: a viewpoint that could not have seen
 the cloud warns, the right one does not; too few points, a model made for another hand and an empty answer
 each say what happened and what to do."""
 
@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from graspd_lab.world.scenes import cluttered_tabletop
 
-from graspd.cloud_io import read_cloud
-from graspd.sanity import (
+from graspd.gpd.sanity import (
     HIDDEN_SHARE_LIMIT,
     few_points_warning,
     hidden_share,
@@ -19,7 +19,7 @@ from graspd.sanity import (
     no_candidates_warning,
     viewpoint_warning,
 )
-from graspd.world.scenes import cluttered_tabletop
+from graspd.io.cloud_files import read_cloud
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from graspd.grasp import GraspSet
-from graspd.selection import SelectionParams, cluster, feasible_mask, select, utility
+from graspd.core.grasp import GraspSet
+from graspd.gpd.selection import SelectionParams, cluster, feasible_mask, select, utility
 
 
 def _grasps(positions, approaches, widths=None, scores=None) -> GraspSet:

@@ -1,4 +1,4 @@
-"""Clustering on KD-tree neighbour pairs gives what the dense m x m version gave (graspd.selection.cluster)."""
+"""Clustering on KD-tree neighbour pairs gives what the dense m x m version gave (graspd.gpd.selection.cluster)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from graspd.grasp import GraspSet
-from graspd.selection import SelectionParams, cluster, select, utility, width_preference
+from graspd.core.grasp import GraspSet
+from graspd.gpd.selection import SelectionParams, cluster, select, utility, width_preference
 
 
 def dense_cluster(grasps: GraspSet, params: SelectionParams) -> tuple[GraspSet, np.ndarray, np.ndarray]:

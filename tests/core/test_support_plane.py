@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from graspd.preprocess import support_plane_mask
+from graspd.gpd.preprocess import support_plane_mask
 
 
 def test_noisy_table_is_masked_to_its_edges_and_the_object_is_not() -> None:

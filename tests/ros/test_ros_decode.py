@@ -1,6 +1,6 @@
-"""graspd.ros.decode: CDR clouds built by rosbags' serialize_cdr, as zenoh-bridge-ros2dds forwards them from a ROS 2
+"""graspd.io.ros.decode: CDR clouds built by rosbags' serialize_cdr, as zenoh-bridge-ros2dds forwards them from a ROS 2
 node, decode to the right ViewpointCloud, header and sample points; malformed ones raise RosDecodeError naming the
-field; the fast input builders of graspd.ros.encode write what rosbags reads (byte for byte what it writes)."""
+field; the fast input builders of graspd.io.ros.encode write what rosbags reads (byte for byte what it writes)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from graspd.ros import (
+from graspd.io.ros import (
     Header,
     RosDecodeError,
     decode_cloud_indexed,
@@ -22,8 +22,8 @@ from graspd.ros import (
     encode_cloud_sources,
     encode_pointcloud2,
 )
-from graspd.ros.decode import MAX_POINTS
-from graspd.ros.types import CLOUD_INDEXED, CLOUD_SAMPLES, CLOUD_SOURCES, POINTCLOUD2, typestore
+from graspd.io.ros.decode import MAX_POINTS
+from graspd.io.ros.types import CLOUD_INDEXED, CLOUD_SAMPLES, CLOUD_SOURCES, POINTCLOUD2, typestore
 
 TS = typestore()
 

@@ -1,4 +1,4 @@
-"""graspd.ros.encode: every output decoded with rosbags' deserialize_cdr as a ROS 2 node behind
+"""graspd.io.ros.encode: every output decoded with rosbags' deserialize_cdr as a ROS 2 node behind
 zenoh-bridge-ros2dds would, its fields checked against the GraspSet (positions, quaternion <-> rotation, widths,
 scores, samples) and the input header carried through."""
 
@@ -10,17 +10,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from graspd.grasp import GraspSet
-from graspd.hand import HandGeometry, hand_preset
-from graspd.ros import (
+from graspd.core.grasp import GraspSet
+from graspd.core.hand import HandGeometry, hand_preset
+from graspd.io.ros import (
     Header,
     encode_grasp_config_list,
     encode_marker_array,
     encode_moveit_grasps,
     encode_pose_array,
 )
-from graspd.ros.encode import score_colors
-from graspd.ros.types import GRASP_CONFIG_LIST, MARKER_ARRAY, MOVEIT_GRASP, POSE_ARRAY, msg_text, typestore
+from graspd.io.ros.encode import score_colors
+from graspd.io.ros.types import GRASP_CONFIG_LIST, MARKER_ARRAY, MOVEIT_GRASP, POSE_ARRAY, msg_text, typestore
 
 TS = typestore()
 

@@ -13,9 +13,9 @@ from fastapi.testclient import TestClient
 from scipy.spatial.transform import Rotation
 
 from fixtures import KRYLON_VIEWPOINT
-from graspd import classifier
-from graspd.cloud import ViewpointCloud
-from graspd.cloud_io import read_cloud
+from graspd.core.cloud import ViewpointCloud
+from graspd.gpd import classifier
+from graspd.io.cloud_files import read_cloud
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd_client import build_detect_request
@@ -63,7 +63,7 @@ def models_and_default(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, 
     shipped = classifier.default_models_dir()
     if classifier.default_model_name() in classifier.available_models(shipped):
         return shipped, classifier.default_model_name()
-    from graspd.training.plans import train_tiny_model  # noqa: PLC0415
+    from graspd_lab.training.plans import train_tiny_model  # noqa: PLC0415
 
     return train_tiny_model(tmp_path_factory.mktemp("tiny-model"), seed=0).parent, "tiny15"
 

@@ -7,7 +7,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from graspd.server.allocator import IdleTrimmer, trim_function
+from graspd.server.services.allocator import IdleTrimmer, trim_function
 
 
 def wait_for(condition: Callable[[], bool], timeout: float = 10.0) -> bool:

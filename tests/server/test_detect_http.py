@@ -10,7 +10,7 @@ import numpy as np
 import open3d as o3d
 from fastapi.testclient import TestClient
 
-from graspd.cloud import ViewpointCloud
+from graspd.core.cloud import ViewpointCloud
 from graspd_client import Grasps
 
 

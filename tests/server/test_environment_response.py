@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from fastapi.testclient import TestClient
 
-from graspd.cloud_io import read_cloud
+from graspd.io.cloud_files import read_cloud
 from graspd_client import build_detect_request
 
 MUG = "table_mug.pcd"

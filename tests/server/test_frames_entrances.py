@@ -18,19 +18,19 @@ from typing import Any
 
 import numpy as np
 import pytest
+from graspd_lab.world.meshes import pose_from, posed_box, posed_cylinder, rot_z, table_mesh
+from graspd_lab.world.noise import DepthNoise
+from graspd_lab.world.render import render_scene_with_ids
 from PIL import Image
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from graspd.cli import main as cli_main
-from graspd.cloud_io import read_input
-from graspd.ros import Header, encode_pointcloud2
+from graspd.cli.main import main as cli_main
+from graspd.core.camera import Camera, camera_intrinsics, camera_pose, depth_image
+from graspd.io.cloud_files import read_input
+from graspd.io.ros import Header, encode_pointcloud2
 from graspd.server.runner import free_port, serve_in_thread
 from graspd.server.settings import Settings
-from graspd.world.cameras import Camera, camera_intrinsics, camera_pose, depth_image
-from graspd.world.meshes import pose_from, posed_box, posed_cylinder, rot_z, table_mesh
-from graspd.world.noise import DepthNoise
-from graspd.world.render import render_scene_with_ids
 from graspd_client import GraspClient, Grasps, RequestRejected
 from graspd_client.zenoh_client import ZenohGraspClient
 
@@ -283,8 +283,8 @@ def test_a_depth_image_needs_intrinsics_and_depth(server: Server, scene: tuple[C
 def test_the_ros2_example_puts_a_camera_frame_cloud_into_its_base_link_workspace(mug: np.ndarray) -> None:
     """examples/ros2/graspd.env: a camera-frame PointCloud2 and a base_link workspace work together (the issue: the
     viewpoint at the origin with that workspace gave 0 candidates, with no word why)."""
-    from graspd.detector import GraspDetector  # noqa: PLC0415
-    from graspd.server.ros_stream import decode_input, parse_options, stream_request  # noqa: PLC0415
+    from graspd.gpd.detector import GraspDetector  # noqa: PLC0415
+    from graspd.server.zenoh.ros_stream import decode_input, parse_options, stream_request  # noqa: PLC0415
 
     env = (Path(__file__).resolve().parents[2] / "examples" / "ros2" / "graspd.env").read_text()
     found = re.search(r"^GRASPD_STREAM_OPTIONS='(.*)'$", env, re.M)
@@ -307,11 +307,11 @@ def test_the_ros2_example_puts_a_camera_frame_cloud_into_its_base_link_workspace
 def test_gpd_ros_clouds_of_two_cameras_move_with_each_cameras_pose(mug: np.ndarray) -> None:
     """A CloudSources / CloudSamples of two cameras, each point in its own camera's frame: with the stream's camera
     poses, camera_source picks the pose; the cloud, its viewpoints and the samples land where the JSON request's
-    do (one rule: graspd.inputs.apply_frames)."""
-    from graspd.ros import encode_cloud_samples, encode_cloud_sources  # noqa: PLC0415
-    from graspd.server.engine import parse_request  # noqa: PLC0415
+    do (one rule: graspd.io.inputs.apply_frames)."""
+    from graspd.io.ros import encode_cloud_samples, encode_cloud_sources  # noqa: PLC0415
     from graspd.server.problems import Problem  # noqa: PLC0415
-    from graspd.server.ros_stream import decode_input, parse_options  # noqa: PLC0415
+    from graspd.server.services.engine import parse_request  # noqa: PLC0415
+    from graspd.server.zenoh.ros_stream import decode_input, parse_options  # noqa: PLC0415
 
     second = np.eye(4)
     second[:3, :3] = Rotation.from_euler("z", 90, degrees=True).as_matrix()

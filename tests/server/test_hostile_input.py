@@ -16,8 +16,8 @@ import pytest
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from graspd.cloud import ViewpointCloud
-from graspd.ros import RosDecodeError, decode_pointcloud2, encode_pointcloud2
+from graspd.core.cloud import ViewpointCloud
+from graspd.io.ros import RosDecodeError, decode_pointcloud2, encode_pointcloud2
 
 EYE = np.eye(4).tolist()
 INTR = {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0}

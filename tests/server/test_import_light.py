@@ -10,10 +10,10 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 
-HEAVY = ("torch", "pybullet", "graspd.training", "graspd.sim")
+HEAVY = ("torch", "pybullet", "graspd_lab.training", "graspd_lab.sim")
 
 PROBE = (
-    "import sys, graspd.server.app, graspd.server.zenoh_node, graspd.server.cli; "
+    "import sys, graspd.server.app, graspd.server.zenoh.node, graspd.server.cli; "
     f"print(','.join(m for m in {HEAVY!r} if m in sys.modules))"
 )
 

@@ -12,9 +12,9 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from graspd.database import redact_text, redact_url, scrub
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
+from graspd.store.database import redact_text, redact_url, scrub
 from graspd.templates import TemplateError, TemplateLibrary
 from graspd_client.zenoh_client import zenoh_config
 

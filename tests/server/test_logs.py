@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from graspd.server.engine import parse_request
 from graspd.server.logs import JsonFormatter, RequestIdFilter, begin_request
+from graspd.server.services.engine import parse_request
 
 
 def test_color_message_does_not_leak() -> None:

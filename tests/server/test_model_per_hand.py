@@ -11,11 +11,11 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from graspd.classifier import card_fits_hand, read_card
-from graspd.cloud import ViewpointCloud
-from graspd.hand import HAND_PRESETS
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HAND_PRESETS
+from graspd.gpd.classifier import card_fits_hand, read_card
 from graspd.server.app import create_app
-from graspd.server.registry import ModelRegistry
+from graspd.server.services.registry import ModelRegistry
 from graspd.server.settings import Settings
 
 

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from graspd import classifier
+from graspd.gpd import classifier
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 

@@ -11,14 +11,14 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
+from graspd_lab.world.meshes import box_mesh
 
 from fixtures import write_mesh
-from graspd.classifier import read_card
-from graspd.cloud import ViewpointCloud
+from graspd.core.cloud import ViewpointCloud
+from graspd.gpd.classifier import read_card
 from graspd.server.app import create_app
 from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
-from graspd.world.meshes import box_mesh
 from graspd_client import GraspClient
 from graspd_client.errors import RequestRejected, ServerBusy
 

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from graspd.cloud import ViewpointCloud
+from graspd.core.cloud import ViewpointCloud
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 

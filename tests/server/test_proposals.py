@@ -10,8 +10,8 @@ import numpy as np
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from graspd.cloud import ViewpointCloud
-from graspd.server import proposals
+from graspd.core.cloud import ViewpointCloud
+from graspd.server.services import proposals
 from graspd_client import Grasps, build_detect_request
 
 CAM = proposals.Pinhole(fx=500.0, fy=400.0, cx=320.0, cy=240.0)

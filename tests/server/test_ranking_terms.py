@@ -9,7 +9,7 @@ from typing import Any
 
 from fastapi.testclient import TestClient
 
-from graspd.grasp import RANKING_RULE
+from graspd.core.grasp import RANKING_RULE
 
 TERMS = ("classifier", "utility", "width", "unknown")
 

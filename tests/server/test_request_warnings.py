@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from graspd.cli import main as cli_main
-from graspd.cloud_io import read_cloud
+from graspd.cli.main import main as cli_main
+from graspd.io.cloud_files import read_cloud
 from graspd.server.app import create_app
 from graspd.server.runner import free_port
 from graspd.server.settings import Settings

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from fastapi.testclient import TestClient
 
-from graspd.cloud import ViewpointCloud
+from graspd.core.cloud import ViewpointCloud
 
 
 def test_scored_detection(scored_client: TestClient, krylon: ViewpointCloud, models_and_default: tuple[Path, str],

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from graspd.server import cli
-from graspd.server.zenoh_node import ZenohSetupError, zenoh_config
+from graspd.server.zenoh.node import ZenohSetupError, zenoh_config
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:

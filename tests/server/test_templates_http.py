@@ -10,13 +10,13 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from graspd_lab.world.meshes import pose_from, rot_z
 
 from fixtures import box_side_grasp, box_top_grasp, grasp_angle_deg
-from graspd.cloud import ViewpointCloud
+from graspd.core.cloud import ViewpointCloud
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd.templates import TemplateLibrary
-from graspd.world.meshes import pose_from, rot_z
 from graspd_client import build_demonstration_request, build_detect_request
 
 BOX = (0.05, 0.10, 0.08)

@@ -9,12 +9,12 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from graspd.detector import DetectionParams, GraspDetector
-from graspd.parallel import THREADS, available_cores
+from graspd.core.parallel import THREADS, available_cores
+from graspd.gpd.detector import DetectionParams, GraspDetector
 from graspd.server.app import create_app
-from graspd.server.registry import ModelRegistry
+from graspd.server.services.registry import ModelRegistry
+from graspd.server.services.warmup import WARMUP_SAMPLES, warm_up, warmup_cloud
 from graspd.server.settings import Settings
-from graspd.server.warmup import WARMUP_SAMPLES, warm_up, warmup_cloud
 
 
 def test_warmup_cloud_exercises_the_whole_pipeline() -> None:

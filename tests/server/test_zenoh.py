@@ -15,8 +15,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from fixtures import krylon_camera_frame
-from graspd.cloud import ViewpointCloud
-from graspd.ros import Header, encode_pointcloud2
+from graspd.core.cloud import ViewpointCloud
+from graspd.io.ros import Header, encode_pointcloud2
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd_client import RequestRejected

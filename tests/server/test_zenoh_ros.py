@@ -23,18 +23,18 @@ from rosbags.typesys.store import Typestore
 from scipy.spatial.transform import Rotation
 
 from fixtures import krylon_camera_frame
-from graspd.cloud import ViewpointCloud
-from graspd.ros import (
+from graspd.core.cloud import ViewpointCloud
+from graspd.io.ros import (
     Header,
     encode_cloud_indexed,
     encode_cloud_samples,
     encode_cloud_sources,
     encode_pointcloud2,
 )
-from graspd.ros.types import msg_text
+from graspd.io.ros.types import msg_text
 from graspd.server.app import create_app
-from graspd.server.ros_stream import DEFAULT_INPUT_KEYS, DEFAULT_OUTPUT_KEYS, parse_options
 from graspd.server.settings import Settings
+from graspd.server.zenoh.ros_stream import DEFAULT_INPUT_KEYS, DEFAULT_OUTPUT_KEYS, parse_options
 from graspd_client import RequestRejected
 from graspd_client.wire import zenoh_token_attachment
 from graspd_client.zenoh_client import ZenohGraspClient, zenoh_config

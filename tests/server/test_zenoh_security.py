@@ -20,11 +20,11 @@ import pytest
 from fastapi.testclient import TestClient
 
 from fixtures import KRYLON_VIEWPOINT, box_top_grasp
-from graspd.cloud import ViewpointCloud
+from graspd.core.cloud import ViewpointCloud
 from graspd.server.app import create_app
-from graspd.server.engine import parse_request
+from graspd.server.services.engine import parse_request
 from graspd.server.settings import Settings
-from graspd.server.zenoh_node import (
+from graspd.server.zenoh.node import (
     ZenohSetupError,
     check_exposure,
     exposure,

@@ -1,4 +1,4 @@
-"""The container family (graspd.sim.containers) in the simulated world: every style builds and settles with
+"""The container family (graspd_lab.sim.containers) in the simulated world: every style builds and settles with
 objects inside its (turned) interior, the split is one table with no style on both sides, the workspace
 holds the container and table around it, and static_meshes / static_labels are the bodies pybullet
 simulates, yaw included."""
@@ -11,9 +11,7 @@ import numpy as np
 import open3d as o3d
 import pybullet as pb
 import pytest
-
-from graspd.hand import HandGeometry
-from graspd.sim.containers import (
+from graspd_lab.sim.containers import (
     HELD_OUT_STYLES,
     RANGES,
     STYLES,
@@ -25,14 +23,16 @@ from graspd.sim.containers import (
     sample_container,
     scene_container,
 )
-from graspd.sim.detectors import TopDownBaseline
-from graspd.sim.objects import TEST_OBJECT_IDS
-from graspd.sim.protocol import Setting, run_round
-from graspd.sim.sensing import NO_NOISE, observe
-from graspd.sim.world import SimWorld, build_scene
-from graspd.training.scene_data import BROKEN_URDFS
-from graspd.world.cameras import sensing_cameras
-from graspd.world.objects import TRAINING_URDFS
+from graspd_lab.sim.detectors import TopDownBaseline
+from graspd_lab.sim.objects import TEST_OBJECT_IDS
+from graspd_lab.sim.protocol import Setting, run_round
+from graspd_lab.sim.sensing import NO_NOISE, observe
+from graspd_lab.sim.world import SimWorld, build_scene
+from graspd_lab.training.scene_data import BROKEN_URDFS
+from graspd_lab.world.objects import TRAINING_URDFS
+
+from graspd.core.camera import sensing_cameras
+from graspd.core.hand import HandGeometry
 
 
 def _split(style: str) -> str:

@@ -5,17 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("pybullet")  # graspd.sim is the optional extra graspd[sim]
+pytest.importorskip("pybullet")  # graspd_lab.sim is the optional extra graspd[sim]
 
-from fixtures import box_top_grasp  # noqa: E402
-from graspd.hand import HandGeometry  # noqa: E402
-from graspd.sim.experiments import (  # noqa: E402
+from graspd_lab.sim.experiments import (  # noqa: E402
     TemplateSimDetector,
     attempt,
     last_ten,
     scripted_demonstrations,
     training_urdf,
 )
+
+from fixtures import box_top_grasp  # noqa: E402
+from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.templates import TemplateDetector, TemplateLibrary, TemplateParams  # noqa: E402
 
 

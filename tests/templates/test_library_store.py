@@ -17,9 +17,9 @@ import pytest
 import sqlalchemy as sa
 
 from fixtures import box_top_grasp
-from graspd.cloud import CloudError, ViewpointCloud
-from graspd.database import SCHEMA_VERSION, make_engine, migrate
-from graspd.hand import HandGeometry
+from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.store.database import SCHEMA_VERSION, make_engine, migrate
 from graspd.templates import TemplateDetector, TemplateError, TemplateLibrary
 
 REPO = Path(__file__).resolve().parents[2]

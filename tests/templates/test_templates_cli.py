@@ -8,8 +8,8 @@ import json
 import numpy as np
 
 from fixtures import box_top_grasp
+from graspd.cli.templates import register
 from graspd.server.settings import Settings
-from graspd.templates.cli import register
 
 BOX = (0.05, 0.10, 0.08)
 

@@ -3,8 +3,7 @@
 from pathlib import Path
 
 import pytest
-
-from graspd.training.plans import train_tiny_model
+from graspd_lab.training.plans import train_tiny_model
 
 
 @pytest.fixture(scope="session")

@@ -2,8 +2,7 @@
 
 import numpy as np
 import pytest
-
-from graspd.training.evaluate import (
+from graspd_lab.training.evaluate import (
     average_precision,
     classification_metrics,
     expected_calibration_error,

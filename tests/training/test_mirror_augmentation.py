@@ -2,15 +2,15 @@
 
 import numpy as np
 import pytest
+from graspd_lab.training.augment import augment, mirror_images
+from graspd_lab.training.dataset import derive_images
 
-from graspd.candidates import SamplingParams, search_hands
-from graspd.cloud import ViewpointCloud
-from graspd.hand import HandGeometry
-from graspd.images import channel_layout, encode_images
-from graspd.preprocess import PreprocessParams, preprocess
-from graspd.scene import Scene
-from graspd.training.augment import augment, mirror_images
-from graspd.training.dataset import derive_images
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.gpd.candidates import SamplingParams, search_hands
+from graspd.gpd.images import channel_layout, encode_images
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.gpd.scene import Scene
 
 HAND = HandGeometry()
 

@@ -5,8 +5,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from graspd_lab.training.export import base_card, check_parity, export_onnx, torch_scores, write_card
+from graspd_lab.training.network import build_network
 
-from graspd.classifier import (
+from graspd.gpd.classifier import (
     GraspClassifier,
     ModelError,
     OnnxGraspClassifier,
@@ -14,9 +16,7 @@ from graspd.classifier import (
     load_model,
     load_models,
 )
-from graspd.images import channel_layout
-from graspd.training.export import base_card, check_parity, export_onnx, torch_scores, write_card
-from graspd.training.network import build_network
+from graspd.gpd.images import channel_layout
 
 HAND = {"finger_width": 0.01, "hand_outer_diameter": 0.12, "hand_depth": 0.06, "hand_height": 0.02,
         "init_bite": 0.01}

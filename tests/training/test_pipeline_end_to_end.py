@@ -7,17 +7,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from graspd_lab.training import cli
+from graspd_lab.training.config import TrainConfig
+from graspd_lab.training.dataset import read_manifest
+from graspd_lab.training.evaluate import classification_metrics
+from graspd_lab.training.export import check_parity
+from graspd_lab.training.loop import grasp_probability, load_checkpoint, predict_logits, train
+from graspd_lab.training.plans import prefix_dataset
+from graspd_lab.training.rows import load_rows
 
-from graspd.classifier import GraspClassifier, load_model
-from graspd.outcomes import OutcomeStore
-from graspd.training import cli
-from graspd.training.config import TrainConfig
-from graspd.training.dataset import read_manifest
-from graspd.training.evaluate import classification_metrics
-from graspd.training.export import check_parity
-from graspd.training.loop import grasp_probability, load_checkpoint, predict_logits, train
-from graspd.training.plans import prefix_dataset
-from graspd.training.rows import load_rows
+from graspd.gpd.classifier import GraspClassifier, load_model
+from graspd.store.outcomes import OutcomeStore
 
 
 @pytest.fixture

@@ -9,16 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from graspd_lab.training import cli
+from graspd_lab.training.config import TrainConfig
+from graspd_lab.training.evaluate import expected_calibration_error, fit_platt
+from graspd_lab.training.export import base_card, check_parity, export_onnx
+from graspd_lab.training.loop import LAST, load_weights, predict_logits, sample_negatives, train
+from graspd_lab.training.network import build_network, fold_logit_affine
+from graspd_lab.training.plans import plan_budget
+from graspd_lab.training.rows import load_rows
 
-from graspd.classifier import default_models_dir, load_model
-from graspd.training import cli
-from graspd.training.config import TrainConfig
-from graspd.training.evaluate import expected_calibration_error, fit_platt
-from graspd.training.export import base_card, check_parity, export_onnx
-from graspd.training.loop import LAST, load_weights, predict_logits, sample_negatives, train
-from graspd.training.network import build_network, fold_logit_affine
-from graspd.training.plans import plan_budget
-from graspd.training.rows import load_rows
+from graspd.gpd.classifier import default_models_dir, load_model
 
 QUIET = lambda *a: None  # noqa: E731
 

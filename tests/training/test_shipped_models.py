@@ -5,8 +5,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from graspd.candidates import SamplingParams, search_hands
-from graspd.classifier import (
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HAND_PRESETS, HandGeometry
+from graspd.gpd.candidates import SamplingParams, search_hands
+from graspd.gpd.classifier import (
     available_models,
     card_fits_hand,
     default_model_name,
@@ -14,11 +16,9 @@ from graspd.classifier import (
     load_model,
     read_card,
 )
-from graspd.cloud import ViewpointCloud
-from graspd.hand import HAND_PRESETS, HandGeometry
-from graspd.images import channel_layout, encode_images
-from graspd.preprocess import PreprocessParams, preprocess
-from graspd.scene import Scene
+from graspd.gpd.images import channel_layout, encode_images
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.gpd.scene import Scene
 
 MODELS = default_models_dir()
 SHIPPED = available_models(MODELS)

@@ -9,13 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from graspd.candidates import SamplingParams, sample_candidates
-from graspd.hand import HandGeometry
-from graspd.images import REPRESENTATIONS, channel_layout, encode_images
-from graspd.preprocess import preprocess
-from graspd.scene import Scene
-from graspd.training.dataset import (
+from graspd_lab.training.dataset import (
     CATEGORIES,
     CHUNK_KEYS,
     GenerationParams,
@@ -31,9 +25,15 @@ from graspd.training.dataset import (
     split_mask,
     write_preview,
 )
-from graspd.world.cameras import random_view
-from graspd.world.objects import procedural_object, random_urdf_mesh
-from graspd.world.render import render_scene
+from graspd_lab.world.objects import procedural_object, random_urdf_mesh
+from graspd_lab.world.render import render_scene
+
+from graspd.core.camera import random_view
+from graspd.core.hand import HandGeometry
+from graspd.gpd.candidates import SamplingParams, sample_candidates
+from graspd.gpd.images import REPRESENTATIONS, channel_layout, encode_images
+from graspd.gpd.preprocess import preprocess
+from graspd.gpd.scene import Scene
 
 TINY = GenerationParams(seed=11, exemplars=120, num_urdfs=2, procedural=(("box", 1), ("cylinder", 1)),
                         views_per_object=3, num_samples=40, per_view=10, objects_per_chunk=3)
@@ -78,7 +78,7 @@ def test_format_balance_and_manifest(tiny: Path) -> None:
     assert rows == m["counts"]["total"] > 0
     assert m["counts"]["positive"] * 2 == rows
     assert sum(v["kept"] for v in m["views"]) == rows
-    assert "python -m graspd.training.dataset" in m["command"]
+    assert "python -m graspd_lab.training.dataset" in m["command"]
 
 
 def test_splits_are_disjoint_and_cover_everything(tiny: Path) -> None:

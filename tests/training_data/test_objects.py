@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from graspd.hand import HandGeometry
-from graspd.world.objects import (
+from graspd_lab.world.objects import (
     PROCEDURAL_KINDS,
     HeldOutObjectError,
     load_object,
@@ -14,6 +12,8 @@ from graspd.world.objects import (
     procedural_object,
     random_urdf_mesh,
 )
+
+from graspd.core.hand import HandGeometry
 
 
 @pytest.mark.parametrize("index", [900, 950, 999])

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 import pytest
+from graspd_lab.world.meshes import box_mesh
+from graspd_lab.world.noise import DepthNoise, axial_sigma, depth_edges, quantize_depth
+from graspd_lab.world.objects import procedural_object
+from graspd_lab.world.render import MeshScene, render_scene, render_scene_with_ids
+from graspd_lab.world.scenes import random_tabletop, tabletop_scene
 
-from graspd.world.cameras import Camera, look_at_rig, random_view, tabletop_cameras
-from graspd.world.meshes import box_mesh
-from graspd.world.noise import DepthNoise, axial_sigma, depth_edges, quantize_depth
-from graspd.world.objects import procedural_object
-from graspd.world.render import MeshScene, render_scene, render_scene_with_ids
-from graspd.world.scenes import random_tabletop, tabletop_scene
+from graspd.core.camera import Camera, look_at_rig, random_view, tabletop_cameras
 
 
 def distances(mesh: o3d.geometry.TriangleMesh, points: np.ndarray) -> np.ndarray:

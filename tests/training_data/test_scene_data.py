@@ -8,11 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from graspd.training.dataset import iter_chunks, read_split
-from graspd.training.scene_data import SceneParams, generate_scene_dataset, scene_views
-from graspd.training.scene_eval import precision_at_k
-from graspd.world.objects import HELD_OUT_URDFS, HeldOutObjectError
+from graspd_lab.training.dataset import iter_chunks, read_split
+from graspd_lab.training.scene_data import SceneParams, generate_scene_dataset, scene_views
+from graspd_lab.training.scene_eval import precision_at_k
+from graspd_lab.world.objects import HELD_OUT_URDFS, HeldOutObjectError
 
 TINY = SceneParams(scenes=3, views_per_scene=2, objects=(2, 3), num_samples=20, per_view=40, scenes_per_chunk=2)
 

@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from graspd.cli import main
-from graspd.cloud import ViewpointCloud
-from graspd.cloud_io import read_cloud
-from graspd.detector import Detection, DetectionParams, GraspDetector
-from graspd.environment import Box, EnvironmentParams, Label
-from graspd.plot import LABEL_STYLE, box_edges, plot_grasps, view_frames
-from graspd.preprocess import PreprocessParams, preprocess
-from graspd.viewer import PLOT_ID, drop_page_html, viewer_html
+from graspd.cli.main import main
+from graspd.core.cloud import ViewpointCloud
+from graspd.gpd.detector import Detection, DetectionParams, GraspDetector
+from graspd.gpd.environment import Box, EnvironmentParams, Label
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.io.cloud_files import read_cloud
+from graspd.viz.plot import LABEL_STYLE, box_edges, plot_grasps, view_frames
+from graspd.viz.viewer import PLOT_ID, drop_page_html, viewer_html
 
 #: A declared box over the table's left part, away from the mug (camera frame of table_mug.pcd, m).
 DECLARED = (-0.20, -0.10, -0.05, 0.20, 0.65, 1.00)

@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 from fixtures import KRYLON_VIEWPOINT
 from graspd.server.app import create_app
 from graspd.server.settings import Settings
-from graspd.viewer import PLOT_ID
+from graspd.viz.viewer import PLOT_ID
 
 TOKEN = "viewer-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

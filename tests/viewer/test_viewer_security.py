@@ -20,14 +20,14 @@ import pytest
 from fastapi.testclient import TestClient
 from PIL import Image
 
-from graspd.cloud import ViewpointCloud
-from graspd.cloud_io import read_cloud
-from graspd.detector import Detection, DetectionParams, GraspDetector
-from graspd.preprocess import PreprocessParams, preprocess
+from graspd.core.cloud import ViewpointCloud
+from graspd.gpd.detector import Detection, DetectionParams, GraspDetector
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.io.cloud_files import read_cloud
 from graspd.server.app import create_app
 from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
-from graspd.viewer import DROP_CSP, PLOT_ID, VIEWER_CSP, VIEWER_CSP_META, drop_page_html, viewer_html
+from graspd.viz.viewer import DROP_CSP, PLOT_ID, VIEWER_CSP, VIEWER_CSP_META, drop_page_html, viewer_html
 
 #: Script a hostile caller hides in a file name or a warning: it marks the page if it ever runs.
 HOSTILE = '<img src=x onerror="document.body.dataset.pwned=1"><script>document.body.dataset.pwned=1</script>'

@@ -19,23 +19,22 @@ from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from graspd import __version__
-from graspd.parallel import THREADS
-
-from .deps import ServiceState
-from .engine import DetectionEngine, dumps
-from .guards import BudgetGate, HealthFastPath, UploadRateGuard
-from .instance_jobs import InstanceJobs
-from .logs import MAX_REQUEST_ID, begin_request, valid_request_id
-from .metrics import Metrics
-from .problems import Problem
-from .registry import ModelRegistry
-from .routers import detect, docs, health, metrics, models, viewer
-from .schemas import DetectRequest
-from .settings import Settings, available_cores
-from .templates_api import REQUEST_MODELS
-from .templates_api import router as templates_router
-from .warmup import warm_up
-from .zenoh_node import ZenohNode
+from graspd.core.parallel import THREADS
+from graspd.server.api import detect, docs, health, metrics, models, viewer
+from graspd.server.api.deps import ServiceState
+from graspd.server.api.guards import BudgetGate, HealthFastPath, UploadRateGuard
+from graspd.server.api.templates import REQUEST_MODELS
+from graspd.server.api.templates import router as templates_router
+from graspd.server.logs import MAX_REQUEST_ID, begin_request, valid_request_id
+from graspd.server.metrics import Metrics
+from graspd.server.problems import Problem
+from graspd.server.schemas import DetectRequest
+from graspd.server.services.engine import DetectionEngine, dumps
+from graspd.server.services.instance_jobs import InstanceJobs
+from graspd.server.services.registry import ModelRegistry
+from graspd.server.services.warmup import warm_up
+from graspd.server.settings import Settings, available_cores
+from graspd.server.zenoh.node import ZenohNode
 
 log = logging.getLogger("graspd.server")
 

@@ -8,11 +8,11 @@ from typing import Any
 
 import uvicorn
 
-from .allocator import tune_malloc
-from .app import create_app
-from .logs import configure_logging
-from .runner import uvicorn_config
-from .settings import Settings
+from graspd.server.app import create_app
+from graspd.server.logs import configure_logging
+from graspd.server.runner import uvicorn_config
+from graspd.server.services.allocator import tune_malloc
+from graspd.server.settings import Settings
 
 
 def register(subparsers: Any) -> None:

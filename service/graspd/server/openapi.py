@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
-from .app import create_app
-from .settings import Settings
+from graspd.server.app import create_app
+from graspd.server.settings import Settings
 
 
 def openapi_text() -> str:

@@ -72,7 +72,7 @@ def from_wire(exc: WireError, status: int = 422) -> Problem:
 
 
 def from_error(exc: ValueError, fields: Collection[str], status: int = 422, default: str = "body") -> Problem:
-    """A Problem from an error a request caused outside validation.  A WireError (graspd.cloud.CloudError and
+    """A Problem from an error a request caused outside validation.  A WireError (graspd.core.cloud.CloudError and
     graspd.templates.TemplateError are ones) carries its field, named when it is default or its first part is
     one of fields (the request's); any other error, or a field the request does not have, is named default."""
     if isinstance(exc, WireError) and exc.field and (exc.field == default or exc.field.split(".", 1)[0] in fields):

@@ -16,8 +16,8 @@ from typing import Any
 import uvicorn
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from .app import create_app
-from .settings import Settings
+from graspd.server.app import create_app
+from graspd.server.settings import Settings
 
 
 def free_port(host: str = "127.0.0.1") -> int:

@@ -28,20 +28,19 @@ from pydantic import (
     model_validator,
 )
 
-from graspd.cloud import CloudError, ViewpointCloud
-from graspd.detector import Detection, DetectionParams
-from graspd.environment import Box, EnvironmentParams, Plane
-from graspd.frames import check_camera_source, check_points_frame, pose_matrix
-from graspd.grasp import RANKING_RULE
-from graspd.hand import HAND_PRESETS, HandGeometry
-from graspd.inputs import CloudInput, apply_frames, finite_rows, keep_finite
+from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.frames import check_camera_source, check_points_frame, pose_matrix
+from graspd.core.grasp import RANKING_RULE
+from graspd.core.hand import HAND_PRESETS, HandGeometry
+from graspd.core.warning import WARNING_CODES, DetectionWarning
+from graspd.gpd.detector import Detection, DetectionParams
+from graspd.gpd.environment import Box, EnvironmentParams, Plane
+from graspd.io.inputs import CloudInput, apply_frames, finite_rows, keep_finite
+from graspd.io.png import check_image_size, decode_png_rgb
 from graspd.templates import TemplateDetection
 from graspd.templates.demonstration import check_hand_pose
-from graspd.warning import WARNING_CODES, DetectionWarning
 from graspd_client import wire
 from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
-
-from .pngio import check_image_size, decode_png_rgb
 
 #: How /detect orders its grasps (selection.select); the OpenAPI descriptions and the README say the same.
 RANKING = (
@@ -107,7 +106,7 @@ Matrix4 = _array((4, 4), "f", "float64", True, "4x4 homogeneous transform, row-m
 
 
 def _camera_pose(value: Any) -> np.ndarray:
-    """One checked camera-to-robot transform (4,4) (graspd.frames.pose_matrix; its WireError names the sub-field
+    """One checked camera-to-robot transform (4,4) (graspd.core.frames.pose_matrix; its WireError names the sub-field
     relative to this pose: "" or ".quat_xyzw", ...)."""
     return pose_matrix(value, "")
 
@@ -127,7 +126,7 @@ CameraPose = Annotated[np.ndarray, PlainValidator(_camera_pose), WithJsonSchema(
 
 class Cloud(BaseModel):
     """Points seen by one or more cameras, and where the cameras were: viewpoints (camera positions in the
-    cloud's frame, metres), or camera_poses (camera-to-robot transforms) with points_frame (graspd.frames)."""
+    cloud's frame, metres), or camera_poses (camera-to-robot transforms) with points_frame (graspd.core.frames)."""
 
     model_config = ConfigDict(extra="forbid")
     points: Points  # type: ignore[valid-type]
@@ -191,8 +190,8 @@ class Cloud(BaseModel):
 
     @model_validator(mode="after")
     def _frames_and_finite(self) -> Cloud:
-        """Frames are consistent (graspd.frames.check_points_frame; poses replace viewpoints), then rows with a
-        NaN or infinite coordinate are dropped and counted (graspd.inputs.keep_finite; none left: cloud.points)."""
+        """Frames are consistent (graspd.core.frames.check_points_frame; poses replace viewpoints), then rows with a
+        NaN or infinite coordinate are dropped and counted (graspd.io.inputs.keep_finite; none left: cloud.points)."""
         check_points_frame(self.points_frame, self.camera_poses is not None, ".points_frame")
         check_camera_source(self.points_frame, len(self.camera_poses or ()), self.camera_source is not None,
                             ".camera_source")
@@ -212,7 +211,7 @@ class Cloud(BaseModel):
         return None if self.camera_poses is None else np.stack(self.camera_poses)
 
     def to_input(self) -> CloudInput:
-        """The detector's cloud in the frame detection runs in (graspd.inputs.apply_frames), with the count of
+        """The detector's cloud in the frame detection runs in (graspd.io.inputs.apply_frames), with the count of
         non-finite rows dropped."""
         poses = self.poses()
         try:
@@ -503,7 +502,7 @@ class DetectRequest(BaseModel):
 
     def to_input(self) -> CloudInput:
         """The detector's cloud in the frame detection runs in, that frame's name and the non-finite rows dropped
-        (graspd.inputs): its warnings go into the response."""
+        (graspd.io.inputs): its warnings go into the response."""
         return self.cloud.to_input()
 
     def to_cloud(self) -> ViewpointCloud:
@@ -602,7 +601,7 @@ class BoxOut(BaseModel):
 
 
 class SurfaceOut(BaseModel):
-    """One surface of the environment (graspd.environment.Surface)."""
+    """One surface of the environment (graspd.gpd.environment.Surface)."""
 
     kind: Literal["support", "floor", "platform", "board", "wall", "rim", "declared"] = Field(
         description="support: the lowest support (a half-space the hand stays above); floor: a container's floor "
@@ -634,7 +633,7 @@ class EnvironmentOut(BaseModel):
 
 
 class WarningOut(BaseModel):
-    """Something the service could not do right, said instead of staying silent (graspd.warning)."""
+    """Something the service could not do right, said instead of staying silent (graspd.core.warning)."""
 
     code: str = Field(description="stable code: " + "; ".join(f"{k}: {v}" for k, v in WARNING_CODES.items()))
     message: str = Field(description="what happened and what to do, for a person")
@@ -691,7 +690,7 @@ class DetectResponse(BaseModel):
                                          "grasp images of the request's hand (finger width, outer diameter, "
                                          "depth, height).  false: the hand and the model differ and the scores "
                                          "are less reliable (train one on a dataset of that hand: python -m "
-                                         "graspd.training.dataset --hand NAME, then graspd train)")
+                                         "graspd_lab.training.dataset --hand NAME, then graspd train)")
     ranking_rule: str | None = Field(None, description="gpd with selection: how each grasp's ranking terms combine "
                                      "into the key it was sorted by")
 
@@ -705,7 +704,7 @@ class DetectResponse(BaseModel):
         is documented).  Grasp ids are assigned here: gpd "<detection id>-<k>" (detection_id: the server's id
         of the detection, default request_id), templates the ids the library recorded.  crops: one
         CropOut-shaped dict per grasp; header: the ROS header of a CDR input (Zenoh); frame: the frame the grasps
-        are in (graspd.frames); warnings: those of the input (graspd.inputs), before the detection's own.
+        are in (graspd.core.frames); warnings: those of the input (graspd.io.inputs), before the detection's own.
         Cost at 100 grasps: ~1.2 ms to build, validate (pydantic-core) and serialise (to_json), against ~0.9 ms
         for the unvalidated dicts and orjson this replaced: a fraction of a percent of a detection."""
         g = det.grasps
@@ -733,7 +732,7 @@ class DetectResponse(BaseModel):
         else:
             env = det.environment
             out.update(model=det.model, scored=det.scored, environment=None if env is None else env.to_dict())
-            if g.ranking is not None:  # the terms selection ranked by (graspd.grasp.Ranking); NaN goes as null
+            if g.ranking is not None:  # the terms selection ranked by (graspd.core.grasp.Ranking); NaN goes as null
                 for grasp, terms in zip(grasps, g.ranking.to_dicts(), strict=True):
                     grasp["ranking"] = {k: v if math.isfinite(v) else None for k, v in terms.items()}
                 out["ranking_rule"] = RANKING_RULE

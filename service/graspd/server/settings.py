@@ -9,8 +9,8 @@ from typing import Any
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from graspd.classifier import DEFAULT_CASCADE_MODEL
-from graspd.classifier import default_models_dir as models_dir
+from graspd.gpd.classifier import DEFAULT_CASCADE_MODEL
+from graspd.gpd.classifier import default_models_dir as models_dir
 
 
 def available_cores() -> int:
@@ -40,12 +40,12 @@ class Settings(BaseSettings):
                                "every candidate, so that the full model scores only the best (request option "
                                "cascade); used with every model made for the same hand; empty: no cascade")
     detect_workers: int = Field(default=0, ge=0, description="detections run at once; 0 = one per CPU core")
-    threads: int = Field(default=0, ge=0, description="cores the running detections share (graspd.parallel: a lone "
+    threads: int = Field(default=0, ge=0, description="cores the running detections share (graspd.core.parallel: a lone "
                          "request uses them all, concurrent ones divide them); 0 = every core of the process")
     warmup: bool = Field(default=True, description="run one detection on a small bundled cloud at start-up, before "
                          "the service answers, so that the first request is as fast as the rest (~1 s of start-up)")
     detect_memory_mb: float = Field(default=2048.0, ge=0, description="memory budget of the detections running at "
-                                    "once (MiB; graspd.server.budget estimates each request's from its points, "
+                                    "once (MiB; graspd.server.services.budget estimates each request's from its points, "
                                     "samples and crops): a request over the whole budget gets 413 naming the field, "
                                     "one that does not fit now waits detect_memory_wait_s, then 503 with "
                                     "Retry-After; 0: no budget")

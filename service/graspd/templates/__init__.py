@@ -26,7 +26,7 @@ graspd_client.codec.WireError (a ValueError) whose .field names the offending fi
                                                     #  "template_entry", "mismatch"], "timings": {...},
                                                     #  "num_candidates", "num_points", "num_entries",
                                                     #  "detection_id"}
-                             det.grasps is a graspd.grasp.GraspSet (DESIGN.md convention, best first,
+                             det.grasps is a graspd.core.grasp.GraspSet (DESIGN.md convention, best first,
                              score = 1 / (1 + m) in (0, 1]); det.grasp_ids[k] is the id for feedback.
                              The library's hand is used (a per-request hand override does not apply).
                              An empty library answers no grasps (num_entries = 0).
@@ -38,21 +38,21 @@ Grasp ids are "<detection id>.<k>" and stay valid across restarts and processes.
 For fine-tuning GPD later: library.iter_outcomes(with_images_only=True) yields every outcome with its
 grasp pose, template and GPD grasp image (uint8 (15, 60, 60) by default).
 
-Shell: `graspd templates {demonstrate,detect,feedback,library}` (graspd.templates.cli.register; add
-"graspd.templates.cli" to graspd.cli.SUBCOMMAND_MODULES).  Simulation experiments (scripted
-demonstrations, the paper's generalisation and improvement-over-time runs) live in graspd.sim.experiments
+Shell: `graspd templates {demonstrate,detect,feedback,library}` (graspd.cli.templates.register; add
+"graspd.cli.templates" to graspd.cli.main.SUBCOMMAND_MODULES).  Simulation experiments (scripted
+demonstrations, the paper's generalisation and improvement-over-time runs) live in graspd_lab.sim.experiments
 (python bench/templates.py experiment {a,b,retry,pool}).
 
 Modules: geometry (templates, table, hull axes, occlusion), matching (eq. 1, eq. 2), library (entries,
-failure sets, detections; its database is graspd.database, its outcomes graspd.outcomes), demonstration
+failure sets, detections; its database is graspd.store.database, its outcomes graspd.store.outcomes), demonstration
 (template of a demonstrated grasp; grasp images), collision (the open hand against the scene; closing
-widths), detector, cli.  Synthetic table scenes are graspd.world (meshes, objects, render).
+widths), detector, cli.  Synthetic table scenes are graspd_lab.world (meshes, objects, render).
 """
 
-from ..outcomes import Feedback
-from .detector import TemplateDetection, TemplateDetector, TemplateParams
-from .geometry import REGION_NAMES, TemplateError, TemplateGeometry
-from .library import DEFAULT_URL, TemplateLibrary, UnknownGrasp
+from graspd.store.outcomes import Feedback
+from graspd.templates.detector import TemplateDetection, TemplateDetector, TemplateParams
+from graspd.templates.geometry import REGION_NAMES, TemplateError, TemplateGeometry
+from graspd.templates.library import DEFAULT_URL, TemplateLibrary, UnknownGrasp
 
 __all__ = [
     "DEFAULT_URL",

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ..hand import HandGeometry
-from ..scene import ball_pairs, closing_region_points
-from .geometry import TemplateScene
+from graspd.core.hand import HandGeometry
+from graspd.gpd.scene import ball_pairs, closing_region_points
+from graspd.templates.geometry import TemplateScene
 
 F64 = NDArray[np.float64]
 

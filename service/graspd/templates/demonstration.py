@@ -15,13 +15,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..cloud import ViewpointCloud
-from ..grasp import GraspSet
-from ..hand import HandGeometry
-from ..images import encode_images
-from ..preprocess import PreprocessParams, preprocess
-from ..scene import Scene
-from .geometry import (
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.grasp import GraspSet
+from graspd.core.hand import HandGeometry
+from graspd.gpd.images import encode_images
+from graspd.gpd.preprocess import PreprocessParams, preprocess
+from graspd.gpd.scene import Scene
+from graspd.templates.geometry import (
     TemplateError,
     TemplateScene,
     axis_frames,
@@ -89,7 +89,7 @@ def demonstration_template(scene: TemplateScene, hand_pose: F64, hand: HandGeome
 
 def grasp_image(cloud: ViewpointCloud, pose: F64, width: float, hand: HandGeometry,
                 representation: str = "15") -> NDArray[np.uint8]:
-    """The GPD grasp image (C, 60, 60) uint8 of one grasp pose (4,4) in cloud (graspd.images)."""
+    """The GPD grasp image (C, 60, 60) uint8 of one grasp pose (4,4) in cloud (graspd.gpd.images)."""
     pc = preprocess(cloud, PreprocessParams())
     scene = Scene.build(pc, hand)
     one = GraspSet(positions=pose[None, :3, 3], rotations=pose[None, :3, :3], widths=np.array([width]),

@@ -11,14 +11,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..cloud import CloudError, ViewpointCloud
-from ..grasp import GraspSet
-from ..hand import HandGeometry
-from ..preprocess import voxelize
-from .collision import closing_widths, hand_collisions
-from .geometry import TemplateError, candidate_templates, prepare_scene
-from .library import TemplateLibrary
-from .matching import match
+from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.grasp import GraspSet
+from graspd.core.hand import HandGeometry
+from graspd.gpd.preprocess import voxelize
+from graspd.templates.collision import closing_widths, hand_collisions
+from graspd.templates.geometry import TemplateError, candidate_templates, prepare_scene
+from graspd.templates.library import TemplateLibrary
+from graspd.templates.matching import match
 
 F64 = NDArray[np.float64]
 Workspace = tuple[float, float, float, float, float, float]
@@ -77,7 +77,7 @@ class TemplateDetection:
 
 
 def cloud_arrays(cloud: ViewpointCloud, voxel: float = 0.003) -> dict[str, NDArray[Any]]:
-    """The cloud to keep with a detection, small: voxelized at GPD's default 3 mm (graspd.preprocess, which
+    """The cloud to keep with a detection, small: voxelized at GPD's default 3 mm (graspd.gpd.preprocess, which
     GPD's grasp images start from anyway), stored as float16 offsets (~0.1 mm steps) from its centre."""
     pts, src, _ = voxelize(cloud.points, cloud.camera_source, voxel)
     centre = pts.astype(np.float64).mean(axis=0) if len(pts) else np.zeros(3)

@@ -23,11 +23,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.core.points import voxel_downsample
 from graspd_client.codec import WireError
-
-from ..cloud import ViewpointCloud
-from ..hand import HandGeometry
-from ..world.points import voxel_downsample
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
@@ -224,7 +223,7 @@ def prepare_scene(cloud: ViewpointCloud, geometry: TemplateGeometry, workspace: 
         keep = ~on_table & (plane.height(pts) > 0.005)
     else:
         keep = np.ones(len(pts), bool)
-    # keyed and averaged in float32, as the templates always were (graspd.preprocess.voxelize)
+    # keyed and averaged in float32, as the templates always were (graspd.gpd.preprocess.voxelize)
     obj = voxel_downsample(pts[keep].astype(np.float32), 0.6 * geometry.tile).astype(np.float64)
     obj, segments = connected_pieces(obj, 1.5 * geometry.tile)
     if len(obj) < 4:

@@ -1,5 +1,5 @@
 """The grasp library (Herzog et al. 2012): demonstrated templates, their failure sets F_l, the detections
-feedback refers to, and the outcomes reported (graspd.outcomes), in one database (graspd.database).
+feedback refers to, and the outcomes reported (graspd.store.outcomes), in one database (graspd.store.database).
 
 A new library records the hand and template geometry it is made for; the snapshot of entries and
 failures used for matching is re-read only when any writer changed them.
@@ -19,15 +19,25 @@ import sqlalchemy as sa
 from numpy.typing import NDArray
 from sqlalchemy.engine import Connection, Engine
 
-from ..cloud import ViewpointCloud
-from ..database import SCHEMA_VERSION, Database, StoreError, detections, entries, failures, from_npz, meta, to_npz
-from ..hand import HandGeometry
-from ..images import REPRESENTATIONS
-from ..outcomes import Feedback, OutcomeStore, check_success
-from .collision import closing_widths
-from .demonstration import cloud_from_arrays, demonstration_template, grasp_image
-from .geometry import TemplateError, TemplateGeometry, prepare_scene
-from .matching import entry_gammas
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.hand import HandGeometry
+from graspd.gpd.images import REPRESENTATIONS
+from graspd.store.database import (
+    SCHEMA_VERSION,
+    Database,
+    StoreError,
+    detections,
+    entries,
+    failures,
+    from_npz,
+    meta,
+    to_npz,
+)
+from graspd.store.outcomes import Feedback, OutcomeStore, check_success
+from graspd.templates.collision import closing_widths
+from graspd.templates.demonstration import cloud_from_arrays, demonstration_template, grasp_image
+from graspd.templates.geometry import TemplateError, TemplateGeometry, prepare_scene
+from graspd.templates.matching import entry_gammas
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -125,7 +135,7 @@ class TemplateLibrary:
         demonstrated hand pose (4x4, rotation columns [approach, binormal, axis], translation = hand base
         centre, cloud frame).  Returns the entry id.  TemplateError / CloudError name the bad field."""
         if not isinstance(cloud, ViewpointCloud):
-            raise TemplateError("cloud", "must be a graspd.cloud.ViewpointCloud")
+            raise TemplateError("cloud", "must be a graspd.core.cloud.ViewpointCloud")
         if label is not None and (not isinstance(label, str) or len(label) > 200):
             raise TemplateError("label", "must be a string of at most 200 characters")
         scene = prepare_scene(cloud, self.geometry, workspace)
@@ -230,7 +240,7 @@ class TemplateLibrary:
 
     def add_outcome(self, grasp_id: str, success: bool, pose: F64, width: float,
                     image: NDArray[np.uint8] | None, representation: str | None = "15") -> Feedback:
-        """Store the outcome of a grasp no library entry produced (a GPD grasp; graspd.outcomes.OutcomeStore):
+        """Store the outcome of a grasp no library entry produced (a GPD grasp; graspd.store.outcomes.OutcomeStore):
         its pose (4x4, cloud frame), width (m) and grasp image; no failure set changes."""
         _check_success(success)
         return self.outcomes.add_outcome(grasp_id, bool(success), pose, width, image, representation)
@@ -305,7 +315,7 @@ class TemplateLibrary:
                 "hand": self.hand.to_dict(), "template": dict(self.geometry.__dict__), "entries": lines}
 
     def iter_outcomes(self, with_images_only: bool = False) -> Iterator[dict[str, Any]]:
-        """Every stored outcome, oldest first (graspd.outcomes.OutcomeStore.iter_outcomes)."""
+        """Every stored outcome, oldest first (graspd.store.outcomes.OutcomeStore.iter_outcomes)."""
         return self.outcomes.iter_outcomes(with_images_only)
 
     def _check_template(self, heights: NDArray[Any], types: NDArray[Any], field: str) -> None:

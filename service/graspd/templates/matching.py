@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .geometry import SURFACE
+from graspd.templates.geometry import SURFACE
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]

@@ -1,0 +1,222 @@
+"""The dense-clutter benchmark protocol (IJRR Table 1) and its statistics.
+
+A round: build a scene, then repeat sense -> detect -> choose a feasible grasp -> execute until the tray
+is empty, no grasp was found three times, or the same failure happened on the same object three times
+in a row.  Success rate = successes / attempts; cleared = objects lifted out / objects in the scene.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from graspd.core.camera import Camera, sensing_cameras
+from graspd.core.grasp import GraspSet
+from graspd.core.hand import HandGeometry
+from graspd_lab.sim.containers import scene_container, style_ranges
+from graspd_lab.sim.detectors import SimDetector, Workspace
+from graspd_lab.sim.gripper import Attempt, ExecutionParams, Gripper, Outcome
+from graspd_lab.sim.sensing import observe
+from graspd_lab.sim.world import SimWorld, build_scene
+from graspd_lab.world.noise import DepthNoise
+
+SENSINGS = ("passive", "active", "side")
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One benchmark configuration: scene kind and size, sensing, grasp choice and hand.  Scene "container"
+    names a container style (graspd_lab.sim.containers.STYLES) and the split whose parameter ranges it is drawn
+    from ("held_out" or "training"); each round's container follows from its seed (scene_container)."""
+
+    scene: str = "pour"
+    num_objects: int = 10
+    sensing: str = "passive"
+    choice: str = "best"  # "best": detector's order; "random": uniform among feasible (no selection)
+    noise: bool = True
+    max_approach_angle_deg: float = 80.0  # feasible approaches lie within this angle of straight down
+    max_attempts: int = 30
+    hand: HandGeometry = field(default_factory=HandGeometry)
+    container: str | None = None
+    container_split: str = "held_out"
+
+    def __post_init__(self) -> None:
+        if (self.scene == "container") != (self.container is not None):
+            raise ValueError("scene 'container' needs a container style, and only it takes one")
+        if self.container is not None:
+            style_ranges(self.container, self.container_split)  # raises for an unknown style or split
+        if self.sensing not in SENSINGS:
+            raise ValueError(f"sensing must be one of {SENSINGS}, got {self.sensing!r}")
+        if self.choice not in ("best", "random"):
+            raise ValueError(f"choice must be 'best' or 'random', got {self.choice!r}")
+
+
+@dataclass
+class RoundResult:
+    """Counts of one round and the outcome of every attempt (plus the wall time, s)."""
+
+    seed: int
+    num_objects: int
+    successes: int = 0
+    attempts: int = 0
+    cleared: int = 0
+    outcomes: list[str] = field(default_factory=list)
+    end_reason: str = ""
+    seconds: float = 0.0
+    detect_seconds: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class StopRule:
+    """Table 1 step 6: stop after three detections in a row without a grasp, or the same failure on the same
+    object three times in a row (a success or another failure breaks the streak)."""
+
+    no_grasp: int = 0
+    streak: tuple[str, int | None] | None = None
+    streak_len: int = 0
+
+    def update(self, attempt: Attempt) -> str:
+        """Record one attempt; the reason to stop, or "" to go on."""
+        if attempt.outcome is Outcome.NO_GRASP:
+            self.no_grasp += 1
+            return "no grasp found 3 times" if self.no_grasp >= 3 else ""
+        self.no_grasp = 0
+        if attempt.outcome is Outcome.SUCCESS:
+            self.streak, self.streak_len = None, 0
+            return ""
+        key = (attempt.outcome.value, attempt.target)
+        self.streak_len = self.streak_len + 1 if key == self.streak else 1
+        self.streak = key
+        return "same failure on same object 3 times" if self.streak_len >= 3 else ""
+
+
+def feasible(grasps: GraspSet, max_angle_deg: float) -> np.ndarray:
+    """Mask of grasps the arm can execute: approach within max_angle_deg of straight down (a robot above
+    the table reaches those without IK failures).  The one filter the protocol applies to returned grasps,
+    the same for every detector: anything else a robot needs (no grasps of walls or the floor, hands clear
+    of the environment) is the detector's job."""
+    if len(grasps) == 0:
+        return np.zeros(0, bool)
+    return np.asarray(-grasps.approach[:, 2] >= np.cos(np.deg2rad(max_angle_deg)))
+
+
+def cameras_for(setting: Setting) -> list[Camera]:
+    """The cameras of the setting's sensing strategy."""
+    return sensing_cameras(setting.sensing)
+
+
+def setting_scene(setting: Setting, seed: int) -> SimWorld:
+    """The settled scene of a setting's round `seed` (its container, if any, drawn from the seed too)."""
+    container = None if setting.container is None else scene_container(setting.container, seed,
+                                                                         setting.container_split)
+    return build_scene(setting.scene, setting.num_objects, seed, setting.hand, container=container)
+
+
+def run_round(detector: SimDetector, setting: Setting, seed: int,
+              execution: ExecutionParams | None = None) -> RoundResult:
+    """One round of the protocol with scene, noise and choices all drawn from seed."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed + 1_000_003)
+    world = setting_scene(setting, seed)
+    result = RoundResult(seed=seed, num_objects=len(world.objects))
+    # what the cameras keep and the workspace box the robot sends: the scene, tray walls and floor included
+    region: Workspace = world.workspace()
+    workspace = region
+    noise = DepthNoise.benchmark() if setting.noise else DepthNoise.none()
+    cams = cameras_for(setting)
+    try:
+        gripper = Gripper(world, setting.hand, execution)
+        stop = StopRule()
+        while True:
+            if not world.objects:
+                result.end_reason = "tray empty"
+                break
+            if result.attempts >= setting.max_attempts:
+                result.end_reason = "attempt limit"
+                break
+            cloud = observe(world.client, cams, noise, rng, region)
+            td = time.perf_counter()
+            grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
+            result.detect_seconds += time.perf_counter() - td
+            ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
+            if len(ok) == 0:
+                attempt = Attempt(Outcome.NO_GRASP, None)
+            else:
+                pick = int(ok[0] if setting.choice == "best" else rng.choice(ok))
+                attempt = gripper.execute(grasps, pick)
+                result.attempts += 1
+                world.remove_outside()
+            result.outcomes.append(attempt.outcome.value)
+            if attempt.outcome is Outcome.SUCCESS:
+                result.successes += 1
+                result.cleared += len(attempt.removed)
+            reason = stop.update(attempt)
+            if reason:
+                result.end_reason = reason
+                break
+    finally:
+        world.close()
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Totals over rounds with 95% bootstrap intervals (resampling rounds)."""
+
+    rounds: int
+    objects: int
+    attempts: int
+    successes: int
+    cleared: int
+    success_rate: float
+    success_ci: tuple[float, float]
+    cleared_rate: float
+    cleared_ci: tuple[float, float]
+    failures: dict[str, int]
+    seconds_per_round: float
+    detect_seconds_per_attempt: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def summarize(results: list[RoundResult], boot: int = 2000, seed: int = 0) -> Summary:
+    """Pooled success and cleared rates with percentile bootstrap 95% intervals over rounds."""
+    if not results:
+        raise ValueError("summarize needs at least one round")
+    succ = np.array([r.successes for r in results], float)
+    att = np.array([r.attempts for r in results], float)
+    clr = np.array([r.cleared for r in results], float)
+    obj = np.array([r.num_objects for r in results], float)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(results), size=(boot, len(results)))
+
+    def ratio(num: np.ndarray, den: np.ndarray) -> tuple[float, tuple[float, float]]:
+        point = float(num.sum() / den.sum()) if den.sum() else float("nan")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            samples = num[idx].sum(1) / den[idx].sum(1)
+        samples = samples[np.isfinite(samples)]
+        if len(samples) == 0:
+            return point, (float("nan"), float("nan"))
+        lo, hi = np.percentile(samples, [2.5, 97.5])
+        return point, (float(lo), float(hi))
+
+    s, s_ci = ratio(succ, att)
+    c, c_ci = ratio(clr, obj)
+    fails = Counter(o for r in results for o in r.outcomes if o != Outcome.SUCCESS.value)
+    attempts_total = max(int(att.sum()) + fails.get(Outcome.NO_GRASP.value, 0), 1)
+    return Summary(
+        rounds=len(results), objects=int(obj.sum()), attempts=int(att.sum()), successes=int(succ.sum()),
+        cleared=int(clr.sum()), success_rate=s, success_ci=s_ci, cleared_rate=c, cleared_ci=c_ci,
+        failures=dict(sorted(fails.items())),
+        seconds_per_round=float(np.mean([r.seconds for r in results])),
+        detect_seconds_per_attempt=float(sum(r.detect_seconds for r in results) / attempts_total),
+    )

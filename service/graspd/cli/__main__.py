@@ -1,0 +1,7 @@
+"""`python -m graspd.cli`: the graspd command."""
+
+import sys
+
+from graspd.cli.main import main
+
+sys.exit(main())

@@ -1,0 +1,277 @@
+"""Step 3 of Algorithm 1 (Algorithm 2 of the IJRR paper): sample 6-DOF hand candidates on the cloud.
+
+For each sampled point p: a Darboux frame from the eigenvectors of the summed normal outer products
+in an r-ball (largest eigenvalue: smoothed normal; smallest: the curvature axis); then a grid over
+finger placements y (along the binormal) and orientations phi (about the curvature axis); each hand is
+pushed forward along its approach until a finger or the palm touches the cloud, and kept when the
+fingertips reach at least init_bite past p (so the closing region holds p).
+
+Collision checks are binned along the closing direction at a resolution of a quarter finger width:
+a point within one bin of a finger counts as touching it, a conservative margin for sensor noise.
+Per (sample, orientation) the middle of the collision-free finger placements is kept, as GPD does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from graspd.core.grasp import GraspSet
+from graspd.core.hand import HandGeometry
+from graspd.core.parallel import THREADS
+from graspd.gpd.environment import Plane
+from graspd.gpd.scene import ClosingRegionPoints, Scene, ball_pairs
+
+MIN_FRAME_POINTS = 3
+CHUNK = 256
+
+
+@dataclass(frozen=True)
+class SamplingParams:
+    """num_samples points drawn uniformly (seeded) from the cloud (or from the points where sample_pool
+    is True: the region of interest), or exactly sample_indices;
+    |Phi| orientations in [-pi/2, pi/2) and |Y| finger placements; frame_radius r (m).  clear_behind (m):
+    how far behind the finger roots the hand's body and approach path must be free of points (palm depth
+    plus approach distance); None checks only the points within the hand's own reach, as GPD does.
+    obstacles: the points the hands test against (default all); support (its normal toward the free side)
+    stops each hand support_clearance (m) short of the plane in closed form, so the support's points need not
+    be among the obstacles (most of a tabletop cloud is table)."""
+
+    num_samples: int = 1000
+    num_orientations: int = 8
+    num_finger_placements: int = 10
+    frame_radius: float = 0.01
+    seed: int | None = 0
+    sample_indices: tuple[int, ...] | None = None
+    sample_pool: NDArray[np.bool_] | None = None
+    clear_behind: float | None = None
+    obstacles: NDArray[np.bool_] | None = None
+    support: Plane | None = None
+    support_clearance: float = 0.0
+
+
+def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float
+                   ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Frames (S,3,3), columns [approach = -normal, binormal, curvature axis], from the r-ball normals,
+    and the number of points in each r-ball."""
+    pts, nrm = scene.points, scene.normals
+    sid, idx = ball_pairs(scene.tree, pts[sample_idx], radius)
+    n = nrm[idx].astype(np.float64)
+    m = np.zeros((len(sample_idx), 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            m[:, a, b] = m[:, b, a] = np.bincount(sid, n[:, a] * n[:, b], len(sample_idx))
+    _, vecs = np.linalg.eigh(m)  # ascending eigenvalues
+    normal = vecs[:, :, 2]
+    flip = np.einsum("ij,ij->i", normal, nrm[sample_idx]) < 0.0
+    normal[flip] *= -1.0
+    axis = vecs[:, :, 0]
+    # The eigenvector's sign is arbitrary: point the axis toward the observing camera, which moves
+    # with the cloud, so frames are deterministic and equivariant under rigid motions.
+    to_cam = scene.cloud.viewpoints[scene.cloud.camera_source[sample_idx]] - pts[sample_idx]
+    axis[np.einsum("ij,ij->i", axis, to_cam) < 0.0] *= -1.0
+    approach = -normal
+    binormal = np.cross(axis, approach)
+    return np.stack([approach, binormal, axis], axis=2), np.bincount(sid, minlength=len(sample_idx))
+
+
+def finger_offsets(hand: HandGeometry, count: int) -> NDArray[np.float64]:
+    """Hand-centre offsets along the binormal (m) at which the sampled point lies between the fingers."""
+    half = 0.9 * hand.closing_half_width
+    return np.linspace(-half, half, count) if count > 1 else np.zeros(1)
+
+
+def orientations(count: int) -> NDArray[np.float64]:
+    """Angles (rad) about the curvature axis, GPD's grid: count steps over [-pi/2, pi/2), 0 included
+    (the hand approaching along the smoothed surface normal)."""
+    return np.linspace(-np.pi / 2, np.pi / 2, count, endpoint=False)
+
+
+def sample_point_indices(n_points: int, params: SamplingParams) -> NDArray[np.int64]:
+    """Indices of the points to sample at: the given ones, or num_samples drawn without replacement."""
+    if params.sample_indices is not None:
+        idx = np.asarray(params.sample_indices, np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= n_points):
+            raise ValueError(f"sample_indices must lie in [0, {n_points - 1}]")
+        return idx
+    rng = np.random.default_rng(params.seed)
+    pool = np.arange(n_points) if params.sample_pool is None else np.flatnonzero(params.sample_pool)
+    k = min(params.num_samples, len(pool))
+    return np.sort(pool[rng.choice(len(pool), size=k, replace=False)]).astype(np.int64)
+
+
+def sample_candidates(scene: Scene, hand: HandGeometry, params: SamplingParams | None = None) -> GraspSet:
+    """Collision-free hands whose closing region holds cloud points (scores NaN), best placement per
+    (sample, orientation)."""
+    return search_hands(scene, hand, params)[0]
+
+
+def _segment_expand(seg_of: NDArray[np.int64], starts: NDArray[np.int64], lengths: NDArray[np.int64]
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """For items i with segments seg_of[i] = [starts, starts+lengths): (item id, element index) pairs."""
+    n = lengths[seg_of]
+    item = np.repeat(np.arange(len(seg_of)), n)
+    offsets = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+    return item, starts[seg_of][item] + offsets
+
+
+def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None = None
+                 ) -> tuple[GraspSet, ClosingRegionPoints]:
+    """sample_candidates, also returning the cloud points in each hand's closing region (for images)."""
+    p = params or SamplingParams()
+    empty = (GraspSet(), ClosingRegionPoints(np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
+                                             np.zeros(0, np.int64)))
+    if len(scene.points) == 0 or (p.num_samples <= 0 and p.sample_indices is None):
+        return empty
+    sample_idx = sample_point_indices(len(scene.points), p)
+    if len(sample_idx) == 0:
+        return empty
+    frames, support = darboux_frames(scene, sample_idx, p.frame_radius)
+    # A frame needs a surface: a valid normal and a few neighbours (lone points have neither).
+    ok = (support >= MIN_FRAME_POINTS) & (np.linalg.norm(scene.normals[sample_idx], axis=1) > 0.5)
+    sample_idx, frames = sample_idx[ok], frames[ok]
+    if len(sample_idx) == 0:
+        return empty
+    if p.obstacles is None:
+        tree, obstacle_idx = scene.tree, None
+    else:
+        obstacle_idx = np.flatnonzero(p.obstacles)
+        tree = cKDTree(scene.points[obstacle_idx])
+    # Chunks of samples keep the neighbour arrays small: time stays linear in the number of samples; they run
+    # on the process's thread budget (a lone request uses every core).
+    parts = THREADS.map(lambda a: _search_chunk(scene, hand, p, sample_idx[a : a + CHUNK], frames[a : a + CHUNK],
+                                                tree, obstacle_idx), range(0, len(sample_idx), CHUNK))
+    offsets = np.cumsum([0] + [len(g) for g, _ in parts])
+    region = ClosingRegionPoints(
+        np.concatenate([r.grasp + off for (_, r), off in zip(parts, offsets, strict=False)]),
+        np.concatenate([r.local for _, r in parts]),
+        np.concatenate([r.index for _, r in parts]),
+    )
+    return GraspSet.concatenate([g for g, _ in parts]), region
+
+
+def _support_limit(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.float32],
+                   frames: NDArray[np.float64], phis: NDArray[np.float64], s_grid: NDArray[np.float64],
+                   behind: float) -> NDArray[np.float64]:
+    """(samples, orientations, placements) furthest fingertip depth (m past the sample) that keeps the whole
+    hand, and its path back by `behind`, support_clearance above the support plane; -inf where no depth does."""
+    assert p.support is not None
+    n = p.support.normal
+    height = p.support.distance(samples.astype(np.float64)) - p.support_clearance  # (S,)
+    nf = frames.transpose(0, 2, 1) @ n  # (S, 3): n in each sample frame
+    c, s_ = np.cos(phis)[None, :], np.sin(phis)[None, :]
+    na = c * nf[:, 0:1] + s_ * nf[:, 1:2]  # (S, Phi): n . approach
+    nb = -s_ * nf[:, 0:1] + c * nf[:, 1:2]  # n . binormal
+    od, hd, hh = hand.hand_outer_diameter, hand.hand_depth, hand.hand_height
+    y_lo, y_hi = s_grid - od / 2.0, s_grid + od / 2.0  # (Y,) the hand's extent across
+    low_y = np.minimum(y_lo[None, None, :] * nb[:, :, None], y_hi[None, None, :] * nb[:, :, None])
+    base = height[:, None, None] + low_y - (hh / 2.0) * np.abs(nf[:, 2])[:, None, None]  # lowest point at x = 0
+    na3 = na[:, :, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        toward = base / np.maximum(-na3, 1e-12)  # na < 0: the fingertips (x = tip) come down first
+    # na >= 0: the back of the hand and its path (x = tip - hd - behind) is lowest; deeper only lifts it
+    away_ok = base + (-(hd + behind)) * na3 >= 0.0
+    return np.where(na3 < 0.0, toward, np.where(away_ok, np.inf, -np.inf))
+
+
+def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_idx: NDArray[np.int64],
+                  frames: NDArray[np.float64], tree: cKDTree, obstacle_idx: NDArray[np.int64] | None
+                  ) -> tuple[GraspSet, ClosingRegionPoints]:
+    """Algorithm 2 steps 5-10 for a batch of samples with their frames; tree indexes the obstacle points
+    (scene indices obstacle_idx, or all scene points when None)."""
+    s_grid = finger_offsets(hand, p.num_finger_placements)
+    phis = orientations(p.num_orientations)
+    od, fw, hd, hh = hand.hand_outer_diameter, hand.finger_width, hand.hand_depth, hand.hand_height
+    y_max = float(np.abs(s_grid).max()) + od / 2.0
+    samples = scene.points[sample_idx]
+
+    # Neighbours that can touch any hand of this sample, in the sample frame, within the hand's height.
+    behind = 0.0 if p.clear_behind is None else p.clear_behind
+    reach = float(np.sqrt(y_max**2 + (hd + behind) ** 2 + (hh / 2) ** 2))
+    sid, idx = ball_pairs(tree, samples, reach)
+    if obstacle_idx is not None:
+        idx = obstacle_idx[idx]
+    d = scene.points[idx] - samples[sid]
+    fr = frames.astype(np.float32)
+    z = np.einsum("tj,tj->t", d, fr[sid, :, 2])
+    slab = np.abs(z) <= hh / 2.0
+    sid, idx, d, z = sid[slab], idx[slab], d[slab], z[slab]
+    order = np.argsort(sid, kind="stable")
+    sid, idx, d, z = sid[order], idx[order], d[order], z[order]
+    local_x = np.einsum("tj,tj->t", d, fr[sid, :, 0])
+    local_y = np.einsum("tj,tj->t", d, fr[sid, :, 1])
+
+    # Binned minimum approach depth per (sample, orientation, y-bin).
+    bin_w = min(fw / 4.0, 0.0025)
+    n_bins = int(np.ceil(2 * y_max / bin_w)) + 1
+    n_s, n_phi = len(sample_idx), len(phis)
+    cos, sin = np.cos(phis).astype(np.float32)[:, None], np.sin(phis).astype(np.float32)[:, None]
+    x_phi = cos * local_x[None, :] + sin * local_y[None, :]  # (Phi, T) depth along the rotated approach
+    y_phi = -sin * local_x[None, :] + cos * local_y[None, :]
+    bins = np.floor((y_phi + y_max) / bin_w).astype(np.int64)
+    inside = (bins >= 0) & (bins < n_bins)
+    keys = (sid[None, :] * n_phi + np.arange(n_phi)[:, None]) * n_bins + bins
+    flat_min = np.full(n_s * n_phi * n_bins, np.inf, np.float32)
+    np.minimum.at(flat_min, keys[inside], x_phi[inside])
+    depth_min = flat_min.reshape(n_s, n_phi, n_bins)
+
+    def bin_range(lo: float, hi: float) -> slice:
+        first = max(int(np.floor((lo + y_max) / bin_w)), 0)
+        return slice(first, min(int(np.floor((hi + y_max) / bin_w)) + 1, n_bins))
+
+    tip = np.empty((n_s, n_phi, len(s_grid)), np.float32)
+    for j, s in enumerate(s_grid):
+        left = depth_min[:, :, bin_range(s - od / 2, s - od / 2 + fw)].min(axis=2)
+        right = depth_min[:, :, bin_range(s + od / 2 - fw, s + od / 2)].min(axis=2)
+        palm = depth_min[:, :, bin_range(s - od / 2, s + od / 2)].min(axis=2) + hd
+        tip[:, :, j] = np.minimum(np.minimum(left, right), palm)
+    # the palm never passes the sample (it is always an obstacle when the obstacles hold it)
+    np.minimum(tip, hd, out=tip)
+    if p.support is not None:
+        np.minimum(tip, _support_limit(p, hand, samples, frames, phis, s_grid, behind), out=tip)
+    valid = tip >= hand.init_bite
+
+    # Middle of the valid finger placements for each (sample, orientation).
+    j_idx = np.arange(len(s_grid), dtype=np.float64)
+    n_valid = valid.sum(axis=2)
+    mean_j = (valid * j_idx).sum(axis=2) / np.maximum(n_valid, 1)
+    cost = np.where(valid, np.abs(j_idx - mean_j[:, :, None]), np.inf)
+    best_j = np.argmin(cost, axis=2)
+    si, pi = np.nonzero(n_valid > 0)
+    bj = best_j[si, pi]
+    t_star = tip[si, pi, bj].astype(np.float64)
+
+    # Closing-region points of each hand, from its sample's slab (same axis for every orientation).
+    starts = np.searchsorted(sid, np.arange(n_s))
+    lengths = np.searchsorted(sid, np.arange(n_s), side="right") - starts
+    cand, elem = _segment_expand(si, starts, lengths)
+    hx = x_phi[pi[cand], elem] - (t_star[cand] - hd)
+    hy = y_phi[pi[cand], elem] - s_grid[bj][cand]
+    half_w = hand.closing_half_width
+    inside_c = (hx >= 0.0) & (hx <= hd) & (np.abs(hy) <= half_w)
+    cand, elem, hx, hy = cand[inside_c], elem[inside_c], hx[inside_c], hy[inside_c]
+    m = len(si)
+    ymin = np.full(m, np.inf)
+    ymax = np.full(m, -np.inf)
+    np.minimum.at(ymin, cand, hy)
+    np.maximum.at(ymax, cand, hy)
+    keep = np.isfinite(ymin)
+
+    c, s_ = np.cos(phis[pi])[:, None], np.sin(phis[pi])[:, None]
+    f = frames[si]
+    approach = c * f[:, :, 0] + s_ * f[:, :, 1]
+    binormal = -s_ * f[:, :, 0] + c * f[:, :, 1]
+    rotations = np.stack([approach, binormal, f[:, :, 2]], axis=2)
+    positions = samples[si].astype(np.float64) + approach * (t_star - hd)[:, None] + binormal * s_grid[bj][:, None]
+    grasps = GraspSet(
+        positions=positions[keep],
+        rotations=rotations[keep],
+        widths=(ymax - ymin)[keep],
+        scores=np.full(int(keep.sum()), np.nan),
+        samples=samples[si][keep].astype(np.float64),
+    )
+    region = ClosingRegionPoints(cand, np.stack([hx, hy, z[elem]], axis=1).astype(np.float32), idx[elem])
+    return grasps, region.subset(keep)

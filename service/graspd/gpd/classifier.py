@@ -1,0 +1,248 @@
+"""Step 5 of Algorithm 1: score grasp images with a trained CNN, run through onnxruntime on the CPU.
+
+A shipped model is two files in the models folder: ``<name>.onnx`` (float32 input "images" of shape
+(batch, C, S, S), output "score" of shape (batch,), the probability that the candidate is a grasp)
+and ``<name>.json``, its model card (representation, image size, hand geometry, input scaling,
+metrics, how it was made).  The images (uint8, graspd.gpd.images.encode_images) are scaled as the card
+says, ``x = images * input.scale + input.offset``, before they enter the network.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: The model the service uses when none is named: trained on cluttered scenes (issue 13), 15-channel images, GPD hand.
+DEFAULT_MODEL_NAME = "container15"
+#: Environment variable that overrides the models folder.
+MODELS_DIR_ENV = "GRASPD_MODELS_DIR"
+_REQUIRED_CARD_KEYS = ("name", "representation", "channels", "image_size", "input", "output")
+
+
+class ModelError(ValueError):
+    """A model or model card that is missing, unknown or malformed."""
+
+
+@runtime_checkable
+class GraspClassifier(Protocol):
+    """Anything that maps grasp images (M, C, S, S) uint8 to grasp probabilities (M,) float32 in [0, 1]."""
+
+    name: str
+    representation: str
+    card: dict[str, Any]
+
+    def score(self, images: NDArray[np.uint8]) -> NDArray[np.float32]: ...
+
+
+#: The hand fields a grasp image depends on (its closing region): a model scores images of one hand.
+IMAGE_HAND_FIELDS = ("finger_width", "hand_outer_diameter", "hand_depth", "hand_height")
+
+
+def card_fits_hand(card: dict[str, Any], hand: dict[str, float]) -> bool:
+    """Whether a model card's hand makes the same grasp images as `hand` (a HandGeometry.to_dict()): equal on
+    every IMAGE_HAND_FIELDS field to 0.1 mm.  A card without a hand fits nothing."""
+    made_for = card.get("hand")
+    if not isinstance(made_for, dict):
+        return False
+    return all(abs(float(made_for.get(k, float("nan"))) - float(hand[k])) <= 1e-4 for k in IMAGE_HAND_FIELDS)
+
+
+#: The cascade's cheap first pass (issue 15): scores every candidate so the full model scores only the best.
+DEFAULT_CASCADE_MODEL = "scene3"
+
+
+def cascade_prefilter(model: Any, first: Any | None) -> Any | None:
+    """The first pass to use with `model`: `first` when it is another classifier made for the same hand
+    (card_fits_hand on the images' hand fields), else None (no cascade)."""
+    if first is None or model is None or first is model:
+        return None
+    made_for = dict(getattr(model, "card", {})).get("hand")
+    if not isinstance(made_for, dict) or not card_fits_hand(dict(getattr(first, "card", {})), made_for):
+        return None
+    return first
+
+
+def default_model_name() -> str:
+    """Name of the default model (the generic 15-channel classifier)."""
+    return DEFAULT_MODEL_NAME
+
+
+def default_models_dir() -> Path:
+    """The models folder: $GRASPD_MODELS_DIR if set, else models/ at the repository root."""
+    env = os.environ.get(MODELS_DIR_ENV)
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[3] / "models"
+
+
+def available_models(models_dir: str | Path | None = None) -> list[str]:
+    """Names of the models in a folder (each an .onnx file with a .json card beside it), sorted."""
+    folder = Path(models_dir) if models_dir is not None else default_models_dir()
+    if not folder.is_dir():
+        return []
+    return sorted(p.stem for p in folder.glob("*.onnx") if p.with_suffix(".json").is_file())
+
+
+def read_card(path: str | Path) -> dict[str, Any]:
+    """A model card (JSON) checked for the keys the classifier needs; ModelError names what is wrong."""
+    path = Path(path)
+    try:
+        card = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ModelError(f"model card {path} does not exist") from None
+    except json.JSONDecodeError as exc:
+        raise ModelError(f"model card {path} is not valid JSON: {exc}") from None
+    if not isinstance(card, dict):
+        raise ModelError(f"model card {path} must be a JSON object")
+    missing = [k for k in _REQUIRED_CARD_KEYS if k not in card]
+    if missing:
+        raise ModelError(f"model card {path} lacks {missing}")
+    for key in ("scale", "offset"):
+        if not isinstance(card["input"].get(key), int | float):
+            raise ModelError(f"model card {path}: input.{key} must be a number")
+    return card
+
+
+class OnnxGraspClassifier:
+    """A grasp classifier backed by an ONNX network run on the CPU by onnxruntime.
+
+    threads: onnxruntime intra-op threads (0 = onnxruntime's choice); batch_size: images per run,
+    bounding the float32 buffer to batch_size * C * S * S * 4 bytes.
+    """
+
+    def __init__(self, onnx_path: str | Path, card: dict[str, Any] | None = None, threads: int = 2,
+                 batch_size: int = 1024) -> None:
+        import onnxruntime as ort  # noqa: PLC0415
+
+        self.path = Path(onnx_path)
+        if not self.path.is_file():
+            raise ModelError(f"model file {self.path} does not exist")
+        if threads < 0:
+            raise ModelError(f"threads must be >= 0, got {threads}")
+        if batch_size < 1:
+            raise ModelError(f"batch_size must be >= 1, got {batch_size}")
+        self.card: dict[str, Any] = card if card is not None else read_card(self.path.with_suffix(".json"))
+        self.name: str = str(self.card["name"])
+        self.representation: str = str(self.card["representation"])
+        self.channels = int(self.card["channels"])
+        self.image_size = int(self.card["image_size"])
+        self.scale = np.float32(self.card["input"]["scale"])
+        self.offset = np.float32(self.card["input"]["offset"])
+        self.batch_size = batch_size
+        self.threads = threads  # intra-op threads of one run (0: onnxruntime's choice, every core)
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = threads
+        opts.inter_op_num_threads = 1
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        try:
+            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise ModelError(f"model file {self.path} could not be loaded by onnxruntime: {exc}") from None
+        self.input_name = self.session.get_inputs()[0].name
+        self.output_name = self.session.get_outputs()[0].name
+
+    def __repr__(self) -> str:
+        return f"OnnxGraspClassifier(name={self.name!r}, representation={self.representation!r}, path={self.path})"
+
+    def check_images(self, images: NDArray[Any]) -> None:
+        """ValueError naming 'images' unless they are uint8 (M, C, S, S) matching this model's card."""
+        if not isinstance(images, np.ndarray) or images.dtype != np.uint8:
+            raise ValueError(f"images must be a uint8 numpy array, got {getattr(images, 'dtype', type(images))}")
+        want = (self.channels, self.image_size, self.image_size)
+        if images.ndim != 4 or images.shape[1:] != want:
+            raise ValueError(
+                f"images must have shape (M, {want[0]}, {want[1]}, {want[2]}) for model {self.name!r} "
+                f"(representation {self.representation!r}), got {images.shape}"
+            )
+
+    def score(self, images: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """Probability (M,) float32 in [0, 1] that each grasp image shows a grasp."""
+        self.check_images(images)
+        out = np.empty(len(images), np.float32)
+        for a in range(0, len(images), self.batch_size):
+            batch = images[a : a + self.batch_size].astype(np.float32)
+            batch *= self.scale
+            batch += self.offset
+            res = self.session.run([self.output_name], {self.input_name: batch})[0]
+            out[a : a + len(batch)] = np.asarray(res, np.float32).reshape(-1)
+        return np.clip(out, 0.0, 1.0, out=out)
+
+
+def load_model(path_or_name: str | Path, models_dir: str | Path | None = None, threads: int = 2,
+               batch_size: int = 1024) -> OnnxGraspClassifier:
+    """A model by name (models_dir/<name>.onnx + .json) or by the path of its .onnx file.
+
+    ModelError names the unknown model and lists the known ones.
+    """
+    candidate = Path(path_or_name)
+    if candidate.suffix == ".onnx" or candidate.is_file():
+        onnx_path = candidate
+    else:
+        folder = Path(models_dir) if models_dir is not None else default_models_dir()
+        onnx_path = folder / f"{path_or_name}.onnx"
+        if not onnx_path.is_file() or not onnx_path.with_suffix(".json").is_file():
+            known = available_models(folder)
+            raise ModelError(f"unknown model {str(path_or_name)!r} in {folder}; known models: {known}")
+    if not onnx_path.is_file():
+        raise ModelError(f"model file {onnx_path} does not exist")
+    return OnnxGraspClassifier(onnx_path, read_card(onnx_path.with_suffix(".json")), threads=threads,
+                               batch_size=batch_size)
+
+
+def load_models(models_dir: str | Path | None = None, threads: int = 2,
+                batch_size: int = 1024) -> dict[str, OnnxGraspClassifier]:
+    """Every model in a folder, by name."""
+    folder = Path(models_dir) if models_dir is not None else default_models_dir()
+    return {name: load_model(name, folder, threads=threads, batch_size=batch_size)
+            for name in available_models(folder)}
+
+
+def model_candidates(models_dir: str | Path | None = None) -> list[str]:
+    """Names a folder means to ship: every .onnx file, and every model card (a JSON object with a
+    "representation" key) even without its .onnx, so that a deleted network is reported, not ignored."""
+    folder = Path(models_dir) if models_dir is not None else default_models_dir()
+    if not folder.is_dir():
+        return []
+    names = {p.stem for p in folder.glob("*.onnx")}
+    for card in folder.glob("*.json"):
+        if card.stem in names:
+            continue
+        try:
+            text = json.loads(card.read_text())
+        except (OSError, ValueError):
+            continue  # a file that is not a card at all (plan.json and the like)
+        if isinstance(text, dict) and "representation" in text:
+            names.add(card.stem)
+    return sorted(names)
+
+
+def load_models_checked(models_dir: str | Path | None = None, threads: int = 2, batch_size: int = 1024
+                        ) -> tuple[dict[str, OnnxGraspClassifier], dict[str, str]]:
+    """Every model in a folder, each loaded on its own: (the models that load, {name: why} for the rest).
+
+    A truncated, empty or corrupt .onnx, a broken card or a card without its .onnx fails only that model.
+    """
+    folder = Path(models_dir) if models_dir is not None else default_models_dir()
+    models: dict[str, OnnxGraspClassifier] = {}
+    errors: dict[str, str] = {}
+    for name in model_candidates(folder):
+        onnx_path, card_path = folder / f"{name}.onnx", folder / f"{name}.json"
+        try:
+            if not onnx_path.is_file():
+                raise ModelError(f"model file {onnx_path} does not exist (its card {card_path.name} does)")
+            if not card_path.is_file():
+                raise ModelError(f"model card {card_path} does not exist (its network {onnx_path.name} does)")
+            model = OnnxGraspClassifier(onnx_path, read_card(card_path), threads=threads, batch_size=batch_size)
+            probe = model.score(np.zeros((1, model.channels, model.image_size, model.image_size), np.uint8))
+            if probe.shape != (1,) or not np.isfinite(probe).all():  # loads, but does not score as its card says
+                raise ModelError(f"model {name!r} gave {probe!r} for one blank image, not one probability")
+            models[name] = model
+        except Exception as exc:  # onnxruntime and a malformed card raise many types; each model fails alone
+            errors[name] = str(exc) if isinstance(exc, ModelError) else f"{type(exc).__name__}: {exc}"
+    return models, errors

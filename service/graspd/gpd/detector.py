@@ -1,0 +1,404 @@
+"""GraspDetector: Algorithm 1 of the IJRR paper end to end, with a classifier passed in.
+
+preprocess -> environment (support, walls, declared boxes, up) -> scene (kd-tree, unobserved volume)
+-> sample hands on object points -> environment and feasibility filters -> encode grasp images -> score
+-> select (utility J(h) with up from the support).  Without a classifier (or with use_classifier off) the pipeline
+runs as the paper's "no classification" ablation and says so (scored = False).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graspd.core.cloud import ViewpointCloud
+from graspd.core.grasp import GraspSet
+from graspd.core.hand import HandGeometry
+from graspd.core.parallel import THREADS
+from graspd.core.warning import DetectionWarning
+from graspd.gpd.candidates import SamplingParams, search_hands
+from graspd.gpd.environment import Environment, EnvironmentParams, Label, hand_hits_environment, model_environment
+from graspd.gpd.images import encode_batches
+from graspd.gpd.occlusion import MAX_UNKNOWN_SHARE, UNKNOWN_SPACE_MODES, UnknownSpace, unknown_share
+from graspd.gpd.preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
+from graspd.gpd.scene import ClosingRegionPoints, Scene
+from graspd.gpd.selection import SelectionParams, Vec3, feasible_mask, select
+
+MAX_NUM_SAMPLES = 20_000
+
+
+class Scorer(Protocol):
+    """What the detector needs of a classifier (graspd.gpd.classifier.GraspClassifier satisfies it)."""
+
+    name: str
+    representation: str
+
+    def score(self, images: NDArray[np.uint8]) -> NDArray[np.float32]: ...
+
+
+@dataclass(frozen=True)
+class DetectionParams:
+    """Per-request knobs (metres, degrees).  workspace crops the cloud and the grasp positions.
+
+    environment: how objects are told from what holds them (default "auto": support plane and walls found
+    in the cloud); "none" is the pipeline without an environment model.  approach_distance: the pre-grasp
+    distance back along the approach over which the open hand's path must be free.  exclude_support_plane
+    None follows the environment (samples on object points only); True/False override it.  width_margin
+    (m): grasps whose width leaves less than this inside the opening rank lower (0 = off).  sample_points
+    (K, 3; cloud frame, m): sample hands at the preprocessed point nearest each (those within frame_radius;
+    gpd_ros CloudSamples / CloudIndexed) instead of num_samples random points.  early_stop (for requests that
+    want few grasps; changes which grasps come back, so off by default): search the same seeded samples in
+    rounds of early_stop_round and stop once 2 x max_grasps candidates in distinct 2 cm cells score at least
+    min_score (else 0.5); deterministic for a seed.  cascade (with a detector that has a prefilter): a cheap
+    first pass scores every candidate and only the best cascade_keep fraction (at least cascade_min) are
+    encoded and scored by the full model; the rest are dropped.  unknown_space "avoid" (default): a hand with
+    more than max_unknown (default none) of its fingers, palm or approach path in space no camera saw (behind a
+    seen surface from every camera) is treated as colliding; "allow" checks the seen points only, as GPD does."""
+
+    num_samples: int = 1000
+    workspace: Workspace | None = None
+    max_grasps: int = 100
+    min_score: float | None = None
+    approach_direction: Vec3 | None = None
+    approach_max_angle_deg: float | None = None
+    min_aperture: float | None = None
+    max_aperture: float | None = None
+    use_selection: bool = True
+    use_clustering: bool = False
+    use_classifier: bool = True
+    gravity: Vec3 | None = None
+    reference_position: Vec3 | None = None
+    seed: int | None = 0
+    voxel_size: float = 0.003
+    remove_outliers: bool = False
+    exclude_support_plane: bool | None = None
+    environment: EnvironmentParams = field(default_factory=EnvironmentParams)
+    approach_distance: float = 0.05
+    width_margin: float = 0.01
+    num_orientations: int = 8
+    num_finger_placements: int = 10
+    frame_radius: float = 0.01
+    score_batch: int = 512
+    early_stop: bool = False
+    early_stop_round: int = 100
+    cascade: bool = True
+    cascade_keep: float = 0.3
+    cascade_min: int = 200
+    unknown_space: UnknownSpace = "avoid"
+    max_unknown: float = MAX_UNKNOWN_SHARE
+    sample_points: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.num_samples <= MAX_NUM_SAMPLES:
+            raise ValueError(f"num_samples must be in [1, {MAX_NUM_SAMPLES}], got {self.num_samples}")
+        if self.max_grasps < 0:
+            raise ValueError(f"max_grasps must be >= 0, got {self.max_grasps}")
+        if not 0.0 <= self.voxel_size <= 0.05:
+            raise ValueError(f"voxel_size must be in [0, 0.05] m, got {self.voxel_size}")
+        if not 1 <= self.num_orientations <= 64 or not 1 <= self.num_finger_placements <= 64:
+            raise ValueError("num_orientations and num_finger_placements must be in [1, 64]")
+        if not 0.0 <= self.approach_distance <= 0.5:
+            raise ValueError(f"approach_distance must be in [0, 0.5] m, got {self.approach_distance}")
+        if self.early_stop_round < 1:
+            raise ValueError(f"early_stop_round must be >= 1, got {self.early_stop_round}")
+        if not 0.0 < self.cascade_keep <= 1.0 or self.cascade_min < 1:
+            raise ValueError(f"cascade_keep must be in (0, 1] and cascade_min >= 1, got {self.cascade_keep}, "
+                             f"{self.cascade_min}")
+        if self.unknown_space not in UNKNOWN_SPACE_MODES:
+            raise ValueError(f"unknown_space must be one of {UNKNOWN_SPACE_MODES}, got {self.unknown_space!r}")
+        if not 0.0 <= self.max_unknown <= 1.0:
+            raise ValueError(f"max_unknown must be in [0, 1], got {self.max_unknown}")
+        if not 0.0 <= self.width_margin <= 0.1:
+            raise ValueError(f"width_margin must be in [0, 0.1] m, got {self.width_margin}")
+
+    def selection(self, hand: HandGeometry, env: Environment | None = None) -> SelectionParams:
+        """Selection knobs; with an environment that knows "up", J(h) ranks by default (gravity = -up) with
+        heights measured from the support, and the width margin applies."""
+        gravity, table_height, margin = self.gravity, None, None
+        if env is not None and env.mode != "none":
+            margin = self.width_margin or None
+            if gravity is None and env.up is not None:
+                gravity = (float(-env.up[0]), float(-env.up[1]), float(-env.up[2]))
+            if env.support is not None and env.up is not None and float(env.up @ env.support.normal) > 0.99:
+                table_height = -env.support.offset
+        return SelectionParams(
+            workspace=self.workspace,
+            min_aperture=self.min_aperture,
+            max_aperture=hand.max_aperture if self.max_aperture is None else self.max_aperture,
+            approach_direction=self.approach_direction,
+            approach_max_angle_deg=self.approach_max_angle_deg,
+            min_score=self.min_score,
+            use_clustering=self.use_clustering,
+            gravity=gravity,
+            table_height=table_height,
+            width_margin=margin,
+            reference_position=self.reference_position,
+            max_grasps=self.max_grasps,
+        )
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Ranked grasps (best first) with what produced them and how long each stage took (s)."""
+
+    grasps: GraspSet
+    timings: dict[str, float]
+    model: str | None
+    scored: bool
+    num_candidates: int
+    num_points: int
+    hand: HandGeometry = field(default_factory=HandGeometry)
+    environment: Environment | None = None
+    warnings: tuple[DetectionWarning, ...] = ()
+
+    def warned(self, *more: DetectionWarning) -> Detection:
+        """This detection with more warnings appended (codes already present are not repeated)."""
+        have = {w.code for w in self.warnings}
+        return replace(self, warnings=self.warnings + tuple(w for w in more if w.code not in have))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "grasps": self.grasps.to_dicts(),
+            "timings": dict(self.timings),
+            "model": self.model,
+            "scored": self.scored,
+            "num_candidates": self.num_candidates,
+            "num_points": self.num_points,
+            "hand": self.hand.to_dict(),
+            "environment": None if self.environment is None else self.environment.to_dict(),
+            "warnings": [w.to_dict() for w in self.warnings],
+        }
+
+
+class GraspDetector:
+    """Loads nothing itself: give it a classifier (or None for the unscored ablation) and a hand; prefilter is
+    the cascade's cheap first pass (a classifier of a cheaper representation, e.g. 3 channels), or None."""
+
+    def __init__(self, classifier: Scorer | None = None, hand: HandGeometry | None = None,
+                 prefilter: Scorer | None = None) -> None:
+        self.classifier = classifier
+        self.hand = hand or HandGeometry()
+        self.prefilter = prefilter
+
+    def detect(self, cloud: ViewpointCloud, params: DetectionParams | None = None,
+               hand: HandGeometry | None = None) -> Detection:
+        p = params or DetectionParams()
+        h = hand or self.hand
+        timings: dict[str, float] = {}
+        t0 = t = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal t
+            now = time.perf_counter()
+            timings[stage] = now - t
+            t = now
+
+        prep = self.prepare(cloud, p, h, lap)
+        scene, env, sampling, sel = prep.scene, prep.environment, prep.sampling, prep.selection
+        scorer = self.classifier if p.use_classifier else None
+
+        def candidates_for(s: SamplingParams) -> GraspSet:
+            """Sample, filter (feasibility, environment) and score the hands of s; stage times add up."""
+            t_start = time.perf_counter()
+            cands, region = self.search(prep, s, p, h)
+            t_batch = time.perf_counter()
+            timings["sample"] = timings.get("sample", 0.0) + t_batch - t_start
+            if scorer is None or not len(cands):
+                return cands
+            if self.prefilter is not None and p.cascade and len(cands) > p.cascade_min:
+                keep = cascade_mask(self.prefilter, scene, cands, region, h, p)
+                cands, region = cands[keep], region.subset(keep)
+                now = time.perf_counter()
+                timings["prefilter"] = timings.get("prefilter", 0.0) + now - t_batch
+                t_batch = now
+            # encode and score batch by batch: memory stays bounded however many candidates there are
+            scores = np.empty(len(cands))
+            for a, images in encode_batches(scene, cands, h, scorer.representation, region=region,
+                                            batch=p.score_batch):
+                t_encoded = time.perf_counter()
+                scores[a : a + len(images)] = score_parallel(scorer, images)
+                timings["encode"] = timings.get("encode", 0.0) + t_encoded - t_batch
+                t_batch = time.perf_counter()
+                timings["score"] = timings.get("score", 0.0) + t_batch - t_encoded
+            return cands.with_scores(scores)
+
+        timings.update(sample=0.0, encode=0.0, score=0.0)
+        if p.early_stop and p.max_grasps > 0 and sampling.sample_indices is None and scorer is not None:
+            candidates = GraspSet()
+            for chunk in sample_rounds(len(scene.points), sampling, p.early_stop_round):
+                candidates = GraspSet.concatenate([candidates, candidates_for(replace(sampling, sample_indices=chunk))])
+                if enough_grasps(candidates, p):
+                    break
+        else:
+            candidates = candidates_for(sampling)
+        t = time.perf_counter()
+        rng = np.random.default_rng(p.seed)
+        grasps = select(candidates, sel, use_selection=p.use_selection, rng=rng)
+        warnings = list(env.warnings)
+        if p.unknown_space == "allow" and len(grasps):
+            top = grasps[:10]
+            share = unknown_share(scene.unobserved, top.positions, top.rotations, h, p.approach_distance)
+            if (share > p.max_unknown).any():
+                warnings.append(DetectionWarning(
+                    "unknown_space", f"{int((share > p.max_unknown).sum())} of the top {len(top)} grasps put "
+                    f"up to {100 * float(share.max()):.0f}% of the hand into space no camera saw (unknown_space "
+                    "is 'allow'); a hidden neighbour may be there"))
+        lap("select")
+        timings["total"] = time.perf_counter() - t0
+        return Detection(
+            grasps=grasps,
+            timings=timings,
+            model=None if scorer is None else scorer.name,
+            scored=scorer is not None,
+            num_candidates=len(candidates),
+            num_points=len(prep.cloud),
+            hand=h,
+            environment=env,
+            warnings=tuple(warnings),
+        )
+
+    def prepare(self, cloud: ViewpointCloud, p: DetectionParams, h: HandGeometry,
+                lap: Callable[[str], None] | None = None) -> Prepared:
+        """Preprocess, model the environment and build the scene of a request: everything before sampling."""
+        pre = PreprocessParams(voxel_size=p.voxel_size, workspace=p.workspace, remove_outliers=p.remove_outliers)
+        prepared = preprocess(cloud, pre)
+        if lap is not None:
+            lap("preprocess")
+        env = model_environment(prepared, h, p.environment, gravity=p.gravity, seed=p.seed)
+        if lap is not None:
+            lap("environment")
+        scene = Scene.build(prepared, h)
+        if lap is not None:
+            lap("scene")
+        modelled = env.mode != "none"
+        if p.exclude_support_plane is False or (p.exclude_support_plane is None and not modelled):
+            pool = None
+        elif modelled:
+            pool = env.object_mask
+        else:
+            pool = ~support_plane_mask(prepared.points)
+        # the support is a plane the hands stop short of in closed form, not thousands of points to test
+        plane = env.support if modelled else None
+        sampling = SamplingParams(num_samples=p.num_samples, num_orientations=p.num_orientations,
+                                  num_finger_placements=p.num_finger_placements, frame_radius=p.frame_radius,
+                                  seed=p.seed, sample_pool=pool, sample_indices=_nearest(scene, p),
+                                  clear_behind=h.palm_depth + p.approach_distance if modelled else None,
+                                  obstacles=None if plane is None else ~env.closed_form_mask(prepared.points),
+                                  support=plane, support_clearance=env.clearance)
+        return Prepared(cloud=prepared, environment=env, scene=scene, sampling=sampling,
+                        selection=p.selection(h, env))
+
+    @staticmethod
+    def search(prep: Prepared, sampling: SamplingParams, p: DetectionParams, h: HandGeometry
+               ) -> tuple[GraspSet, ClosingRegionPoints]:
+        """The candidates of the sampling that pass the feasibility and environment filters, with their
+        closing-region points: what the classifier scores (and what training data is labelled from)."""
+        cands, region = search_hands(prep.scene, h, sampling)
+        feasible = feasible_mask(cands, replace(prep.selection, min_score=None))
+        if prep.environment.mode != "none":
+            feasible[feasible] = ~environment_conflicts(cands[feasible], region.subset(feasible),
+                                                        prep.environment, h, p.approach_distance)
+        if p.unknown_space == "avoid" and feasible.any():
+            share = np.full(len(cands), np.nan)
+            share[feasible] = unknown_share(prep.scene.unobserved, cands.positions[feasible],
+                                            cands.rotations[feasible], h, p.approach_distance)
+            feasible &= ~(share > p.max_unknown)
+            cands = cands.with_unknown(share)
+        return cands[feasible], region.subset(feasible)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A request after preprocessing: the cloud, its environment and scene, and the sampling and selection
+    parameters derived from them (GraspDetector.prepare)."""
+
+    cloud: ViewpointCloud
+    environment: Environment
+    scene: Scene
+    sampling: SamplingParams
+    selection: SelectionParams
+
+
+#: Early stop: a round ends the search once this many times max_grasps candidates, each in its own
+#: EARLY_STOP_SPACING cell, score at least min_score (else EARLY_STOP_SCORE).
+EARLY_STOP_FACTOR = 2
+EARLY_STOP_SCORE = 0.5
+EARLY_STOP_SPACING = 0.02
+
+
+def cascade_mask(prefilter: Scorer, scene: Scene, cands: GraspSet, region: ClosingRegionPoints, hand: HandGeometry,
+                 p: DetectionParams) -> NDArray[np.bool_]:
+    """The candidates the cascade's first pass keeps: the best cascade_keep fraction (at least cascade_min) by
+    the prefilter's score on its own (cheap) images."""
+    scores = np.empty(len(cands))
+    for a, images in encode_batches(scene, cands, hand, prefilter.representation, region=region,
+                                    batch=p.score_batch):
+        scores[a : a + len(images)] = score_parallel(prefilter, images)
+    k = min(len(cands), max(p.cascade_min, int(np.ceil(p.cascade_keep * len(cands)))))
+    keep = np.zeros(len(cands), bool)
+    keep[np.argsort(-scores, kind="stable")[:k]] = True
+    return keep
+
+
+def sample_rounds(n_points: int, sampling: SamplingParams, size: int) -> Iterator[tuple[int, ...]]:
+    """The samples of sample_point_indices (the same seeded draw), in rounds of `size` taken in draw order
+    (each round sorted): the first rounds are a uniform subsample, and all of them are every sample."""
+    rng = np.random.default_rng(sampling.seed)
+    pool = np.arange(n_points) if sampling.sample_pool is None else np.flatnonzero(sampling.sample_pool)
+    drawn = pool[rng.choice(len(pool), size=min(sampling.num_samples, len(pool)), replace=False)]
+    for a in range(0, len(drawn), max(1, size)):
+        yield tuple(int(i) for i in np.sort(drawn[a : a + size]))
+
+
+def enough_grasps(candidates: GraspSet, p: DetectionParams) -> bool:
+    """Whether the candidates so far hold EARLY_STOP_FACTOR x max_grasps high-scoring, diverse grasps (scores
+    >= min_score, else EARLY_STOP_SCORE; positions in distinct EARLY_STOP_SPACING cells)."""
+    good = candidates.scores >= (EARLY_STOP_SCORE if p.min_score is None else p.min_score)
+    cells = np.unique(np.floor(candidates.positions[good] / EARLY_STOP_SPACING).astype(np.int64), axis=0)
+    return len(cells) >= EARLY_STOP_FACTOR * p.max_grasps
+
+
+def _nearest(scene: Scene, p: DetectionParams) -> tuple[int, ...] | None:
+    """Rows of the scene nearest p.sample_points (within p.frame_radius, each once), None without them."""
+    if p.sample_points is None:
+        return None
+    if len(p.sample_points) == 0 or len(scene.points) == 0:
+        return ()
+    dist, idx = scene.tree.query(np.asarray(p.sample_points, np.float64).reshape(-1, 3),
+                                 distance_upper_bound=p.frame_radius)
+    return tuple(np.unique(idx[np.isfinite(dist)]).tolist())
+
+
+MIN_SCORE_PIECE = 64  # images scored together at least: below this a second thread saves less than it costs
+
+
+def score_parallel(scorer: Scorer, images: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """scorer.score(images) in pieces on the process's thread budget: a lone request scores on every core,
+    concurrent ones on their share.  A scorer with intra-op threads of its own (its `threads`, 0 = all cores)
+    gets fewer pieces.  Scores do not depend on the pieces (each image is scored on its own)."""
+    own = int(getattr(scorer, "threads", 1))
+    own = THREADS.cores if own <= 0 else own
+    parts = min(max(1, THREADS.share() // own), max(1, len(images) // MIN_SCORE_PIECE))
+    if parts <= 1:
+        return np.asarray(scorer.score(images), np.float64)
+    step = -(-len(images) // parts)
+    pieces = THREADS.map(scorer.score, [images[a : a + step] for a in range(0, len(images), step)], threads=parts)
+    return np.concatenate([np.asarray(x, np.float64) for x in pieces])
+
+
+def environment_conflicts(candidates: GraspSet, region: ClosingRegionPoints, env: Environment, hand: HandGeometry,
+                          approach_distance: float) -> NDArray[np.bool_]:
+    """Candidates that grasp the environment (an environment point between the fingers) or whose hand or
+    approach path enters it (see environment.hand_hits_environment)."""
+    bad = np.zeros(len(candidates), bool)
+    env_point = env.labels[region.index] != Label.OBJECT
+    bad[region.grasp[env_point]] = True
+    rest = ~bad
+    bad[rest] = hand_hits_environment(candidates.positions[rest], candidates.rotations[rest], hand, env,
+                                      approach_distance)
+    return bad

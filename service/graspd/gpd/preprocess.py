@@ -1,0 +1,130 @@
+"""Step 1 of Algorithm 1: clean a viewpoint cloud and estimate camera-facing surface normals (open3d)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.open3d_import import defer_plotly_drawing
+
+defer_plotly_drawing()  # open3d's dash/plotly drawing loads when used, not with open3d (~0.5 s of start-up)
+
+Workspace = tuple[float, float, float, float, float, float]
+
+
+@dataclass(frozen=True)
+class PreprocessParams:
+    """voxel_size (m, 0 = off); workspace box [xmin, xmax, ymin, ymax, zmin, zmax] in the cloud frame;
+    statistical outlier removal; normals from neighbours within normal_radius (m, at most max_nn)."""
+
+    voxel_size: float = 0.003
+    workspace: Workspace | None = None
+    remove_outliers: bool = False
+    outlier_neighbors: int = 20
+    outlier_std_ratio: float = 2.0
+    normal_radius: float = 0.01
+    normal_max_nn: int = 30
+    recompute_normals: bool = False
+
+
+def crop_mask(points: NDArray[np.floating], workspace: Workspace) -> NDArray[np.bool_]:
+    """Points inside the axis-aligned box [xmin, xmax, ymin, ymax, zmin, zmax]."""
+    lo = np.array(workspace[0::2], np.float64)
+    hi = np.array(workspace[1::2], np.float64)
+    if np.any(hi < lo):
+        raise CloudError("workspace", "each max must be >= its min ([xmin, xmax, ymin, ymax, zmin, zmax])")
+    return np.all((points >= lo) & (points <= hi), axis=1)
+
+
+def voxelize(points: NDArray[np.float32], camera_source: NDArray[np.int32], voxel_size: float,
+             normals: NDArray[np.float32] | None = None
+             ) -> tuple[NDArray[np.float32], NDArray[np.int32], NDArray[np.float32] | None]:
+    """Mean point per occupied voxel; the camera of a voxel is the one that saw most of its points."""
+    grid = np.floor(points / voxel_size).astype(np.int64)
+    grid -= grid.min(axis=0)
+    dims = grid.max(axis=0) + 1
+    keys = (grid[:, 0] * dims[1] + grid[:, 1]) * dims[2] + grid[:, 2]
+    _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    m = counts.shape[0]
+    sums = np.stack([np.bincount(inverse, points[:, k], m) for k in range(3)], axis=1)
+    out_pts: NDArray[np.float32] = (sums / counts[:, None]).astype(np.float32)
+    ncam = int(camera_source.max()) + 1 if camera_source.size else 1
+    votes = np.bincount(inverse * ncam + camera_source, minlength=m * ncam).reshape(m, ncam)
+    out_src = np.argmax(votes, axis=1).astype(np.int32)
+    out_nrm = None
+    if normals is not None:
+        nsum = np.stack([np.bincount(inverse, normals[:, k], m) for k in range(3)], axis=1)
+        out_nrm = (nsum / np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-12)).astype(np.float32)
+    return out_pts, out_src.astype(np.int32), out_nrm
+
+
+def estimate_normals(points: NDArray[np.float32], radius: float, max_nn: int) -> NDArray[np.float32]:
+    """Unit surface normals (N,3) by local PCA over a hybrid radius/kNN neighbourhood (unoriented)."""
+    import open3d as o3d  # noqa: PLC0415
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=max_nn))
+    return np.asarray(pcd.normals, np.float32)
+
+
+def orient_toward_cameras(points: NDArray[np.float32], normals: NDArray[np.float32],
+                          camera_source: NDArray[np.int32], viewpoints: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Flip each normal to point toward the camera that saw its point (outward for a visible surface)."""
+    to_cam = viewpoints[camera_source] - points
+    flip = np.einsum("ij,ij->i", normals, to_cam) < 0.0
+    out = normals.copy()
+    out[flip] *= -1.0
+    return out
+
+
+def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) -> ViewpointCloud:
+    """Drop non-finite points, crop, voxelize, remove outliers, and give every point an oriented normal."""
+    p = params or PreprocessParams()
+    finite = np.asarray(np.isfinite(cloud.points).all(axis=1), bool)
+    if cloud.normals is not None:
+        finite = finite & np.asarray(np.isfinite(cloud.normals).all(axis=1), bool)
+    c = cloud.select(finite) if not finite.all() else cloud
+    if p.workspace is not None:
+        c = c.select(crop_mask(c.points, p.workspace))
+    if len(c) == 0:
+        return c.__class__(points=np.zeros((0, 3), np.float32), viewpoints=c.viewpoints,
+                           normals=np.zeros((0, 3), np.float32))
+    pts, src, nrm = c.points, c.camera_source, c.normals
+    if p.voxel_size > 0.0:
+        pts, src, nrm = voxelize(pts, src, p.voxel_size, nrm)
+    if p.remove_outliers and len(pts) > p.outlier_neighbors:
+        import open3d as o3d  # noqa: PLC0415
+
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts.astype(np.float64)))
+        _, keep = pcd.remove_statistical_outlier(p.outlier_neighbors, p.outlier_std_ratio)
+        keep_idx = np.asarray(keep, np.int64)
+        pts, src = pts[keep_idx], src[keep_idx]
+        nrm = None if nrm is None else nrm[keep_idx]
+    if nrm is None or p.recompute_normals:
+        nrm = estimate_normals(pts, p.normal_radius, p.normal_max_nn) if len(pts) >= 3 else np.zeros_like(pts)
+    nrm = orient_toward_cameras(pts, nrm, src, c.viewpoints)
+    return ViewpointCloud(points=pts, viewpoints=c.viewpoints, camera_source=src, normals=nrm)
+
+
+def support_plane_mask(points: NDArray[np.float32], distance: float = 0.01, min_fraction: float = 0.2,
+                       seed: int = 0) -> NDArray[np.bool_]:
+    """Points within `distance` (m) of the dominant plane (RANSAC), if that plane holds at least
+    min_fraction of the cloud; else all False.  Used to keep samples off the table."""
+    import open3d as o3d  # noqa: PLC0415
+
+    mask = np.zeros(len(points), bool)
+    if len(points) < 3:
+        return mask
+    o3d.utility.random.seed(seed)
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    model, inliers = pcd.segment_plane(distance_threshold=distance, ransac_n=3, num_iterations=200)
+    if len(inliers) >= min_fraction * len(points):
+        # open3d returns the least-squares plane of the inliers but the inliers of the RANSAC hypothesis
+        # before that refit: take every point within distance of the returned plane
+        normal = np.asarray(model[:3], np.float64)
+        mask = np.abs(points @ normal + model[3]) <= distance * float(np.linalg.norm(normal))
+    return mask

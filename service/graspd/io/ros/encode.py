@@ -1,0 +1,299 @@
+"""graspd outputs -> CDR bytes a ROS 2 node reads: gpd_ros GraspConfigList, geometry_msgs PoseArray,
+visualization_msgs MarkerArray (RViz grippers) and moveit_msgs Grasp; plus fast builders of the inputs a robot
+sends (PointCloud2, CloudSources, CloudIndexed, CloudSamples) for tests, benchmarks and clients.
+
+Everything is in the frame of the input cloud (header.frame_id, carried through with its stamp), in metres.
+Grasps follow DESIGN.md: position = hand base centre, rotation columns [approach, binormal, axis].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from graspd.core.grasp import GraspSet, rotation_to_quat_xyzw
+from graspd.core.hand import HandGeometry
+from graspd.io.ros.types import (
+    GRASP_CONFIG_LIST,
+    MARKER,
+    MARKER_ARRAY,
+    MOVEIT_GRASP,
+    POSE_ARRAY,
+    Header,
+    default_message,
+    header_message,
+    typestore,
+)
+
+#: RViz marker namespace; marker ids are 3 * rank + part (part 0 left finger, 1 right finger, 2 palm).
+MARKER_NS = "graspd"
+MARKER_PARTS = 3
+#: visualization_msgs/Marker constants.
+MARKER_CUBE, MARKER_ADD, MARKER_DELETEALL = 1, 0, 3
+
+# --------------------------------------------------------------------------------------------------- outputs
+
+
+def _points(t: dict[str, Any], xyz: NDArray[np.float64], kind: str) -> list[Any]:
+    cls = t[kind]
+    return [cls(x=float(a), y=float(b), z=float(c)) for a, b, c in xyz.tolist()]
+
+
+def _poses(t: dict[str, Any], positions: NDArray[np.float64], quats: NDArray[np.float64]) -> list[Any]:
+    point, quat, pose = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Quaternion"], t["geometry_msgs/msg/Pose"]
+    return [pose(position=point(x=p[0], y=p[1], z=p[2]), orientation=quat(x=q[0], y=q[1], z=q[2], w=q[3]))
+            for p, q in zip(positions.tolist(), quats.tolist(), strict=True)]
+
+
+def encode_grasp_config_list(grasps: GraspSet, header: Header) -> bytes:
+    """gpd_ros/GraspConfigList: one GraspConfig per grasp in order (position, approach, binormal, axis in
+    header.frame_id, m; width m; score NaN when unscored; sample = the cloud point it was found at)."""
+    store = typestore()
+    t = store.types
+    f32 = t["std_msgs/msg/Float32"]
+    cfg = t["gpd_ros/msg/GraspConfig"]
+    pos = _points(t, grasps.positions, "geometry_msgs/msg/Point")
+    app = _points(t, grasps.approach, "geometry_msgs/msg/Vector3")
+    bi = _points(t, grasps.binormal, "geometry_msgs/msg/Vector3")
+    ax = _points(t, grasps.axis, "geometry_msgs/msg/Vector3")
+    smp = _points(t, grasps.samples, "geometry_msgs/msg/Point")
+    items = [cfg(position=pos[i], approach=app[i], binormal=bi[i], axis=ax[i], width=f32(data=w),
+                 score=f32(data=s), sample=smp[i])
+             for i, (w, s) in enumerate(zip(grasps.widths.tolist(), grasps.scores.tolist(), strict=True))]
+    msg = t[GRASP_CONFIG_LIST](header=header_message(header), grasps=items)
+    return bytes(store.serialize_cdr(msg, GRASP_CONFIG_LIST))
+
+
+def encode_pose_array(grasps: GraspSet, header: Header) -> bytes:
+    """geometry_msgs/PoseArray: per grasp the hand base pose in header.frame_id (m; orientation x = approach,
+    y = binormal, z = axis)."""
+    store = typestore()
+    t = store.types
+    msg = t[POSE_ARRAY](header=header_message(header), poses=_poses(t, grasps.positions, grasps.quat_xyzw))
+    return bytes(store.serialize_cdr(msg, POSE_ARRAY))
+
+
+def score_colors(scores: NDArray[np.float64], score_range: tuple[float, float] | None = None) -> NDArray[np.float64]:
+    """RGB (M, 3) in [0, 1] from red (lowest score of score_range, default the set's) to green (highest);
+    grey for NaN scores."""
+    s = np.asarray(scores, np.float64)
+    finite = np.isfinite(s)
+    if score_range is None:
+        lo, hi = (float(s[finite].min()), float(s[finite].max())) if finite.any() else (0.0, 1.0)
+    else:
+        lo, hi = score_range
+    frac = np.clip((np.where(finite, s, lo) - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.ones_like(s)
+    rgb = np.stack([1.0 - frac, frac, np.zeros_like(frac)], axis=1)
+    rgb[~finite] = 0.5
+    return rgb
+
+
+def _hand_parts(hand: HandGeometry) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Centres and sizes (3, 3) of [left finger, right finger, palm] in the hand frame (m); the palm is drawn
+    at least a finger width thick."""
+    boxes = hand.swept_boxes(0.0).copy()
+    boxes[2, 0, 0] = min(boxes[2, 0, 0], -hand.finger_width)
+    return boxes.mean(axis=1), boxes[:, 1] - boxes[:, 0]
+
+
+@lru_cache(maxsize=1)
+def _marker_defaults() -> dict[str, Any]:
+    base = default_message(MARKER)
+    return {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
+
+
+def encode_marker_array(grasps: GraspSet, header: Header, hand: HandGeometry, *, lifetime_s: float = 2.0,
+                        score_range: tuple[float, float] | None = None, alpha: float = 0.8) -> bytes:
+    """visualization_msgs/MarkerArray for RViz: a DELETEALL of namespace "graspd", then per grasp (rank i) three
+    CUBE markers, ids 3i..3i+2 [left finger, right finger, palm], sized from hand (m), posed in header.frame_id,
+    coloured red -> green by score (score_colors), vanishing after lifetime_s seconds."""
+    store = typestore()
+    t = store.types
+    marker = t[MARKER]
+    hdr = header_message(header)
+    base = dict(_marker_defaults(), header=hdr, ns=MARKER_NS)
+    sec = int(np.floor(lifetime_s))
+    lifetime = t["builtin_interfaces/msg/Duration"](sec=sec, nanosec=int(round((lifetime_s - sec) * 1e9)))
+    markers = [marker(**dict(base, action=MARKER_DELETEALL))]
+    centres, sizes = _hand_parts(hand)
+    m = len(grasps)
+    if m:
+        # part centres in the cloud frame: position + R @ centre, (M, 3 parts, 3)
+        world = grasps.positions[:, None, :] + np.einsum("mij,pj->mpi", grasps.rotations, centres)
+        quats = grasps.quat_xyzw.tolist()
+        colors = score_colors(grasps.scores, score_range).tolist()
+        point, quat, pose = (t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Quaternion"],
+                             t["geometry_msgs/msg/Pose"])
+        vec, rgba = t["geometry_msgs/msg/Vector3"], t["std_msgs/msg/ColorRGBA"]
+        scales = [vec(x=s[0], y=s[1], z=s[2]) for s in sizes.tolist()]
+        for i, (parts, q, c) in enumerate(zip(world.tolist(), quats, colors, strict=True)):
+            orientation = quat(x=q[0], y=q[1], z=q[2], w=q[3])
+            color = rgba(r=c[0], g=c[1], b=c[2], a=float(alpha))
+            for k, p in enumerate(parts):
+                markers.append(marker(**dict(base, id=MARKER_PARTS * i + k, type=MARKER_CUBE, action=MARKER_ADD,
+                                             pose=pose(position=point(x=p[0], y=p[1], z=p[2]),
+                                                       orientation=orientation),
+                                             scale=scales[k], color=color, lifetime=lifetime)))
+    msg = t[MARKER_ARRAY](markers=markers)
+    return bytes(store.serialize_cdr(msg, MARKER_ARRAY))
+
+
+def encode_moveit_grasps(grasps: GraspSet, header: Header, *, approach_distance: float = 0.05,
+                         min_approach_distance: float | None = None,
+                         retreat_direction: ArrayLike = (0.0, 0.0, 1.0), retreat_distance: float = 0.1,
+                         hand_to_link: ArrayLike | None = None, id_prefix: str = "graspd") -> list[bytes]:
+    """One CDR moveit_msgs/Grasp per grasp, best first as given: id "{id_prefix}/{rank}"; grasp_pose = hand base
+    pose (x = approach) in header.frame_id, times hand_to_link (4x4 pose of the MoveIt end-effector parent link in
+    the hand frame, default identity); pre_grasp_approach along approach for approach_distance (m, min default
+    half); post_grasp_retreat along retreat_direction (header frame, default +z "up") for retreat_distance (m);
+    post_place_retreat back along -approach; grasp_quality = score; hand postures left empty."""
+    store = typestore()
+    t = store.types
+    hdr = header_message(header)
+    poses = grasps.poses
+    if hand_to_link is not None:
+        link = np.asarray(hand_to_link, np.float64).reshape(4, 4)
+        poses = poses @ link
+    quats = rotation_to_quat_xyzw(poses[:, :3, :3])
+    pose_msgs = _poses(t, poses[:, :3, 3], quats)
+    min_app = 0.5 * approach_distance if min_approach_distance is None else min_approach_distance
+    vec, v3s, gt = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Vector3Stamped"], \
+        t["moveit_msgs/msg/GripperTranslation"]
+    up = np.asarray(retreat_direction, np.float64).reshape(3).tolist()
+    retreat = gt(direction=v3s(header=hdr, vector=vec(x=up[0], y=up[1], z=up[2])),
+                 desired_distance=float(retreat_distance), min_distance=0.5 * float(retreat_distance))
+    grasp, posture = t[MOVEIT_GRASP], default_message("trajectory_msgs/msg/JointTrajectory")
+    out = []
+    for i, (a, score) in enumerate(zip(grasps.approach.tolist(), grasps.scores.tolist(), strict=True)):
+        approach = gt(direction=v3s(header=hdr, vector=vec(x=a[0], y=a[1], z=a[2])),
+                      desired_distance=float(approach_distance), min_distance=float(min_app))
+        back = gt(direction=v3s(header=hdr, vector=vec(x=-a[0], y=-a[1], z=-a[2])),
+                  desired_distance=float(approach_distance), min_distance=float(min_app))
+        msg = grasp(id=f"{id_prefix}/{i}", pre_grasp_posture=posture, grasp_posture=posture,
+                    grasp_pose=t["geometry_msgs/msg/PoseStamped"](header=hdr, pose=pose_msgs[i]),
+                    grasp_quality=float(score), pre_grasp_approach=approach, post_grasp_retreat=retreat,
+                    post_place_retreat=back, max_contact_force=0.0, allowed_touch_objects=[])
+        out.append(bytes(store.serialize_cdr(msg, MOVEIT_GRASP)))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------- inputs
+
+
+class _Writer:
+    """Little-endian CDR (XCDR1) writer; alignment is relative to the end of the encapsulation header."""
+
+    def __init__(self) -> None:
+        self.chunks: list[bytes] = [b"\x00\x01\x00\x00"]
+        self.size = 0
+
+    def _align(self, n: int) -> None:
+        pad = -self.size % n
+        if pad:
+            self.chunks.append(b"\x00" * pad)
+            self.size += pad
+
+    def raw(self, data: bytes, align: int = 1) -> None:
+        self._align(align)
+        self.chunks.append(data)
+        self.size += len(data)
+
+    def scalar(self, code: str, value: float | int) -> None:
+        dt = np.dtype("<" + code)
+        self.raw(np.array(value, dt).tobytes(), dt.itemsize)
+
+    def string(self, text: str) -> None:
+        data = text.encode("utf-8") + b"\x00"
+        self.scalar("u4", len(data))
+        self.raw(data)
+
+    def sequence(self, values: NDArray[np.generic]) -> None:
+        """A sequence of fixed-size items (rows of a C-contiguous little-endian array)."""
+        self.scalar("u4", len(values))
+        if len(values):
+            self.raw(values.tobytes(), values.dtype.itemsize)
+
+    def header(self, header: Header) -> None:
+        self.scalar("i4", header.stamp[0])
+        self.scalar("u4", header.stamp[1])
+        self.string(header.frame_id)
+
+    def getvalue(self) -> bytes:
+        return b"".join(self.chunks)
+
+
+def _write_pointcloud2(w: _Writer, points: ArrayLike, header: Header, normals: ArrayLike | None) -> int:
+    pts = np.asarray(points, np.float32).reshape(-1, 3)
+    names = list("xyz")
+    cols = [pts]
+    if normals is not None:
+        names += ["normal_x", "normal_y", "normal_z"]
+        cols.append(np.asarray(normals, np.float32).reshape(pts.shape))
+    packed = np.ascontiguousarray(np.concatenate(cols, axis=1), "<f4")
+    step = 4 * len(names)
+    w.header(header)
+    w.scalar("u4", 1)
+    w.scalar("u4", len(pts))
+    w.scalar("u4", len(names))
+    for k, name in enumerate(names):
+        w.string(name)
+        w.scalar("u4", 4 * k)
+        w.scalar("u1", 7)  # FLOAT32
+        w.scalar("u4", 1)
+    w.scalar("u1", 0)  # is_bigendian
+    w.scalar("u4", step)
+    w.scalar("u4", step * len(pts))
+    w.scalar("u4", packed.nbytes)
+    w.raw(packed.tobytes())
+    w.scalar("u1", int(bool(np.isfinite(packed).all())))  # is_dense
+    return len(pts)
+
+
+def _write_cloud_sources(w: _Writer, points: ArrayLike, viewpoints: ArrayLike, camera_source: ArrayLike | None,
+                         header: Header, normals: ArrayLike | None) -> None:
+    n = _write_pointcloud2(w, points, header, normals)
+    src = np.zeros(n, "<i8") if camera_source is None else np.asarray(camera_source, "<i8").reshape(-1)
+    w.sequence(np.ascontiguousarray(src))
+    w.sequence(np.ascontiguousarray(np.asarray(viewpoints, "<f8").reshape(-1, 3)))
+
+
+def encode_pointcloud2(points: ArrayLike, header: Header | None = None, normals: ArrayLike | None = None) -> bytes:
+    """CDR sensor_msgs/PointCloud2, unorganised, float32 x y z (+ normal_x/y/z) of points (N, 3) in
+    header.frame_id (m): what a ROS 2 camera driver publishes."""
+    w = _Writer()
+    _write_pointcloud2(w, points, header or Header(), normals)
+    return w.getvalue()
+
+
+def encode_cloud_sources(points: ArrayLike, viewpoints: ArrayLike, camera_source: ArrayLike | None = None,
+                         header: Header | None = None, normals: ArrayLike | None = None) -> bytes:
+    """CDR gpd_ros/CloudSources: points (N, 3), per point the index into viewpoints (K, 3, camera positions) of
+    the camera that saw it (default all 0), all in header.frame_id (m)."""
+    w = _Writer()
+    _write_cloud_sources(w, points, viewpoints, camera_source, header or Header(), normals)
+    return w.getvalue()
+
+
+def encode_cloud_indexed(points: ArrayLike, viewpoints: ArrayLike, indices: ArrayLike,
+                         camera_source: ArrayLike | None = None, header: Header | None = None,
+                         normals: ArrayLike | None = None) -> bytes:
+    """CDR gpd_ros/CloudIndexed: a CloudSources (see encode_cloud_sources) plus indices of the points to sample."""
+    w = _Writer()
+    _write_cloud_sources(w, points, viewpoints, camera_source, header or Header(), normals)
+    w.sequence(np.ascontiguousarray(np.asarray(indices, "<i8").reshape(-1)))
+    return w.getvalue()
+
+
+def encode_cloud_samples(points: ArrayLike, viewpoints: ArrayLike, samples: ArrayLike,
+                         camera_source: ArrayLike | None = None, header: Header | None = None,
+                         normals: ArrayLike | None = None) -> bytes:
+    """CDR gpd_ros/CloudSamples: a CloudSources (see encode_cloud_sources) plus samples (K, 3), positions to
+    sample at in header.frame_id (m)."""
+    w = _Writer()
+    _write_cloud_sources(w, points, viewpoints, camera_source, header or Header(), normals)
+    w.sequence(np.ascontiguousarray(np.asarray(samples, "<f8").reshape(-1, 3)))
+    return w.getvalue()

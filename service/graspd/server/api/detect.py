@@ -1,0 +1,142 @@
+"""POST /detect: a JSON DetectRequest, or a raw PCD/PLY file with options as query parameters."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Mapping
+from typing import Any
+
+from fastapi import APIRouter, Request
+from fastapi.responses import Response
+from starlette.requests import ClientDisconnect
+
+from graspd.server.api.deps import Authorized, State
+from graspd.server.api.uploads import openapi_parameters, sniff, upload_request
+from graspd.server.problems import Problem
+from graspd.server.schemas import DetectRequest, DetectResponse, ErrorBody
+from graspd.server.services.engine import parse_request
+
+router = APIRouter(tags=["detect"])
+log = logging.getLogger("graspd.server")
+
+OPENAPI_EXTRA: dict[str, Any] = {
+    "parameters": openapi_parameters(),  # generated from DetectRequest (uploads.QUERY_PARAMS)
+    "requestBody": {
+        "required": True,
+        "description": "a DetectRequest (JSON), or a PCD, PLY, NPY or NPZ file, or a 16-bit depth PNG with "
+                       "intrinsics (binary; query parameters carry the options)",
+        "content": {
+            "application/json": {"schema": {"$ref": "#/components/schemas/DetectRequest"}},
+            "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+            **{ct: {"schema": {"type": "string", "format": "binary"}} for ct in (
+                "application/x-pcd", "application/ply", "application/x-npy", "application/x-npz", "image/png")},
+        },
+    },
+}
+
+
+async def read_capped(request: Request, cap: int, timeout_s: float | None = None) -> bytes:
+    """The request body, or 413 as soon as it is known to exceed cap bytes, or 408 when it has not all
+    arrived within timeout_s (default: the service's http_body_timeout_s): a trickling client cannot hold a
+    connection and its buffer indefinitely."""
+    length = request.headers.get("content-length")
+    if length is not None and length.isdigit() and int(length) > cap:
+        raise Problem(413, f"request body of {length} bytes exceeds the limit of {cap}", "body")
+    if timeout_s is None:
+        service = getattr(request.app.state, "service", None)
+        timeout_s = service.settings.http_body_timeout_s if service is not None else 60.0
+    chunks: list[bytes] = []
+    size = 0
+    stream = request.stream().__aiter__()
+    end = time.monotonic() + timeout_s
+    while True:
+        try:
+            chunk = await asyncio.wait_for(anext(stream), timeout=max(0.0, end - time.monotonic()))
+        except StopAsyncIteration:
+            break
+        except TimeoutError:
+            raise Problem(408, f"request body not received within {timeout_s:g} s ({size} bytes arrived)",
+                          "body") from None
+        size += len(chunk)
+        if size > cap:
+            raise Problem(413, f"request body exceeds the limit of {cap} bytes", "body")
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def parse_body(data: bytes, content_type: str, query: Mapping[str, str], viewpoints: list[str],
+               camera_poses: list[str] | None = None) -> DetectRequest:
+    """A validated DetectRequest from the body (JSON, PCD, PLY, NPY, NPZ or a depth PNG; options of a file in the
+    query, viewpoint and camera_pose repeatable); runs on a worker thread: file decoding takes tens of milliseconds
+    to seconds."""
+    kind = sniff(data, content_type)
+    if kind == "json":
+        return parse_request(data)
+    return parse_request(upload_request(data, kind, query, viewpoints, camera_poses))
+
+
+@router.post(
+    "/detect",
+    dependencies=[Authorized],
+    summary="Ranked 6-DOF grasps for a point cloud",
+    description="Grasps in the frame of the cloud (metres), best first.  Each grasp follows gpd_ros GraspConfig: "
+                "position is the centre of the hand base, rotation columns [approach, binormal, axis].",
+    response_model=DetectResponse,  # the engine builds and validates it (DetectResponse.from_detection)
+    response_class=Response,
+    responses={
+        200: {"model": DetectResponse, "description": "grasps, timings, model used",
+              "links": {"FeedbackOnTheBestGrasp": {  # a robot reports how the best grasp went
+                  "operationId": "feedback_feedback_post",
+                  "requestBody": {"grasp_id": "$response.body#/grasps/0/id"}}}},
+        400: {"model": ErrorBody}, 401: {"model": ErrorBody, "description": "missing or wrong bearer token"},
+        408: {"model": ErrorBody, "description": "the body did not arrive in time"}, 413: {"model": ErrorBody},
+        415: {"model": ErrorBody}, 422: {"model": ErrorBody},
+        503: {"model": ErrorBody, "description": "queue full (retry after the Retry-After header, s), or the "
+                                                 "model asked for, or the default, is unavailable (field model)"},
+        504: {"model": ErrorBody, "description": "deadline passed"},
+    },
+    openapi_extra=OPENAPI_EXTRA,
+)
+async def detect(request: Request, state: State) -> Response:
+    t0 = time.perf_counter()
+    metrics = state.metrics
+    outcome = "error"
+    status = 500
+    problem: Problem | None = None
+    try:
+        state.engine.admit()  # 503 when full, before the body is read or parsed
+        try:
+            data = await read_capped(request, state.settings.max_body_bytes)
+        except BaseException:
+            state.engine.release()
+            raise
+        q = request.query_params
+        content_type, query, viewpoints = request.headers.get("content-type", ""), {k: q[k] for k in q}, \
+            q.getlist("viewpoint")
+        poses = q.getlist("camera_pose")
+        timings = {"read": time.perf_counter() - t0}
+        body = await state.engine.run_admitted(lambda: parse_body(data, content_type, query, viewpoints, poses),
+                                               timings)
+        outcome, status = "ok", 200
+        return Response(body, media_type="application/json")  # DetectResponse.to_json(), made on the worker
+    except ClientDisconnect:  # the client went away while sending: nothing to answer (RequestGuard logs it)
+        status, outcome = 499, "disconnected"
+        raise
+    except Problem as exc:
+        problem, status = exc, exc.status
+        outcome = {503: "busy", 504: "deadline", 413: "too_large", 401: "unauthorized"}.get(
+            exc.status, "invalid" if exc.status < 500 else "error")
+        if exc.status == 503 and exc.field == "model":
+            outcome = "model_unavailable"
+        raise
+    finally:
+        elapsed = time.perf_counter() - t0
+        metrics.requests.labels("http", outcome).inc()
+        metrics.request_seconds.labels("http").observe(elapsed)
+        extra: dict[str, Any] = {"transport": "http", "status": status, "outcome": outcome,
+                                 "ms": round(elapsed * 1000, 1)}
+        if problem is not None:  # say why: the field and the message (the first of them)
+            extra.update(field=problem.field, error=problem.message)
+        log.info("detect", extra=extra)

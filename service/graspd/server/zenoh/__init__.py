@@ -1,0 +1,1 @@
+"""graspd.server.zenoh: the Zenoh entrance (queryables for detect, templates and ROS-bridge streams)."""

@@ -1,4 +1,0 @@
-"""The one model of the world the project renders and simulates: objects (the catalogue and the
-held-out rule), meshes, cameras, depth noise, the raycast renderer and scenes.  Training data, the
-demo, the template tests and the pybullet benchmark (graspd.sim) all build on it; nothing here
-imports graspd.training or graspd.sim."""
