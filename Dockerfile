@@ -27,7 +27,7 @@ COPY client/ client/
 RUN pip install ./client
 COPY pyproject.toml README.md ./
 COPY service/ service/
-# No [train] or [sim]: the service never imports torch or pybullet (tests/server checks the import).
+# No lab (graspd-lab: torch, pybullet): the service never imports it (tests/server checks the import).
 RUN pip install ".[postgres]"
 COPY models/ models/
 

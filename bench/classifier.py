@@ -31,6 +31,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+
+from graspd.gpd.classifier import OnnxGraspClassifier, available_models, load_model  # noqa: E402
 from graspd_lab.training.dataset import CATEGORIES, derive_images, read_manifest  # noqa: E402
 from graspd_lab.training.evaluate import (  # noqa: E402
     classification_metrics,
@@ -39,9 +42,6 @@ from graspd_lab.training.evaluate import (  # noqa: E402
     reliability_bins,
 )
 from graspd_lab.training.rows import load_rows  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-
-from graspd.gpd.classifier import OnnxGraspClassifier, available_models, load_model  # noqa: E402
 
 REPRESENTATIONS = ("15", "12", "3", "herzog")
 CATEGORY_MODELS = {"box": "box15", "cylinder": "cylinder15"}
@@ -168,7 +168,8 @@ def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str
 def scene_data_main(args: argparse.Namespace, ev: Evaluator) -> int:
     """Tables for a scene dataset: every --scene-models model on the view and object splits' test parts
     (accuracy, RA99P, AP, ECE, precision-recall curves), then the scene precision@k section if --scenes."""
-    lines = [f"# Grasp classifier evaluation on scene data\n\nDataset: `{args.dataset}` (graspd_lab.training.scene_data); "
+    lines = [f"# Grasp classifier evaluation on scene data\n\nDataset: `{args.dataset}` "
+             "(graspd_lab.training.scene_data); "
              "test parts of its splits: view = new scenes and views of training objects, object = scenes of objects "
              "no training scene holds.  RA99P = recall at 99% precision; ECE = expected calibration error "
              f"(10 bins); s per 1k = onnxruntime on {args.threads} threads, median of 7, load average "

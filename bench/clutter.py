@@ -44,17 +44,17 @@ for sub in ("service", "client"):
         sys.path.insert(0, str(REPO / sub))
 
 import numpy as np  # noqa: E402
-from graspd_lab.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, TopDownBaseline  # noqa: E402
-from graspd_lab.sim.protocol import RoundResult, Setting, Summary, cameras_for, run_round, summarize  # noqa: E402
-from graspd_lab.sim.sensing import observe, render_rgb  # noqa: E402
-from graspd_lab.sim.world import build_scene  # noqa: E402
-from graspd_lab.world.noise import DepthNoise  # noqa: E402
 
 from graspd.core.camera import Camera  # noqa: E402
 from graspd.core.progress import Progress  # noqa: E402
 from graspd.gpd.classifier import available_models, default_model_name, load_model, read_card  # noqa: E402
 from graspd.gpd.classifier import default_models_dir as models_dir  # noqa: E402
 from graspd_client import GraspClient  # noqa: E402
+from graspd_lab.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, TopDownBaseline  # noqa: E402
+from graspd_lab.sim.protocol import RoundResult, Setting, Summary, cameras_for, run_round, summarize  # noqa: E402
+from graspd_lab.sim.sensing import observe, render_rgb  # noqa: E402
+from graspd_lab.sim.world import build_scene  # noqa: E402
+from graspd_lab.world.noise import DepthNoise  # noqa: E402
 
 DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-cluster", "gpd-rep15", "gpd-rep12", "gpd-rep3")
 SCENES: dict[str, Setting] = {

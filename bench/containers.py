@@ -54,6 +54,12 @@ for sub in ("service", "client", "bench"):
         sys.path.insert(0, str(REPO / sub))
 
 import numpy as np  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+
+import clutter  # noqa: E402  (bench/clutter.py: service start, detectors, round log, formatting)
+from graspd.core.grasp import GraspSet  # noqa: E402
+from graspd.core.hand import HandGeometry  # noqa: E402
+from graspd.core.progress import Progress  # noqa: E402
 from graspd_lab.sim.containers import (  # noqa: E402
     HELD_OUT_STYLES,
     SPLITS,
@@ -79,12 +85,6 @@ from graspd_lab.training.labels import label_grasps  # noqa: E402
 from graspd_lab.training.scene_data import scene_labels  # noqa: E402
 from graspd_lab.training.scene_eval import precision_at_k  # noqa: E402
 from graspd_lab.world.noise import DepthNoise  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-
-import clutter  # noqa: E402  (bench/clutter.py: service start, detectors, round log, formatting)
-from graspd.core.grasp import GraspSet  # noqa: E402
-from graspd.core.hand import HandGeometry  # noqa: E402
-from graspd.core.progress import Progress  # noqa: E402
 
 DETECTORS = ("gpd", "baseline", "gpd-noclass")
 TOP_K = 5

@@ -70,13 +70,12 @@ def tabletop(points: int) -> Any:
 
 
 def container_scene() -> Any:
+    from graspd.core.camera import sensing_cameras  # noqa: PLC0415
     from graspd_lab.sim.containers import sample_container  # noqa: PLC0415 - pybullet
     from graspd_lab.sim.sensing import observe  # noqa: PLC0415
     from graspd_lab.sim.world import build_scene  # noqa: PLC0415
     from graspd_lab.world.noise import DepthNoise  # noqa: PLC0415
     from graspd_lab.world.objects import TRAINING_URDFS  # noqa: PLC0415
-
-    from graspd.core.camera import sensing_cameras  # noqa: PLC0415
 
     spec = sample_container("tray", np.random.default_rng(3), "training")
     world = build_scene("container", 6, 3, HAND, object_ids=tuple(TRAINING_URDFS[:300]), container=spec)

@@ -318,7 +318,7 @@ def run(args: argparse.Namespace, out: Path, results: Path) -> int:
 
         # in-process detection of the same cloud with the same options (this process, no transport)
         from graspd.core.cloud import ViewpointCloud
-        from graspd.server.services.engine import parse_request
+        from graspd.server.requests import parse_request
         from graspd.server.services.registry import ModelRegistry
         from graspd.server.settings import Settings
 

@@ -29,8 +29,6 @@ import tempfile
 import time
 from pathlib import Path
 
-from graspd_lab.world.scenes import cluttered_tabletop, subsample
-
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
 from graspd.core.progress import track
@@ -41,6 +39,7 @@ from graspd.gpd.images import encode_images
 from graspd.gpd.preprocess import PreprocessParams, preprocess
 from graspd.gpd.scene import Scene
 from graspd.io.cloud_files import read_cloud
+from graspd_lab.world.scenes import cluttered_tabletop, subsample
 
 HAND = HandGeometry()
 REPO = Path(__file__).resolve().parents[1]

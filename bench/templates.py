@@ -31,9 +31,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from graspd_lab.world.meshes import table_mesh
-from graspd_lab.world.objects import sized_urdf_mesh as random_urdf_mesh
-from graspd_lab.world.render import render_cloud
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
@@ -45,6 +42,9 @@ from graspd.server.settings import Settings
 from graspd.templates import TemplateDetector, TemplateError, TemplateLibrary, TemplateParams
 from graspd.templates.geometry import candidate_templates, prepare_scene
 from graspd_client import GraspClient
+from graspd_lab.world.meshes import table_mesh
+from graspd_lab.world.objects import sized_urdf_mesh as random_urdf_mesh
+from graspd_lab.world.render import render_cloud
 
 CAMERA = np.array([[0.45, 0.1, 0.45]])
 WORKSPACE = (-0.15, 0.15, -0.15, 0.15, -0.02, 0.3)

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up graspd on a fresh Debian machine: system libraries the wheels need, then a virtual
 # environment in .venv with the server, the client, training (CPU torch), PostgreSQL support, the pybullet
-# simulator (graspd[sim]: the clutter benchmark) and dev tools.
+# simulator (graspd-lab: the clutter benchmark) and dev tools.
 # The PostgreSQL server package is for the tests: they start a throwaway server of their own (initdb/pg_ctl).
 # Idempotent: re-running after a change to pyproject.toml reinstalls; otherwise it returns at once.
 set -euo pipefail
@@ -24,13 +24,13 @@ if [ -n "$missing" ]; then
 fi
 
 stamp=.venv/.graspd-setup
-want=$(cat pyproject.toml client/pyproject.toml | sha256sum | cut -c1-16)
+want=$(cat pyproject.toml client/pyproject.toml lab/pyproject.toml | sha256sum | cut -c1-16)
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then exit 0; fi
 
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 # CPU build of torch (training and ONNX export only): pin it, a bare `torch` pulls a CUDA build.
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ./client -e ".[train,dev,postgres,sim]"
+.venv/bin/python -m pip install -q -e ./client -e ".[dev,postgres]" -e ./lab
 echo "$want" > "$stamp"
 echo "setup: ready (.venv)"

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from graspd_lab.world.meshes import pose_from, posed_box, rot_z, table_mesh
-from graspd_lab.world.render import render_cloud
 
 from graspd.core.cloud import ViewpointCloud
+from graspd_lab.world.meshes import pose_from, posed_box, rot_z, table_mesh
+from graspd_lab.world.render import render_cloud
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_DATA = REPO.parent / "shared" / "data" / "real"

@@ -14,8 +14,9 @@ from urllib.parse import urlparse
 
 import numpy as np
 import open3d as o3d
-from graspd_lab.world.meshes import pose_from
 from numpy.typing import NDArray
+
+from graspd_lab.world.meshes import pose_from
 
 F64 = NDArray[np.float64]
 

@@ -8,13 +8,16 @@ import ast
 from pathlib import Path
 
 import graspd
+import graspd_lab
 
 PACKAGE = Path(graspd.__file__).parent
+LAB = Path(graspd_lab.__file__).parent
 
 
 def module_name(path: Path) -> str:
-    """graspd.x.y of a source file under the graspd package."""
-    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    """graspd.x.y (or graspd_lab.x.y) of a source file under the graspd or graspd_lab package."""
+    root = LAB.parent if path.is_relative_to(LAB) else PACKAGE.parent
+    parts = path.relative_to(root).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
@@ -52,7 +55,7 @@ def imports_of(path: Path, top_level_only: bool = False) -> set[str]:
                 base = ".".join([*anchor, base] if base else anchor)
             out.add(base)
             out.update(f"{base}.{a.name}" for a in node.names)
-    known = {module_name(p) for p in PACKAGE.rglob("*.py")}
+    known = {module_name(p) for p in [*PACKAGE.rglob("*.py"), *LAB.rglob("*.py")]}
     return {m for m in out if m in known and m != name}
 
 
@@ -92,12 +95,16 @@ def test_template_modules_import_no_loop() -> None:
 
 
 def test_templates_do_not_import_sim() -> None:
-    for name, deps in graph(sorted((PACKAGE / "templates").glob("*.py"))).items():
+    edges = graph(sorted((PACKAGE / "templates").glob("*.py")))
+    assert len(edges) >= 6
+    for name, deps in edges.items():
         assert not any(d == "graspd_lab.sim" or d.startswith("graspd_lab.sim.") for d in deps), name
 
 
 def test_outcome_store_and_database_do_not_import_templates() -> None:
-    for name, deps in graph([PACKAGE / "outcomes.py", PACKAGE / "database.py"]).items():
+    edges = graph([PACKAGE / "store" / "outcomes.py", PACKAGE / "store" / "database.py"])
+    assert edges["graspd.store.outcomes"] == {"graspd.store.database"}  # it reads the graph, not an empty one
+    for name, deps in edges.items():
         assert not any(d.startswith("graspd.templates") for d in deps), (name, deps)
 
 
@@ -105,10 +112,83 @@ def test_graspd_modules_import_no_loop_at_top_level() -> None:
     """No cycle among the imports every graspd module runs when it is imported (the lazy ones, inside
     functions, load the heavy optional stacks and are not counted)."""
     edges = graph(sorted(PACKAGE.rglob("*.py")), top_level_only=True)
-    assert {"graspd.server.app", "graspd.gpd.detector", "graspd_lab.world.scenes", "graspd.store.outcomes"} <= edges.keys()
+    assert {"graspd.server.app", "graspd.gpd.detector", "graspd.store.outcomes"} <= edges.keys()
     assert find_cycle(edges) is None, find_cycle(edges)
 
 
 def test_training_reads_outcomes_without_templates() -> None:
-    for name, deps in graph(sorted((PACKAGE / "training").glob("*.py"))).items():
+    edges = graph(sorted((LAB / "training").glob("*.py")))
+    assert "graspd.store.outcomes" in edges["graspd_lab.training.rows"]  # training does read outcomes
+    for name, deps in edges.items():
         assert not any(d == "graspd.templates" or d.startswith("graspd.templates.") for d in deps), (name, deps)
+
+
+#: service/graspd's layers, lowest first: a module may import its own layer and those below it.
+LAYERS = ("core", "io", "gpd", "store", "templates", "viz", "server", "cli")
+#: graspd.server's own order, lowest first: what every transport shares, the services, the transports, the app
+#: and the serve command.  A module not named is in the first (shared) rank.
+SERVER_RANKS = (("graspd.server.services",), ("graspd.server.api", "graspd.server.zenoh", "graspd.server.ros2"),
+                ("graspd.server.app",), ("graspd.server.runner", "graspd.server.cli", "graspd.server.openapi"))
+#: The lab modules graspd may import (lazily, in a function), and why.
+LAB_IMPORTS_ALLOWED = {
+    "graspd.cli.main": "`graspd demo` renders its scene with the lab's world (a clear error without it)"}
+
+
+def rank(module: str) -> tuple[int, int]:
+    """(layer, rank within the server) of a graspd module; the package graspd itself is lowest."""
+    parts = module.split(".")
+    layer = LAYERS.index(parts[1]) if len(parts) > 1 and parts[1] in LAYERS else -1
+    sub = 0
+    for i, prefixes in enumerate(SERVER_RANKS, start=1):
+        if any(module == p or module.startswith(p + ".") for p in prefixes):
+            sub = i
+    return layer, sub
+
+
+def upward(edges: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """The imports that go from a lower layer (or server rank) to a higher one."""
+    return sorted((a, b) for a, deps in edges.items() for b in deps
+                  if b.startswith("graspd.") and rank(b) > rank(a))
+
+
+def test_layers_import_only_downward() -> None:
+    """Every import in service/graspd, lazy ones in functions included, goes to the module's own layer or below."""
+    edges = graph(sorted(PACKAGE.rglob("*.py")))
+    assert {"graspd.core.cloud", "graspd.gpd.detector", "graspd.server.app", "graspd.cli.main"} <= edges.keys()
+    assert upward(edges) == []
+    # the rule sees a violation: the core importing the detector, an engine importing a router
+    assert upward({"graspd.core.cloud": {"graspd.gpd.detector"}}) == [("graspd.core.cloud", "graspd.gpd.detector")]
+    assert upward({"graspd.server.services.engine": {"graspd.server.api.detect"}}) != []
+
+
+def test_top_level_of_graspd_holds_at_most_eight_modules() -> None:
+    entries = [p.name for p in PACKAGE.iterdir()
+               if (p.is_dir() and (p / "__init__.py").exists()) or (p.suffix == ".py" and p.stem != "__init__")]
+    assert set(LAYERS) <= {e.removesuffix(".py") for e in entries}
+    assert len(entries) <= 8, sorted(entries)
+
+
+def _imports_named(path: Path, prefix: str) -> set[str]:
+    """The modules of import statements in path whose name starts with prefix (anywhere in the file)."""
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names if a.name.split(".")[0] == prefix)
+        elif isinstance(node, ast.ImportFrom) and not node.level and (node.module or "").split(".")[0] == prefix:
+            out.add(node.module or "")
+    return out
+
+
+def test_only_the_server_and_io_import_the_wire_package() -> None:
+    """The core, the algorithm, the store, the templates and the pictures own their values and errors; only the
+    transport edge (server/, io/) imports graspd_client."""
+    users = {module_name(p) for p in PACKAGE.rglob("*.py") if _imports_named(p, "graspd_client")}
+    assert "graspd.server.schemas" in users
+    assert sorted(u for u in users if rank(u)[0] not in (LAYERS.index("io"), LAYERS.index("server"))) == []
+
+
+def test_graspd_does_not_import_the_lab() -> None:
+    users = {module_name(p) for p in PACKAGE.rglob("*.py") if _imports_named(p, "graspd_lab")}
+    assert users <= LAB_IMPORTS_ALLOWED.keys(), users - LAB_IMPORTS_ALLOWED.keys()
+    lab_users = {module_name(p) for p in LAB.rglob("*.py") if _imports_named(p, "graspd")}
+    assert "graspd_lab.training.scene_data" in lab_users  # the lab builds on graspd

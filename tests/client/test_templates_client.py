@@ -8,12 +8,12 @@ from typing import Any
 
 import numpy as np
 import pytest
-from graspd_lab.world.meshes import pose_from, rot_z
 
 from fixtures import box_top_grasp
 from graspd.server.settings import Settings
 from graspd_client import AsyncGraspClient, GraspClient, RequestRejected
 from graspd_client.zenoh_client import ZenohGraspClient
+from graspd_lab.world.meshes import pose_from, rot_z
 
 Server = tuple[str, str, Settings]
 BOX = (0.05, 0.10, 0.08)

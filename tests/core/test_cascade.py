@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from graspd_lab.world.scenes import cluttered_tabletop
 
 from graspd.gpd.classifier import load_model
 from graspd.gpd.detector import DetectionParams, GraspDetector
+from graspd_lab.world.scenes import cluttered_tabletop
 
 SHIPPED = Path(__file__).resolve().parents[2] / "models"
 

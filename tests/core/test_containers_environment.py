@@ -12,12 +12,6 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 import pytest
-from graspd_lab.sim.containers import ContainerSpec, sample_container
-from graspd_lab.sim.sensing import observe
-from graspd_lab.sim.world import SimWorld, build_scene
-from graspd_lab.world.noise import DepthNoise
-from graspd_lab.world.objects import TRAINING_URDFS
-from graspd_lab.world.render import render_scene
 
 from graspd.core.camera import sensing_cameras, tabletop_cameras
 from graspd.core.hand import HandGeometry
@@ -27,6 +21,12 @@ from graspd.gpd.detector import Detection, DetectionParams, GraspDetector, envir
 from graspd.gpd.environment import EnvironmentParams, Label
 from graspd.gpd.occlusion import hand_samples
 from graspd.gpd.selection import feasible_mask
+from graspd_lab.sim.containers import ContainerSpec, sample_container
+from graspd_lab.sim.sensing import observe
+from graspd_lab.sim.world import SimWorld, build_scene
+from graspd_lab.world.noise import DepthNoise
+from graspd_lab.world.objects import TRAINING_URDFS
+from graspd_lab.world.render import render_scene
 
 HAND = HandGeometry()
 OBJECTS = tuple(TRAINING_URDFS[:300])

@@ -10,8 +10,6 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 import pytest
-from graspd_lab.world.noise import DepthNoise
-from graspd_lab.world.render import render_scene
 
 from graspd.core.camera import tabletop_cameras
 from graspd.core.cloud import ViewpointCloud
@@ -23,6 +21,8 @@ from graspd.gpd.environment import Box, EnvironmentParams, Label, hand_hits_envi
 from graspd.gpd.preprocess import PreprocessParams, preprocess
 from graspd.gpd.scene import Scene
 from graspd.io.cloud_files import read_cloud
+from graspd_lab.world.noise import DepthNoise
+from graspd_lab.world.render import render_scene
 
 HAND = HandGeometry()
 MUG = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "table_mug.pcd"

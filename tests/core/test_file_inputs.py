@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from graspd.core.camera import Camera, backproject, camera_intrinsics, camera_pose, depth_image
+from graspd.core.camera import Camera, Intrinsics, backproject, camera_intrinsics, camera_pose, depth_image
 from graspd.core.cloud import CloudError
 from graspd.io.cloud_files import MAX_NPY_VALUES, array_cloud, parse_npy, parse_npz
-from graspd.io.depth import Intrinsics, depth_metres, depth_points, read_depth_png
+from graspd.io.depth import depth_metres, depth_points, read_depth_png
 
 
 def npy(array: np.ndarray) -> bytes:

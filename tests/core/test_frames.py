@@ -11,10 +11,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from graspd.core.cloud import CloudError
+from graspd.core.errors import FieldError
 from graspd.core.frames import check_pose, pose_matrices, pose_matrix, to_robot
 from graspd.io.cloud_files import read_input
 from graspd.io.inputs import cloud_input, non_finite_warning
-from graspd_client.codec import WireError
 
 ROT = Rotation.from_euler("xyz", [30, -50, 120], degrees=True)
 T = np.array([0.4, -0.25, 0.9])
@@ -49,7 +49,7 @@ def test_every_pose_form_is_the_same_transform() -> None:
     ([2e4, 0, 0, 0, 0, 0, 1], "camera_poses", "translation"),
 ])
 def test_bad_poses_are_refused_naming_the_field(value: object, field: str, words: str) -> None:
-    with pytest.raises(WireError) as err:
+    with pytest.raises(FieldError) as err:
         pose_matrix(value)
     assert err.value.field == field and words in err.value.message
 
@@ -85,7 +85,7 @@ def test_camera_frame_points_move_with_their_own_camera() -> None:
     ({"camera_poses": [np.eye(4), np.eye(4)], "points_frame": "camera"}, "cloud.camera_source"),
 ])
 def test_frames_must_be_said_consistently(kwargs: dict[str, object], field: str) -> None:
-    with pytest.raises(WireError) as err:
+    with pytest.raises(FieldError) as err:
         cloud_input(np.zeros((3, 3)) + [0, 0, 1], **kwargs)  # type: ignore[arg-type]
     assert err.value.field == field
 

@@ -30,5 +30,6 @@ def test_detector_imports_open3d_without_dash_and_drawing_still_works() -> None:
 
 
 def test_no_stand_in_once_open3d_is_loaded() -> None:
-    out = _run("import open3d\nfrom graspd.core.open3d_import import defer_plotly_drawing\nprint(defer_plotly_drawing())")
+    out = _run("import open3d\nfrom graspd.core.open3d_import import defer_plotly_drawing\n"
+               "print(defer_plotly_drawing())")
     assert out == "False"

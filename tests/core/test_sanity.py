@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from graspd_lab.world.scenes import cluttered_tabletop
 
 from graspd.gpd.sanity import (
     HIDDEN_SHARE_LIMIT,
@@ -20,6 +19,7 @@ from graspd.gpd.sanity import (
     viewpoint_warning,
 )
 from graspd.io.cloud_files import read_cloud
+from graspd_lab.world.scenes import cluttered_tabletop
 
 
 @pytest.fixture(scope="module")

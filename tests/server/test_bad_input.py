@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from graspd.server.app import create_app
-from graspd.server.services.engine import parse_request
+from graspd.server.requests import parse_request
 from graspd.server.settings import Settings
 from graspd_client import encode_array
 

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from graspd_lab.world.scenes import GRAVITY, cluttered_tabletop
 
 from graspd.core.cloud import ViewpointCloud
+from graspd_lab.world.scenes import GRAVITY, cluttered_tabletop
 
 DOWN = np.asarray(GRAVITY, np.float64)  # the rendered tabletop: table top at z = 0, gravity -z
 TABLE_BAND = 0.01  # m: samples closer to z = 0 lie on the table

@@ -15,8 +15,8 @@ from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.gpd.detector import Detection
 from graspd.gpd.environment import Environment
-from graspd.server.api.uploads import CLOUD_PARAMS, QUERY_PARAMS, openapi_parameters
 from graspd.server.schemas import DetectRequest, DetectResponse
+from graspd.server.uploads import CLOUD_PARAMS, QUERY_PARAMS, openapi_parameters
 from graspd.templates import TemplateDetection
 from graspd_client import wire
 

@@ -18,9 +18,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from graspd_lab.world.meshes import pose_from, posed_box, posed_cylinder, rot_z, table_mesh
-from graspd_lab.world.noise import DepthNoise
-from graspd_lab.world.render import render_scene_with_ids
 from PIL import Image
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
@@ -33,6 +30,9 @@ from graspd.server.runner import free_port, serve_in_thread
 from graspd.server.settings import Settings
 from graspd_client import GraspClient, Grasps, RequestRejected
 from graspd_client.zenoh_client import ZenohGraspClient
+from graspd_lab.world.meshes import pose_from, posed_box, posed_cylinder, rot_z, table_mesh
+from graspd_lab.world.noise import DepthNoise
+from graspd_lab.world.render import render_scene_with_ids
 
 ROT = Rotation.from_euler("xyz", [120, 10, -35], degrees=True)
 T = np.array([0.6, -0.3, 0.8])
@@ -310,7 +310,7 @@ def test_gpd_ros_clouds_of_two_cameras_move_with_each_cameras_pose(mug: np.ndarr
     do (one rule: graspd.io.inputs.apply_frames)."""
     from graspd.io.ros import encode_cloud_samples, encode_cloud_sources  # noqa: PLC0415
     from graspd.server.problems import Problem  # noqa: PLC0415
-    from graspd.server.services.engine import parse_request  # noqa: PLC0415
+    from graspd.server.requests import parse_request  # noqa: PLC0415
     from graspd.server.zenoh.ros_stream import decode_input, parse_options  # noqa: PLC0415
 
     second = np.eye(4)

@@ -16,8 +16,8 @@ import pytest
 from fixtures import connect, read_response
 from graspd.server.app import create_app
 from graspd.server.logs import RequestIdFilter
+from graspd.server.requests import parse_request
 from graspd.server.runner import serve_in_thread
-from graspd.server.services.engine import parse_request
 from graspd.server.settings import Settings
 
 FAST = {"http_keep_alive_s": 1.0, "http_header_timeout_s": 1.5, "http_body_timeout_s": 1.0}

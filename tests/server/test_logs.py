@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from graspd.server.logs import JsonFormatter, RequestIdFilter, begin_request
-from graspd.server.services.engine import parse_request
+from graspd.server.requests import parse_request
 
 
 def test_color_message_does_not_leak() -> None:

@@ -18,9 +18,9 @@ from fastapi.testclient import TestClient
 from graspd.core.cloud import ViewpointCloud
 from graspd.server.app import create_app
 from graspd.server.problems import Problem
+from graspd.server.requests import parse_request
 from graspd.server.runner import serve_in_thread
 from graspd.server.services.budget import BASE_MB, SAMPLE_MB, MemoryBudget, request_cost, work_units
-from graspd.server.services.engine import parse_request
 from graspd.server.settings import Settings
 from graspd_client import ZenohGraspClient
 from graspd_client.errors import RequestRejected

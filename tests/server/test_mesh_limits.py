@@ -15,14 +15,14 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
-from graspd_lab.world.mesh_file import MeshError, MeshLimits, check_declared_counts
-from graspd_lab.world.meshes import box_mesh
 
 from fixtures import write_mesh
+from graspd.io.mesh_file import MeshError, MeshLimits, check_declared_counts
 from graspd.server.app import create_app
 from graspd.server.problems import Problem
 from graspd.server.services.instance_jobs import MeshCheckGate, check_mesh
 from graspd.server.settings import Settings
+from graspd_lab.world.meshes import box_mesh
 
 #: The audit's mesh: an ASCII PLY whose header declares 1e9 vertices over three lines of data.
 LYING_PLY = (b"ply\nformat ascii 1.0\nelement vertex 1000000000\nproperty float x\nproperty float y\n"

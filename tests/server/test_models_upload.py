@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
-from graspd_lab.world.meshes import box_mesh
 
 from fixtures import write_mesh
 from graspd.core.cloud import ViewpointCloud
@@ -21,6 +20,7 @@ from graspd.server.runner import serve_in_thread
 from graspd.server.settings import Settings
 from graspd_client import GraspClient
 from graspd_client.errors import RequestRejected, ServerBusy
+from graspd_lab.world.meshes import box_mesh
 
 
 @pytest.fixture

@@ -10,11 +10,12 @@ import numpy as np
 from fastapi.testclient import TestClient
 from PIL import Image
 
+from graspd.core.camera import Intrinsics, project_points
 from graspd.core.cloud import ViewpointCloud
 from graspd.server.services import proposals
 from graspd_client import Grasps, build_detect_request
 
-CAM = proposals.Pinhole(fx=500.0, fy=400.0, cx=320.0, cy=240.0)
+CAM = Intrinsics(fx=500.0, fy=400.0, cx=320.0, cy=240.0)
 
 
 def coordinate_image(h: int = 480, w: int = 640) -> np.ndarray:
@@ -26,14 +27,14 @@ def coordinate_image(h: int = 480, w: int = 640) -> np.ndarray:
 def test_projection_of_known_points() -> None:
     pose = np.eye(4)
     pts = np.array([[0.0, 0.0, 1.0], [0.1, -0.2, 2.0], [0.0, 0.0, -1.0]])
-    px, front = proposals.project(pts, pose, CAM)
+    px, front = project_points(pts, pose, CAM)
     assert np.allclose(px[0], [320, 240]) and np.allclose(px[1], [320 + 500 * 0.05, 240 - 400 * 0.1])
     assert front.tolist() == [True, True, False] and np.isnan(px[2]).all()
     # a camera 1 m along +x of the cloud frame, looking back along -x: p_cam = R^T (p - t)
     pose = np.eye(4)
     pose[:3, :3] = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
     pose[:3, 3] = [1.0, 0.0, 0.0]
-    px, front = proposals.project(np.array([[0.0, 0.0, 0.0]]), pose, CAM)
+    px, front = project_points(np.array([[0.0, 0.0, 0.0]]), pose, CAM)
     assert front[0] and np.allclose(px[0], [320, 240])
 
 
@@ -74,7 +75,7 @@ def test_crops_in_detect_response(client: TestClient, krylon: ViewpointCloud) ->
     g = Grasps.from_response(r.json())
     assert len(g) > 0 and g.in_image.all() and "crops" in g.timings
     centres = proposals.finger_centres(g.positions, g.approach, r.json()["hand"]["hand_depth"])
-    expected, _ = proposals.project(centres, camera_behind(), CAM)
+    expected, _ = project_points(centres, camera_behind(), CAM)
     assert np.allclose(g.crop_pixels, expected)
     for crop, (u, v) in zip(g.crops, np.round(expected).astype(int), strict=True):
         assert crop is not None

@@ -10,7 +10,6 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from graspd_lab.world.meshes import pose_from, rot_z
 
 from fixtures import box_side_grasp, box_top_grasp, grasp_angle_deg
 from graspd.core.cloud import ViewpointCloud
@@ -18,6 +17,7 @@ from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd.templates import TemplateLibrary
 from graspd_client import build_demonstration_request, build_detect_request
+from graspd_lab.world.meshes import pose_from, rot_z
 
 BOX = (0.05, 0.10, 0.08)
 MOVE = pose_from(rot_z(1.1), (-0.03, 0.05, 0.0))

@@ -22,7 +22,7 @@ from fastapi.testclient import TestClient
 from fixtures import KRYLON_VIEWPOINT, box_top_grasp
 from graspd.core.cloud import ViewpointCloud
 from graspd.server.app import create_app
-from graspd.server.services.engine import parse_request
+from graspd.server.requests import parse_request
 from graspd.server.settings import Settings
 from graspd.server.zenoh.node import (
     ZenohSetupError,

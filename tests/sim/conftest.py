@@ -1,4 +1,4 @@
-"""tests/sim drive the pybullet benchmark: skipped where the optional extra graspd[sim] is not installed."""
+"""tests/sim drive the pybullet benchmark: skipped where the lab distribution graspd-lab is not installed."""
 
 import importlib.util
 

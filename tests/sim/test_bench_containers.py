@@ -10,11 +10,11 @@ from types import ModuleType
 
 import numpy as np
 import pytest
-from graspd_lab.sim.containers import ContainerSpec
-from graspd_lab.sim.world import SimWorld
 
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd_lab.sim.containers import ContainerSpec
+from graspd_lab.sim.world import SimWorld
 
 BENCH = Path(__file__).resolve().parents[2] / "bench" / "containers.py"
 

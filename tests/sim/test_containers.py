@@ -11,6 +11,9 @@ import numpy as np
 import open3d as o3d
 import pybullet as pb
 import pytest
+
+from graspd.core.camera import sensing_cameras
+from graspd.core.hand import HandGeometry
 from graspd_lab.sim.containers import (
     HELD_OUT_STYLES,
     RANGES,
@@ -30,9 +33,6 @@ from graspd_lab.sim.sensing import NO_NOISE, observe
 from graspd_lab.sim.world import SimWorld, build_scene
 from graspd_lab.training.scene_data import BROKEN_URDFS
 from graspd_lab.world.objects import TRAINING_URDFS
-
-from graspd.core.camera import sensing_cameras
-from graspd.core.hand import HandGeometry
 
 
 def _split(style: str) -> str:

@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-from graspd_lab.sim.gripper import Attempt, Outcome
-from graspd_lab.sim.protocol import RoundResult, Setting, StopRule, feasible, summarize
 
 from graspd.core.grasp import GraspSet
+from graspd_lab.sim.gripper import Attempt, Outcome
+from graspd_lab.sim.protocol import RoundResult, Setting, StopRule, feasible, summarize
 
 
 def test_three_detections_without_grasp_in_a_row_stop() -> None:

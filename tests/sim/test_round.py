@@ -2,15 +2,15 @@
 
 import numpy as np
 import pytest
+
+from graspd.core.camera import side_camera
+from graspd.core.grasp import GraspSet
+from graspd.core.hand import HandGeometry
 from graspd_lab.sim.detectors import InProcessGPD, TopDownBaseline
 from graspd_lab.sim.gripper import Gripper, Outcome
 from graspd_lab.sim.protocol import Setting, run_round
 from graspd_lab.sim.sensing import NO_NOISE, observe
 from graspd_lab.sim.world import build_scene
-
-from graspd.core.camera import side_camera
-from graspd.core.grasp import GraspSet
-from graspd.core.hand import HandGeometry
 
 WORKSPACE = (-0.15, 0.15, -0.15, 0.15, 0.0, 0.4)
 REGION = (-0.17, 0.17, -0.17, 0.17, -0.005, 0.4)

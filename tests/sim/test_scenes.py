@@ -4,10 +4,10 @@ inside the tray, deterministic by seed."""
 import numpy as np
 import pybullet as pb
 import pytest
-from graspd_lab.sim.objects import graspable_scale, mesh_extents, object_urdf
-from graspd_lab.sim.world import build_scene
 
 from graspd.core.hand import HandGeometry
+from graspd_lab.sim.objects import graspable_scale, mesh_extents, object_urdf
+from graspd_lab.sim.world import build_scene
 
 
 def test_ids_outside_the_catalogue_are_refused() -> None:

@@ -1,11 +1,11 @@
 """Depth cameras: metric depth back-projects onto the true geometry; noise spreads and drops points."""
 
 import numpy as np
+
+from graspd.core.camera import active_cameras, passive_cameras, side_camera
 from graspd_lab.sim.sensing import NO_NOISE, observe, render_depth
 from graspd_lab.sim.world import SimWorld
 from graspd_lab.world.noise import DepthNoise
-
-from graspd.core.camera import active_cameras, passive_cameras, side_camera
 
 REGION = (-0.15, 0.15, -0.12, 0.12, -0.05, 0.3)
 

@@ -7,11 +7,11 @@ import json
 
 import numpy as np
 import pytest
-from graspd_lab.world.meshes import pose_from, rot_z
 from scipy.spatial.transform import Rotation
 
 from fixtures import box_side_grasp, box_top_grasp, grasp_angle_deg
 from graspd.templates import TemplateDetector, TemplateLibrary, TemplateParams
+from graspd_lab.world.meshes import pose_from, rot_z
 
 BOX = (0.05, 0.10, 0.08)
 

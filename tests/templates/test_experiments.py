@@ -5,8 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("pybullet")  # graspd_lab.sim is the optional extra graspd[sim]
+pytest.importorskip("pybullet")  # graspd_lab.sim is the lab distribution graspd-lab
 
+from fixtures import box_top_grasp  # noqa: E402
+from graspd.core.hand import HandGeometry  # noqa: E402
+from graspd.templates import TemplateDetector, TemplateLibrary, TemplateParams  # noqa: E402
 from graspd_lab.sim.experiments import (  # noqa: E402
     TemplateSimDetector,
     attempt,
@@ -14,10 +17,6 @@ from graspd_lab.sim.experiments import (  # noqa: E402
     scripted_demonstrations,
     training_urdf,
 )
-
-from fixtures import box_top_grasp  # noqa: E402
-from graspd.core.hand import HandGeometry  # noqa: E402
-from graspd.templates import TemplateDetector, TemplateLibrary, TemplateParams  # noqa: E402
 
 
 def test_last_ten_is_the_success_rate_over_the_last_ten_trials() -> None:

@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from graspd_lab.world.meshes import posed_box as box_mesh
-from graspd_lab.world.meshes import table_mesh
-from graspd_lab.world.render import render_cloud
 
 from fixtures import box_top_grasp
 from graspd.core.cloud import ViewpointCloud
@@ -21,6 +18,9 @@ from graspd.templates.geometry import (
     height_axes,
     prepare_scene,
 )
+from graspd_lab.world.meshes import posed_box as box_mesh
+from graspd_lab.world.meshes import table_mesh
+from graspd_lab.world.render import render_cloud
 
 GEOM = TemplateGeometry.for_hand(HandGeometry())
 BOX = (0.05, 0.10, 0.08)

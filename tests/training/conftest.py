@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import pytest
+
 from graspd_lab.training.plans import train_tiny_model
 
 

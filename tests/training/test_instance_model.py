@@ -12,18 +12,19 @@ import numpy as np
 import open3d as o3d
 import pytest
 import torch
-from graspd_lab.training.dataset import read_manifest, read_split
-from graspd_lab.training.instance import InstanceParams, make_instance_dataset, network_from_onnx, train_instance
-from graspd_lab.training.instance_cli import main as instance_main
-from graspd_lab.training.rows import load_rows
-from graspd_lab.world.mesh_file import MeshError, read_mesh_object
-from graspd_lab.world.meshes import box_mesh, cylinder_mesh
 from torch import nn
 
 from fixtures import write_mesh
 from graspd.cli.main import main as graspd_main
 from graspd.gpd.classifier import OnnxGraspClassifier, default_models_dir, read_card
+from graspd.io.mesh_file import MeshError
 from graspd.store.instances import PROGRESS_PREFIX, InstanceError
+from graspd_lab.training.dataset import read_manifest, read_split
+from graspd_lab.training.instance import InstanceParams, make_instance_dataset, network_from_onnx, train_instance
+from graspd_lab.training.instance_cli import main as instance_main
+from graspd_lab.training.rows import load_rows
+from graspd_lab.world.mesh_file import read_mesh_object
+from graspd_lab.world.meshes import box_mesh, cylinder_mesh
 
 SHIPPED = default_models_dir()
 TINY = InstanceParams(views=4, per_view=32, epochs=1, max_minutes=0.2, batch_size=32, threads=1)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from graspd_lab.training.evaluate import (
     average_precision,
     classification_metrics,

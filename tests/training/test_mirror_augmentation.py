@@ -2,8 +2,6 @@
 
 import numpy as np
 import pytest
-from graspd_lab.training.augment import augment, mirror_images
-from graspd_lab.training.dataset import derive_images
 
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
@@ -11,6 +9,8 @@ from graspd.gpd.candidates import SamplingParams, search_hands
 from graspd.gpd.images import channel_layout, encode_images
 from graspd.gpd.preprocess import PreprocessParams, preprocess
 from graspd.gpd.scene import Scene
+from graspd_lab.training.augment import augment, mirror_images
+from graspd_lab.training.dataset import derive_images
 
 HAND = HandGeometry()
 

@@ -5,8 +5,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from graspd_lab.training.export import base_card, check_parity, export_onnx, torch_scores, write_card
-from graspd_lab.training.network import build_network
 
 from graspd.gpd.classifier import (
     GraspClassifier,
@@ -17,6 +15,8 @@ from graspd.gpd.classifier import (
     load_models,
 )
 from graspd.gpd.images import channel_layout
+from graspd_lab.training.export import base_card, check_parity, export_onnx, torch_scores, write_card
+from graspd_lab.training.network import build_network
 
 HAND = {"finger_width": 0.01, "hand_outer_diameter": 0.12, "hand_depth": 0.06, "hand_height": 0.02,
         "init_bite": 0.01}

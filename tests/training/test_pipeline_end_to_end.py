@@ -7,6 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
+from graspd.gpd.classifier import GraspClassifier, load_model
+from graspd.store.outcomes import OutcomeStore
 from graspd_lab.training import cli
 from graspd_lab.training.config import TrainConfig
 from graspd_lab.training.dataset import read_manifest
@@ -15,9 +18,6 @@ from graspd_lab.training.export import check_parity
 from graspd_lab.training.loop import grasp_probability, load_checkpoint, predict_logits, train
 from graspd_lab.training.plans import prefix_dataset
 from graspd_lab.training.rows import load_rows
-
-from graspd.gpd.classifier import GraspClassifier, load_model
-from graspd.store.outcomes import OutcomeStore
 
 
 @pytest.fixture

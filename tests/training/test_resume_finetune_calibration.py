@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
+from graspd.gpd.classifier import default_models_dir, load_model
 from graspd_lab.training import cli
 from graspd_lab.training.config import TrainConfig
 from graspd_lab.training.evaluate import expected_calibration_error, fit_platt
@@ -17,8 +19,6 @@ from graspd_lab.training.loop import LAST, load_weights, predict_logits, sample_
 from graspd_lab.training.network import build_network, fold_logit_affine
 from graspd_lab.training.plans import plan_budget
 from graspd_lab.training.rows import load_rows
-
-from graspd.gpd.classifier import default_models_dir, load_model
 
 QUIET = lambda *a: None  # noqa: E731
 

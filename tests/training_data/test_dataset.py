@@ -9,6 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from graspd.core.camera import random_view
+from graspd.core.hand import HandGeometry
+from graspd.gpd.candidates import SamplingParams, sample_candidates
+from graspd.gpd.images import REPRESENTATIONS, channel_layout, encode_images
+from graspd.gpd.preprocess import preprocess
+from graspd.gpd.scene import Scene
 from graspd_lab.training.dataset import (
     CATEGORIES,
     CHUNK_KEYS,
@@ -28,20 +35,13 @@ from graspd_lab.training.dataset import (
 from graspd_lab.world.objects import procedural_object, random_urdf_mesh
 from graspd_lab.world.render import render_scene
 
-from graspd.core.camera import random_view
-from graspd.core.hand import HandGeometry
-from graspd.gpd.candidates import SamplingParams, sample_candidates
-from graspd.gpd.images import REPRESENTATIONS, channel_layout, encode_images
-from graspd.gpd.preprocess import preprocess
-from graspd.gpd.scene import Scene
-
 TINY = GenerationParams(seed=11, exemplars=120, num_urdfs=2, procedural=(("box", 1), ("cylinder", 1)),
                         views_per_object=3, num_samples=40, per_view=10, objects_per_chunk=3)
 
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (the lab, graspd-lab)
     out = tmp_path_factory.mktemp("tiny")
     generate_dataset(out, TINY, workers=1)
     return out
@@ -144,7 +144,7 @@ def test_preview_png(tiny: Path, tmp_path: Path) -> None:
 
 def test_broken_source_mesh_is_skipped_not_fatal(tmp_path: Path) -> None:
     """pybullet_data random_urdfs/168 has NaN vertices: the generator records it as skipped and goes on."""
-    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (the lab, graspd-lab)
 
     with pytest.raises(ValueError, match="broken mesh"):
         random_urdf_mesh(168)

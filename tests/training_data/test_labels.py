@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 import pytest
-from graspd_lab.training.labels import LabelParams, label_grasps
-from graspd_lab.world.meshes import box_mesh, cylinder_mesh, sphere_mesh
 from scipy.spatial.transform import Rotation
 
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd_lab.training.labels import LabelParams, label_grasps
+from graspd_lab.world.meshes import box_mesh, cylinder_mesh, sphere_mesh
 
 HAND = HandGeometry()  # 0.10 m between the open fingers, 0.06 m deep
 

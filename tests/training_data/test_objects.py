@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
+from graspd.core.hand import HandGeometry
 from graspd_lab.world.objects import (
     PROCEDURAL_KINDS,
     HeldOutObjectError,
@@ -12,8 +14,6 @@ from graspd_lab.world.objects import (
     procedural_object,
     random_urdf_mesh,
 )
-
-from graspd.core.hand import HandGeometry
 
 
 @pytest.mark.parametrize("index", [900, 950, 999])
@@ -25,7 +25,7 @@ def test_held_out_urdfs_are_refused(index: int) -> None:
 
 
 def test_held_out_urdf_loads_only_when_asked_for_the_held_out_evaluation() -> None:
-    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (the lab, graspd-lab)
     obj = random_urdf_mesh(900, held_out_ok=True)
     assert len(obj.mesh.triangles) > 0
 
@@ -39,7 +39,7 @@ def test_catalogue_never_lists_held_out_objects() -> None:
 
 
 def test_urdf_mesh_uses_the_urdf_scale_and_fits_the_hand() -> None:
-    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (the lab, graspd-lab)
     hand = HandGeometry()
     obj = random_urdf_mesh(0, hand)
     assert obj.category == "other" and obj.source.endswith("random_urdfs/000/000.urdf")

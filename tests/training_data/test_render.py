@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 import pytest
+
+from graspd.core.camera import Camera, look_at_rig, random_view, tabletop_cameras
 from graspd_lab.world.meshes import box_mesh
 from graspd_lab.world.noise import DepthNoise, axial_sigma, depth_edges, quantize_depth
 from graspd_lab.world.objects import procedural_object
 from graspd_lab.world.render import MeshScene, render_scene, render_scene_with_ids
 from graspd_lab.world.scenes import random_tabletop, tabletop_scene
-
-from graspd.core.camera import Camera, look_at_rig, random_view, tabletop_cameras
 
 
 def distances(mesh: o3d.geometry.TriangleMesh, points: np.ndarray) -> np.ndarray:
@@ -98,7 +98,7 @@ def test_noise_helpers() -> None:
 
 
 def test_random_tabletop_is_deterministic() -> None:
-    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (graspd[train] or graspd[sim])
+    pytest.importorskip("pybullet")  # pybullet_data holds the random_urdfs (the lab, graspd-lab)
 
     a = random_tabletop(4, seed=2)
     b = random_tabletop(4, seed=2)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from graspd_lab.training.dataset import iter_chunks, read_split
 from graspd_lab.training.scene_data import SceneParams, generate_scene_dataset, scene_views
 from graspd_lab.training.scene_eval import precision_at_k

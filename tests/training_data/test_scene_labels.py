@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
-from graspd_lab.training.labels import LabelParams, label_grasps
-from graspd_lab.world.meshes import box_mesh
 
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd_lab.training.labels import LabelParams, label_grasps
+from graspd_lab.world.meshes import box_mesh
 
 HAND = HandGeometry()
 

@@ -12,11 +12,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from graspd.core.errors import FieldError
 from graspd.core.hand import HAND_PRESETS, hand_preset
 from graspd.core.progress import Progress
 from graspd.gpd.classifier import default_models_dir
 from graspd.store.instances import INSTANCE_CATEGORIES, progress_line
-from graspd_client.codec import WireError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -71,12 +71,12 @@ def run(args: argparse.Namespace, argv: list[str] | None = None) -> int:
 
     try:
         if not getattr(args, "name", None):
-            raise WireError("name", "--instance needs --name NAME (the new model's name)")
+            raise FieldError("name", "--instance needs --name NAME (the new model's name)")
         fields = {k: getattr(args, k) for k in _PARAM_FLAGS if getattr(args, k, None) is not None}
         try:
             hand = hand_preset(args.hand)
         except KeyError as exc:
-            raise WireError("hand", str(exc.args[0])) from None
+            raise FieldError("hand", str(exc.args[0])) from None
         params = InstanceParams(hand=hand, **fields)
         models_dir = Path(args.models_dir) if getattr(args, "models_dir", None) else default_models_dir()
         base = "auto" if args.base is None else (None if args.base == "none" else args.base)
@@ -84,8 +84,8 @@ def run(args: argparse.Namespace, argv: list[str] | None = None) -> int:
                               work_dir=getattr(args, "work_dir", None), overwrite=args.overwrite,
                               command=command_line(argv if argv is not None else sys.argv[2:]), log=log,
                               progress=emit)
-    except (WireError, ValueError, OSError) as exc:
-        field = exc.field if isinstance(exc, WireError) else None
+    except (FieldError, ValueError, OSError) as exc:
+        field = exc.field if isinstance(exc, FieldError) else None
         emit({"stage": "failed", "error": str(exc), "field": field})
         print(f"graspd train: {exc}", file=sys.stderr, flush=True)
         return 2

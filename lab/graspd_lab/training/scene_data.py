@@ -168,7 +168,7 @@ def scene_views(kind: str, object_ids: list[int], seed: int, views: int, hand: H
     """Build a scene of the objects (pybullet, settled) and see it `views` times, removing one random object
     between views (never the last).  The benchmark builds the same scenes from held-out objects
     (held_out_ok, evaluation only); training never does."""
-    from graspd_lab.sim.sensing import observe  # noqa: PLC0415 - pybullet is the optional extra graspd[sim]
+    from graspd_lab.sim.sensing import observe  # noqa: PLC0415 - pybullet is the lab distribution graspd-lab
     from graspd_lab.sim.world import build_scene  # noqa: PLC0415 - pybullet
 
     if not held_out_ok:

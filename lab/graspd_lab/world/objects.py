@@ -8,7 +8,7 @@ pybullet_data random_urdfs 900-999 are the project's held-out test objects (DESI
 rules"). The rule is written once, in urdf_folder: every loader of a random_urdfs file (the training
 meshes, the sized meshes of scripted scenes, the simulator's URDFs and extents) goes through it and
 is refused a held-out object unless the caller says it is the held-out evaluation (held_out_ok).
-pybullet_data ships inside the pybullet wheel (the optional extra graspd[sim] or graspd[train]).
+pybullet_data ships inside the pybullet wheel (the lab distribution graspd-lab).
 """
 
 from __future__ import annotations

@@ -40,6 +40,16 @@ BUILTIN_COMMANDS: tuple[str, ...] = ("detect", "demo")
 EXIT_USAGE = 2
 
 
+def missing_package_hint(exc: ImportError) -> str:
+    """What to install when an import fails: the lab (graspd-lab: training, simulation, the demo's rendered scene)
+    when a graspd_lab module is missing, otherwise graspd's own dependencies."""
+    if (exc.name or "").startswith("graspd_lab") or "graspd_lab" in str(exc):
+        return (f"needs the lab distribution graspd-lab, which is not installed ({exc}); install it with "
+                f"`pip install -e ./lab` (make setup does)")
+    return (f"cannot import what it needs ({type(exc).__name__}: {exc}); install graspd with its dependencies "
+            f"(make setup, or pip install -e .)")
+
+
 class CliError(Exception):
     """A command cannot run as asked: the message says what is wrong and what to do (printed, exit 2)."""
 
@@ -49,6 +59,7 @@ def _detect(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from graspd.core.errors import FieldError
     from graspd.core.hand import HandGeometry, hand_preset
     from graspd.gpd.detector import DetectionParams, GraspDetector
     from graspd.gpd.environment import EnvironmentParams
@@ -56,7 +67,6 @@ def _detect(args: argparse.Namespace) -> int:
     from graspd.io.cloud_files import read_input
     from graspd.viz.plot import plot_grasps
     from graspd.viz.viewer import viewer_html
-    from graspd_client.codec import WireError
 
     try:
         viewpoints = np.array(args.viewpoint, np.float32).reshape(-1, 3) if args.viewpoint else None
@@ -77,7 +87,7 @@ def _detect(args: argparse.Namespace) -> int:
             approach_distance=args.approach_distance,
             seed=args.seed,
         )
-    except (WireError, KeyError, ValueError, OSError) as exc:  # WireError: CloudError, a bad camera pose
+    except (FieldError, KeyError, ValueError, OSError) as exc:  # FieldError: CloudError, a bad camera pose
         print(f"graspd detect: {exc}", file=sys.stderr)
         return 2
     try:
@@ -119,11 +129,14 @@ def _detect(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from graspd_lab.world.scenes import GRAVITY, cluttered_tabletop
-
     from graspd.gpd.detector import DetectionParams, GraspDetector
     from graspd.gpd.preprocess import PreprocessParams, preprocess
     from graspd.viz.plot import plot_grasps
+    try:
+        from graspd_lab.world.scenes import GRAVITY, cluttered_tabletop
+    except ImportError as exc:  # the demo renders its scene with the lab's world
+        print(f"graspd demo: {missing_package_hint(exc)}", file=sys.stderr)
+        return EXIT_USAGE
 
     try:
         classifier = None if args.no_classifier else _load_classifier(args.model, args.models_dir)
@@ -328,9 +341,8 @@ def main(argv: list[str] | None = None) -> int:
     load = [command] if command in LAZY_SUBCOMMANDS else []
     try:
         parser = build_parser(load)
-    except ImportError as exc:  # e.g. `graspd serve` in an install without the service's dependencies
-        print(f"graspd {command}: cannot import what it needs ({type(exc).__name__}: {exc}); install graspd with "
-              f"its dependencies (make setup, or pip install -e .)", file=sys.stderr)
+    except ImportError as exc:  # e.g. `graspd train` without the lab, `graspd serve` without the service's deps
+        print(f"graspd {command}: {missing_package_hint(exc)}", file=sys.stderr)
         return EXIT_USAGE
     args = parser.parse_args(argv)
     return int(args.func(args))

@@ -4,11 +4,14 @@ simulator's passive, side and active (wrist-arc) cameras.  World frame, metres, 
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
+
+from graspd.core.cloud import CloudError
 
 F64 = NDArray[np.float64]
 FovAxis = Literal["horizontal", "vertical"]
@@ -174,11 +177,53 @@ def active_cameras(target: tuple[float, float, float] = (0.0, 0.0, 0.03), radius
 # ---- pixels <-> points with explicit pinhole intrinsics (depth images from a driver, ROS CameraInfo K) ----
 
 
-def camera_intrinsics(cam: Camera) -> tuple[float, float, float, float]:
-    """(fx, fy, cx, cy) of a Camera in the OpenCV / ROS CameraInfo convention (pixel centres at integer
+class Intrinsics(NamedTuple):
+    """Pinhole intrinsics in pixels: u = fx x/z + cx, v = fy y/z + cy in the optical frame (x right, y down, z
+    forward), pixel centres at integer coordinates (ROS CameraInfo K = [fx 0 cx; 0 fy cy; 0 0 1]).  A tuple: it
+    unpacks as fx, fy, cx, cy."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    @classmethod
+    def parse(cls, value: Mapping[str, float] | Sequence[float] | NDArray[np.floating],
+              field: str = "intrinsics") -> Intrinsics:
+        """From {"fx", "fy", "cx", "cy"} or 4 numbers fx, fy, cx, cy; CloudError naming field unless fx, fy > 0
+        and all finite."""
+        try:
+            if isinstance(value, Mapping):
+                nums = [float(value[k]) for k in ("fx", "fy", "cx", "cy")]
+            else:
+                nums = [float(v) for v in np.asarray(value, np.float64).reshape(-1)]
+        except (KeyError, TypeError, ValueError):
+            raise CloudError(field, f"fx, fy, cx, cy (pixels) expected, got {value!r}") from None
+        if len(nums) != 4 or not np.isfinite(nums).all() or nums[0] <= 0 or nums[1] <= 0:
+            raise CloudError(field, f"4 finite numbers fx, fy, cx, cy (pixels; fx, fy > 0) expected, got {value!r}")
+        return cls(*nums)
+
+
+def project_points(points: F64, camera_pose: F64, camera: Intrinsics) -> tuple[F64, NDArray[np.bool_]]:
+    """Pixel coordinates (M,2) [u, v] of cloud-frame points and whether each lies in front of the camera.
+
+    camera_pose is the 4x4 camera-to-cloud transform; points behind the camera get NaN pixels.
+    """
+    pose = np.asarray(camera_pose, np.float64)
+    local = (np.asarray(points, np.float64) - pose[:3, 3]) @ pose[:3, :3]  # R^T (p - t), row form
+    z = local[:, 2]
+    front = z > 1e-6
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(front, camera.fx * local[:, 0] / z + camera.cx, np.nan)
+        v = np.where(front, camera.fy * local[:, 1] / z + camera.cy, np.nan)
+    return np.stack([u, v], axis=1), front
+
+
+def camera_intrinsics(cam: Camera) -> Intrinsics:
+    """The Intrinsics (fx, fy, cx, cy) of a Camera in the OpenCV / ROS CameraInfo convention (pixel centres at integer
     coordinates, u = fx x/z + cx): Camera.project puts pixel i's centre at i + 0.5, so cx = width/2 - 0.5."""
     f = cam.focal_px
-    return f, f, cam.width / 2.0 - 0.5, cam.height / 2.0 - 0.5
+    return Intrinsics(f, f, cam.width / 2.0 - 0.5, cam.height / 2.0 - 0.5)
 
 
 def camera_pose(cam: Camera) -> F64:

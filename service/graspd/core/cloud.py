@@ -7,13 +7,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from graspd_client.codec import WireError
+from graspd.core.errors import FieldError
 
 FloatArray = NDArray[np.float32]
 IntArray = NDArray[np.int32]
 
 
-class CloudError(WireError):
+class CloudError(FieldError):
     """The cloud is malformed; `field` names the offending one (e.g. "cloud.points")."""
 
 

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from graspd_client.codec import WireError
+from graspd.core.errors import FieldError
 
 
 @dataclass(frozen=True)
@@ -33,14 +33,14 @@ class HandGeometry:
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
             if not (value == value) or value < 0.0:  # NaN or negative
-                raise WireError(f"hand.{name}", f"must be a non-negative number, got {value}")
+                raise FieldError(f"hand.{name}", f"must be a non-negative number, got {value}")
         if self.hand_outer_diameter <= 2.0 * self.finger_width:
-            raise WireError("hand.hand_outer_diameter", "must exceed twice hand.finger_width")
+            raise FieldError("hand.hand_outer_diameter", "must exceed twice hand.finger_width")
         for name in ("hand_depth", "hand_height"):
             if getattr(self, name) <= 0.0:
-                raise WireError(f"hand.{name}", "must be positive")
+                raise FieldError(f"hand.{name}", "must be positive")
         if self.init_bite >= self.hand_depth:
-            raise WireError("hand.init_bite", "must be smaller than hand.hand_depth")
+            raise FieldError("hand.init_bite", "must be smaller than hand.hand_depth")
 
     @property
     def max_aperture(self) -> float:

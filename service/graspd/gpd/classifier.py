@@ -73,7 +73,7 @@ def default_model_name() -> str:
 
 
 def default_models_dir() -> Path:
-    """The models folder: $GRASPD_MODELS_DIR if set, else models/ at the repository root."""
+    """The models folder: $GRASPD_MODELS_DIR if set, else models/ at the repository root (3 folders up)."""
     env = os.environ.get(MODELS_DIR_ENV)
     if env:
         return Path(env)

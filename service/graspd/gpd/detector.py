@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd.core.limits import MAX_NUM_SAMPLES
 from graspd.core.parallel import THREADS
 from graspd.core.warning import DetectionWarning
 from graspd.gpd.candidates import SamplingParams, search_hands
@@ -28,8 +29,6 @@ from graspd.gpd.occlusion import MAX_UNKNOWN_SHARE, UNKNOWN_SPACE_MODES, Unknown
 from graspd.gpd.preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
 from graspd.gpd.scene import ClosingRegionPoints, Scene
 from graspd.gpd.selection import SelectionParams, Vec3, feasible_mask, select
-
-MAX_NUM_SAMPLES = 20_000
 
 
 class Scorer(Protocol):

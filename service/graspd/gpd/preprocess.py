@@ -9,6 +9,7 @@ from numpy.typing import NDArray
 
 from graspd.core.cloud import CloudError, ViewpointCloud
 from graspd.core.open3d_import import defer_plotly_drawing
+from graspd.core.points import voxel_groups
 
 defer_plotly_drawing()  # open3d's dash/plotly drawing loads when used, not with open3d (~0.5 s of start-up)
 
@@ -42,13 +43,9 @@ def crop_mask(points: NDArray[np.floating], workspace: Workspace) -> NDArray[np.
 def voxelize(points: NDArray[np.float32], camera_source: NDArray[np.int32], voxel_size: float,
              normals: NDArray[np.float32] | None = None
              ) -> tuple[NDArray[np.float32], NDArray[np.int32], NDArray[np.float32] | None]:
-    """Mean point per occupied voxel; the camera of a voxel is the one that saw most of its points."""
-    grid = np.floor(points / voxel_size).astype(np.int64)
-    grid -= grid.min(axis=0)
-    dims = grid.max(axis=0) + 1
-    keys = (grid[:, 0] * dims[1] + grid[:, 1]) * dims[2] + grid[:, 2]
-    _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
+    """Mean point per occupied voxel (graspd.core.points.voxel_groups); the camera of a voxel is the one that saw
+    most of its points."""
+    inverse, counts = voxel_groups(points, voxel_size)
     m = counts.shape[0]
     sums = np.stack([np.bincount(inverse, points[:, k], m) for k in range(3)], axis=1)
     out_pts: NDArray[np.float32] = (sums / counts[:, None]).astype(np.float32)

@@ -16,12 +16,14 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from graspd.core.camera import Intrinsics
 from graspd.core.cloud import CloudError, ViewpointCloud
-from graspd.io.depth import DEFAULT_DEPTH_SCALE, Intrinsics, depth_metres, depth_points, read_depth_png
+from graspd.core.limits import MAX_POINTS
+from graspd.io.depth import DEFAULT_DEPTH_SCALE, depth_metres, depth_points, read_depth_png
 from graspd.io.inputs import CloudInput, cloud_input
 
-#: The most points a PCD or PLY file may declare (the /detect cloud cap, graspd.server.schemas.MAX_POINTS).
-MAX_FILE_POINTS = 5_000_000
+#: The most points a PCD or PLY file may declare.
+MAX_FILE_POINTS = MAX_POINTS
 #: A binary_compressed PCD may expand at most this much (PCL's LZF on real clouds gives ~1-4x; more is a bomb).
 MAX_PCD_EXPANSION = 32
 _MAX_PCD_HEADER = 64 << 10  # bytes: PCL's headers are a few hundred

@@ -12,46 +12,19 @@ become non-finite rows, dropped and counted like every other input's (graspd.io.
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from graspd.core.camera import backproject
+from graspd.core.camera import Intrinsics, backproject
 from graspd.core.cloud import CloudError
+from graspd.core.limits import MAX_POINTS
 
-#: Most pixels a depth image may have (the /detect cloud cap: one point a pixel).
-MAX_DEPTH_PIXELS = 5_000_000
+#: Most pixels a depth image may have (the cloud cap: one point a pixel).
+MAX_DEPTH_PIXELS = MAX_POINTS
 #: Metres per unit of a 16-bit depth PNG unless told otherwise (millimetres: ROS 16UC1, OpenCV, RealSense).
 DEFAULT_DEPTH_SCALE = 0.001
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics in pixels: u = fx x/z + cx, v = fy y/z + cy (ROS CameraInfo K = [fx 0 cx; 0 fy cy; 0 0 1])."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-    @classmethod
-    def parse(cls, value: Mapping[str, float] | Sequence[float] | NDArray[np.floating],
-              field: str = "intrinsics") -> Intrinsics:
-        """From {"fx", "fy", "cx", "cy"} or 4 numbers fx, fy, cx, cy; CloudError naming field unless fx, fy > 0
-        and all finite."""
-        try:
-            if isinstance(value, Mapping):
-                nums = [float(value[k]) for k in ("fx", "fy", "cx", "cy")]
-            else:
-                nums = [float(v) for v in np.asarray(value, np.float64).reshape(-1)]
-        except (KeyError, TypeError, ValueError):
-            raise CloudError(field, f"fx, fy, cx, cy (pixels) expected, got {value!r}") from None
-        if len(nums) != 4 or not np.isfinite(nums).all() or nums[0] <= 0 or nums[1] <= 0:
-            raise CloudError(field, f"4 finite numbers fx, fy, cx, cy (pixels; fx, fy > 0) expected, got {value!r}")
-        return cls(*nums)
 
 
 def check_depth(depth: NDArray[np.generic], field: str = "body") -> NDArray[np.float32]:

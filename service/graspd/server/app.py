@@ -28,8 +28,9 @@ from graspd.server.api.templates import router as templates_router
 from graspd.server.logs import MAX_REQUEST_ID, begin_request, valid_request_id
 from graspd.server.metrics import Metrics
 from graspd.server.problems import Problem
+from graspd.server.requests import dumps
 from graspd.server.schemas import DetectRequest
-from graspd.server.services.engine import DetectionEngine, dumps
+from graspd.server.services.engine import DetectionEngine
 from graspd.server.services.instance_jobs import InstanceJobs
 from graspd.server.services.registry import ModelRegistry
 from graspd.server.services.warmup import warm_up

@@ -7,7 +7,12 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from graspd.core.errors import FieldError
 from graspd_client.codec import WireError
+
+#: The errors a caller's wrong value raises: the core's FieldError (CloudError, TemplateError, ...) and the wire
+#: codec's WireError.  Both carry .field and .message; the edge answers both alike, a 4xx naming the field.
+CALLER_ERRORS = (FieldError, WireError)
 
 
 class Problem(Exception):
@@ -50,12 +55,12 @@ def _join(base: str, sub: str) -> str:
 
 def from_validation(exc: ValidationError, status: int = 422) -> Problem:
     """A Problem listing every pydantic error with its dotted field path, the first one as the summary.  An
-    error a validator raised as a WireError names its sub-field (.field, relative to pydantic's path)."""
+    error a validator raised as a FieldError or WireError names its sub-field (.field, relative to pydantic's path)."""
     detail = []
     for err in exc.errors(include_url=False):
         field = _loc_text(tuple(err.get("loc", ())))
         cause = (err.get("ctx") or {}).get("error")
-        if isinstance(cause, WireError):
+        if isinstance(cause, CALLER_ERRORS):
             field, message = _join(field, cause.field), cause.message
         elif isinstance(cause, BaseException):  # a validator's ValueError: its own text
             message = str(cause)
@@ -66,15 +71,15 @@ def from_validation(exc: ValidationError, status: int = 422) -> Problem:
     return Problem(status, first["message"], first["field"] or None, detail=detail)
 
 
-def from_wire(exc: WireError, status: int = 422) -> Problem:
+def from_wire(exc: FieldError | WireError, status: int = 422) -> Problem:
     """A Problem naming the field the error carries."""
     return Problem(status, exc.message, exc.field or None)
 
 
 def from_error(exc: ValueError, fields: Collection[str], status: int = 422, default: str = "body") -> Problem:
-    """A Problem from an error a request caused outside validation.  A WireError (graspd.core.cloud.CloudError and
+    """A Problem from an error a request caused outside validation.  A FieldError (graspd.core.cloud.CloudError and
     graspd.templates.TemplateError are ones) carries its field, named when it is default or its first part is
     one of fields (the request's); any other error, or a field the request does not have, is named default."""
-    if isinstance(exc, WireError) and exc.field and (exc.field == default or exc.field.split(".", 1)[0] in fields):
+    if isinstance(exc, CALLER_ERRORS) and exc.field and (exc.field == default or exc.field.split(".", 1)[0] in fields):
         return from_wire(exc, status)
     return Problem(status, str(exc), default)

@@ -29,9 +29,11 @@ from pydantic import (
 )
 
 from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.errors import FieldError
 from graspd.core.frames import check_camera_source, check_points_frame, pose_matrix
 from graspd.core.grasp import RANKING_RULE
 from graspd.core.hand import HAND_PRESETS, HandGeometry
+from graspd.core.limits import MAX_COORDINATE, MAX_GRASPS, MAX_NUM_SAMPLES, MAX_POINTS, MAX_VIEWPOINTS
 from graspd.core.warning import WARNING_CODES, DetectionWarning
 from graspd.gpd.detector import Detection, DetectionParams
 from graspd.gpd.environment import Box, EnvironmentParams, Plane
@@ -54,8 +56,6 @@ RANKING = (
     "(seeded)"
 )
 
-MAX_POINTS = 5_000_000
-MAX_COORDINATE = 1e4  # metres
 
 ENCODED_ARRAY_SCHEMA: dict[str, Any] = {
     "oneOf": [
@@ -106,7 +106,7 @@ Matrix4 = _array((4, 4), "f", "float64", True, "4x4 homogeneous transform, row-m
 
 
 def _camera_pose(value: Any) -> np.ndarray:
-    """One checked camera-to-robot transform (4,4) (graspd.core.frames.pose_matrix; its WireError names the sub-field
+    """One checked camera-to-robot transform (4,4) (graspd.core.frames.pose_matrix; its FieldError names the sub-field
     relative to this pose: "" or ".quat_xyzw", ...)."""
     return pose_matrix(value, "")
 
@@ -132,7 +132,7 @@ class Cloud(BaseModel):
     points: Points  # type: ignore[valid-type]
     viewpoints: Viewpoints = Field(default_factory=lambda: np.zeros((1, 3)))  # type: ignore[valid-type]
     camera_poses: list[CameraPose] | None = Field(  # type: ignore[valid-type]
-        None, min_length=1, max_length=wire.MAX_VIEWPOINTS,
+        None, min_length=1, max_length=MAX_VIEWPOINTS,
         description="one camera-to-robot transform per camera (ROS: the TF transform of the camera's frame into "
         "the base frame).  Replaces viewpoints: the cameras' positions are the translations; detection runs in the "
         "robot frame and the grasps come back in it (the response's frame is 'robot')")
@@ -162,8 +162,8 @@ class Cloud(BaseModel):
     @field_validator("viewpoints")
     @classmethod
     def _viewpoints(cls, v: np.ndarray) -> np.ndarray:
-        if not 1 <= len(v) <= wire.MAX_VIEWPOINTS:
-            raise ValueError(f"1 to {wire.MAX_VIEWPOINTS} camera positions expected, got {len(v)}")
+        if not 1 <= len(v) <= MAX_VIEWPOINTS:
+            raise ValueError(f"1 to {MAX_VIEWPOINTS} camera positions expected, got {len(v)}")
         return v
 
     @field_validator("camera_source")
@@ -262,7 +262,7 @@ class Hand(BaseModel):
     def _consistent(self) -> Hand:
         try:
             self.geometry()  # HandGeometry checks the combination (outer diameter > 2 finger widths, ...)
-        except WireError as exc:  # it names hand.<name>; a combination of overrides is the field hand
+        except FieldError as exc:  # it names hand.<name>; a combination of overrides is the field hand
             raise ValueError(str(exc)) from None
         return self
 
@@ -411,8 +411,8 @@ class DetectRequest(BaseModel):
     hand: Hand | None = Field(None, description="hand geometry; a plain string is read as {\"preset\": string}")
     model: str | None = Field(None, max_length=200, description="classifier name (GET /models); default: the "
                               "server's default model, if any")
-    num_samples: int = Field(1000, ge=1, le=wire.MAX_NUM_SAMPLES, description="points sampled for candidates")
-    max_grasps: int = Field(100, ge=0, le=wire.MAX_GRASPS, description="most grasps returned")
+    num_samples: int = Field(1000, ge=1, le=MAX_NUM_SAMPLES, description="points sampled for candidates")
+    max_grasps: int = Field(100, ge=0, le=MAX_GRASPS, description="most grasps returned")
     min_score: float | None = Field(None, allow_inf_nan=False, description="drop grasps scoring below this")
     approach: Approach | None = None
     selection: bool = Field(True, description="true: filter, cluster and rank best first (see `grasps` of the "
@@ -802,7 +802,7 @@ def _check_hand_pose(v: np.ndarray) -> np.ndarray:
     """The templates' own check of a demonstrated pose (orthonormal, right-handed); field hand_pose."""
     try:
         return check_hand_pose(v)
-    except WireError as exc:  # a TemplateError naming hand_pose, the field pydantic reports it under
+    except FieldError as exc:  # a TemplateError naming hand_pose, the field pydantic reports it under
         raise ValueError(exc.message) from None
 
 

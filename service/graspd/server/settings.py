@@ -40,12 +40,14 @@ class Settings(BaseSettings):
                                "every candidate, so that the full model scores only the best (request option "
                                "cascade); used with every model made for the same hand; empty: no cascade")
     detect_workers: int = Field(default=0, ge=0, description="detections run at once; 0 = one per CPU core")
-    threads: int = Field(default=0, ge=0, description="cores the running detections share (graspd.core.parallel: a lone "
+    threads: int = Field(default=0, ge=0, description="cores the running detections share (graspd.core.parallel: a "
+                         "lone "
                          "request uses them all, concurrent ones divide them); 0 = every core of the process")
     warmup: bool = Field(default=True, description="run one detection on a small bundled cloud at start-up, before "
                          "the service answers, so that the first request is as fast as the rest (~1 s of start-up)")
     detect_memory_mb: float = Field(default=2048.0, ge=0, description="memory budget of the detections running at "
-                                    "once (MiB; graspd.server.services.budget estimates each request's from its points, "
+                                    "once (MiB; graspd.server.services.budget "
+                                    "estimates each request's from its points, "
                                     "samples and crops): a request over the whole budget gets 413 naming the field, "
                                     "one that does not fit now waits detect_memory_wait_s, then 503 with "
                                     "Retry-After; 0: no budget")
@@ -133,7 +135,7 @@ class Settings(BaseSettings):
     http_max_header_bytes: int = Field(default=64 << 10, ge=1024, description="request line and headers at "
                                        "most (bytes)")
     instance_training: bool = Field(default=True, description="POST /models may train instance models (a "
-                                    "classifier fine-tuned for one uploaded mesh; needs graspd[train])")
+                                    "classifier fine-tuned for one uploaded mesh; needs graspd-lab)")
     instance_views: int = Field(default=24, ge=3, le=200, description="rendered views of an instance's mesh (a "
                                 "quarter held out for its comparison, an eighth for validation)")
     instance_per_view: int | None = Field(default=None, ge=2, le=1024, description="exemplars kept per view; "

@@ -30,10 +30,10 @@ import sqlalchemy as sa
 from numpy.typing import NDArray
 from sqlalchemy.engine import Connection, Engine
 
-from graspd_client.codec import WireError
+from graspd.core.errors import FieldError
 
 
-class StoreError(WireError):
+class StoreError(FieldError):
     """A bad store URL or argument; `field` names it (library_url, success)."""
 
 

@@ -8,7 +8,7 @@ import json
 import re
 from typing import Any
 
-from graspd_client.codec import WireError
+from graspd.core.errors import FieldError
 
 #: The base model of an instance: the generic model, or the category model of its category.
 BASE_MODELS: dict[str | None, str] = {None: "generic15", "box": "box15", "cylinder": "cylinder15"}
@@ -20,7 +20,7 @@ NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 PROGRESS_PREFIX = "graspd-progress "
 
 
-class InstanceError(WireError):
+class InstanceError(FieldError):
     """An instance request that cannot be made; .field names the option (name, category, views, mesh, ...)."""
 
 

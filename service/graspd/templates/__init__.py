@@ -1,7 +1,7 @@
 """Grasp templates from demonstrations, improved by failures (Herzog et al. 2012): graspd's second detector.
 
 Library API (what the service wires into endpoints; every error is a TemplateError or CloudError, both
-graspd_client.codec.WireError (a ValueError) whose .field names the offending field: answer them with 4xx):
+graspd.core.errors.FieldError (a ValueError) whose .field names the offending field: answer them with 4xx):
 
     from graspd.templates import TemplateLibrary, TemplateDetector, TemplateParams, TemplateError
 

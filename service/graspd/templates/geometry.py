@@ -24,9 +24,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from graspd.core.cloud import ViewpointCloud
+from graspd.core.errors import FieldError
 from graspd.core.hand import HandGeometry
 from graspd.core.points import voxel_downsample
-from graspd_client.codec import WireError
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
@@ -36,7 +36,7 @@ SURFACE, VOID, OCCLUSION, BACKGROUND = 0, 1, 2, 3
 REGION_NAMES: tuple[str, ...] = ("surface", "void", "occlusion", "background")
 
 
-class TemplateError(WireError):
+class TemplateError(FieldError):
     """Input that no template can be made from; `field` names the offending one (e.g. "hand_pose")."""
 
 

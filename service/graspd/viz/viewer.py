@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd.core.points import voxel_downsample
 from graspd.gpd.detector import Detection
 from graspd.gpd.environment import Label
 from graspd.viz.plot import (
@@ -85,8 +86,8 @@ def grasp_objects(points: NDArray[np.floating], labels: NDArray[np.integer], sam
     obj = np.asarray(points, np.float64)[np.asarray(labels) == Label.OBJECT]
     if len(obj) == 0 or len(samples) == 0:
         return out
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(obj)).voxel_down_sample(voxel)
-    down = np.asarray(pc.points)
+    down = voxel_downsample(obj, voxel)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(down))
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         cluster = np.asarray(pc.cluster_dbscan(eps=eps, min_points=1))
     ids, counts = np.unique(cluster[cluster >= 0], return_counts=True)

@@ -17,15 +17,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.limits import MAX_NUM_SAMPLES, MAX_POINTS
 from graspd.io.inputs import finite_rows
 from graspd.io.ros.types import CLOUD_INDEXED, CLOUD_SAMPLES, CLOUD_SOURCES, POINTCLOUD2, Header
 
-#: Most points a cloud may declare (the /detect cap, graspd.server.schemas.MAX_POINTS).
-MAX_POINTS = 5_000_000
 #: Most camera positions (view_points) a CloudSources may carry.
 MAX_VIEWPOINTS = 1024
-#: Most sample points of a CloudSamples or indices of a CloudIndexed (graspd.gpd.detector.MAX_NUM_SAMPLES).
-MAX_SAMPLES = 20_000
+#: Most sample points of a CloudSamples or indices of a CloudIndexed.
+MAX_SAMPLES = MAX_NUM_SAMPLES
 #: Most PointField entries, and longest frame_id / field name (bytes).
 MAX_FIELDS = 64
 MAX_STRING = 4096

@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Mapping
 from typing import Any
 
 from fastapi import APIRouter, Request
@@ -13,10 +12,10 @@ from fastapi.responses import Response
 from starlette.requests import ClientDisconnect
 
 from graspd.server.api.deps import Authorized, State
-from graspd.server.api.uploads import openapi_parameters, sniff, upload_request
 from graspd.server.problems import Problem
-from graspd.server.schemas import DetectRequest, DetectResponse, ErrorBody
-from graspd.server.services.engine import parse_request
+from graspd.server.requests import parse_body
+from graspd.server.schemas import DetectResponse, ErrorBody
+from graspd.server.uploads import openapi_parameters
 
 router = APIRouter(tags=["detect"])
 log = logging.getLogger("graspd.server")
@@ -64,17 +63,6 @@ async def read_capped(request: Request, cap: int, timeout_s: float | None = None
             raise Problem(413, f"request body exceeds the limit of {cap} bytes", "body")
         chunks.append(chunk)
     return b"".join(chunks)
-
-
-def parse_body(data: bytes, content_type: str, query: Mapping[str, str], viewpoints: list[str],
-               camera_poses: list[str] | None = None) -> DetectRequest:
-    """A validated DetectRequest from the body (JSON, PCD, PLY, NPY, NPZ or a depth PNG; options of a file in the
-    query, viewpoint and camera_pose repeatable); runs on a worker thread: file decoding takes tens of milliseconds
-    to seconds."""
-    kind = sniff(data, content_type)
-    if kind == "json":
-        return parse_request(data)
-    return parse_request(upload_request(data, kind, query, viewpoints, camera_poses))
 
 
 @router.post(

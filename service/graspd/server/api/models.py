@@ -10,11 +10,11 @@ from typing import Any
 
 import anyio
 from fastapi import APIRouter, Request
-from graspd_lab.world.mesh_file import MESH_SUFFIXES
 from starlette.datastructures import FormData, UploadFile
 from starlette.formparsers import FormParser, MultiPartException, MultiPartParser
 
 from graspd.core.hand import HAND_PRESETS
+from graspd.io.mesh_file import MESH_SUFFIXES
 from graspd.server.api.deps import Authorized, State
 from graspd.server.api.detect import read_capped
 from graspd.server.problems import Problem, from_wire

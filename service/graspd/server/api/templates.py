@@ -16,6 +16,7 @@ from pydantic import BaseModel
 from graspd.server.api.deps import Authorized, State
 from graspd.server.api.detect import read_capped
 from graspd.server.problems import Problem
+from graspd.server.requests import parse_model
 from graspd.server.schemas import (
     DemonstrationRequest,
     DemonstrationResponse,
@@ -24,7 +25,6 @@ from graspd.server.schemas import (
     FeedbackResponse,
     LibraryResponse,
 )
-from graspd.server.services.engine import parse_model
 
 router = APIRouter(tags=["templates"])
 log = logging.getLogger("graspd.server")

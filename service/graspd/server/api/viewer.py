@@ -22,10 +22,11 @@ from graspd.core.hand import HandGeometry
 from graspd.gpd.detector import Detection
 from graspd.gpd.preprocess import PreprocessParams, preprocess
 from graspd.server.api.deps import Authorized, State
-from graspd.server.api.detect import parse_body, read_capped
-from graspd.server.api.uploads import openapi_parameters
+from graspd.server.api.detect import read_capped
 from graspd.server.problems import Problem
+from graspd.server.requests import parse_body
 from graspd.server.schemas import DetectRequest, ErrorBody
+from graspd.server.uploads import openapi_parameters
 from graspd.templates import TemplateDetection
 from graspd.viz.viewer import DROP_CSP, VIEWER_CSP, drop_page_html, security_headers, viewer_html
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import contextvars
-import json
 import logging
 import math
 import threading
@@ -15,12 +14,11 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import replace
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
-import orjson
-from pydantic import BaseModel, ValidationError
 
+from graspd.core.camera import Intrinsics, project_points
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
 from graspd.core.parallel import THREADS
@@ -29,7 +27,7 @@ from graspd.gpd.sanity import check_detection
 from graspd.io.png import encode_png_b64
 from graspd.server.logs import current_request
 from graspd.server.metrics import Metrics
-from graspd.server.problems import Problem, from_validation, from_wire
+from graspd.server.problems import CALLER_ERRORS, Problem, from_wire
 from graspd.server.schemas import CropsRequest, DetectRequest, DetectResponse
 from graspd.server.services import proposals
 from graspd.server.services.allocator import IdleTrimmer, trim_function
@@ -38,96 +36,10 @@ from graspd.server.services.registry import ModelRegistry
 from graspd.server.services.templates import TemplateService
 from graspd.server.settings import Settings
 from graspd.templates import TemplateDetection
-from graspd_client.codec import WireError
 
 log = logging.getLogger("graspd.server")
-M = TypeVar("M", bound=BaseModel)
 #: Called on the worker with a finished detection, the cloud it ran on and the hand used (engine.enqueue).
 OnDetection = Callable[[Detection | TemplateDetection, ViewpointCloud, HandGeometry], None]
-
-
-#: Deepest JSON nesting a request may have: orjson's own limit (the deepest valid request has ~6 levels).
-MAX_JSON_DEPTH = 1024
-
-
-class JsonTooDeep(ValueError):
-    """Valid JSON nested beyond MAX_JSON_DEPTH: a 422 naming the body, not a parse error."""
-
-
-def json_depth(obj: Any, limit: int = MAX_JSON_DEPTH) -> int:
-    """Nesting depth of decoded JSON, counted iteratively (no recursion) and only up to limit + 1."""
-    deepest = 0
-    stack: list[tuple[Any, int]] = [(obj, 1)]
-    while stack:
-        item, depth = stack.pop()
-        if isinstance(item, dict):
-            item = list(item.values())
-        elif not isinstance(item, list):
-            continue
-        deepest = max(deepest, depth)
-        if deepest > limit:
-            return deepest
-        stack.extend((v, depth + 1) for v in item if isinstance(v, list | dict))
-    return deepest
-
-
-def loads(payload: bytes | str) -> Any:
-    """JSON text -> Python objects: orjson (~2x faster on megabyte bodies), else the standard library, which
-    also reads NaN and Infinity (orjson refuses them) so that they reach validation and get a 422 naming the
-    field.  orjson reads integers beyond 64 bits as floats; every integer field is bounded far below.
-    ValueError when the text is not JSON or nests deeper than MAX_JSON_DEPTH (no RecursionError escapes)."""
-    too_deep = f"JSON nested too deeply (at most about {MAX_JSON_DEPTH} levels)"
-    try:
-        return orjson.loads(payload)
-    except orjson.JSONDecodeError as exc:
-        if any(word in str(exc).lower() for word in ("depth limit", "recursion")):  # orjson 3.x wordings
-            raise JsonTooDeep(too_deep) from None
-    try:
-        value = json.loads(payload)
-    except RecursionError:
-        raise JsonTooDeep(too_deep) from None
-    if isinstance(value, list | dict) and json_depth(value) > MAX_JSON_DEPTH:
-        raise JsonTooDeep(too_deep)
-    return value
-
-
-def dumps(body: Any) -> bytes:
-    """Compact JSON bytes of a response body (orjson, ~10x faster than json.dumps on a 100-grasp answer)."""
-    try:
-        return orjson.dumps(body, option=orjson.OPT_SERIALIZE_NUMPY)
-    except TypeError:  # a type orjson does not know: the standard library's rules
-        return json.dumps(body, separators=(",", ":")).encode()
-
-
-def parse_request(payload: bytes | str | dict[str, Any]) -> DetectRequest:
-    """A validated DetectRequest from JSON text or a decoded object; Problem (400/422) names the field."""
-    return parse_model(DetectRequest, payload)
-
-
-def json_object(payload: bytes | str | dict[str, Any]) -> dict[str, Any]:
-    """A JSON object from JSON text (or one already decoded); Problem 400 (not JSON) or 422 (too deep, not
-    an object) naming the body."""
-    if isinstance(payload, bytes | str):
-        try:
-            payload = loads(payload)
-        except JsonTooDeep as exc:
-            raise Problem(422, str(exc), "body") from None
-        except (ValueError, UnicodeDecodeError) as exc:
-            raise Problem(400, f"invalid JSON ({exc})", "body") from None
-    if not isinstance(payload, dict):
-        raise Problem(422, f"a JSON object is expected, got {type(payload).__name__}", "body")
-    return payload
-
-
-def parse_model(model: type[M], payload: bytes | str | dict[str, Any]) -> M:
-    """A validated request model from JSON text or a decoded object; Problem (400/422) names the field."""
-    payload = json_object(payload)
-    try:
-        return model.model_validate(payload)
-    except ValidationError as exc:
-        raise from_validation(exc) from None
-    except WireError as exc:
-        raise from_wire(exc) from None
 
 
 def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
@@ -137,7 +49,7 @@ def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
     intr = crops.intrinsics
     g = det.grasps
     centres = proposals.finger_centres(g.positions, g.approach, det.hand.hand_depth)
-    pixels, _ = proposals.project(centres, crops.camera_pose, proposals.Pinhole(intr.fx, intr.fy, intr.cx, intr.cy))
+    pixels, _ = project_points(centres, crops.camera_pose, Intrinsics(intr.fx, intr.fy, intr.cx, intr.cy))
     inside = proposals.inside_image(pixels, image.shape[0], image.shape[1])
     windows = proposals.crop_windows(image, np.where(inside[:, None], pixels, np.nan), crops.size)
     return [{"png": encode_png_b64(windows[i]) if inside[i] else None,
@@ -251,7 +163,7 @@ class DetectionEngine:
                 given = req.to_input()  # in the frame detection runs in; non-finite rows dropped (graspd.io.inputs)
                 cloud = given.cloud
                 params = req.to_params()
-            except WireError as exc:
+            except CALLER_ERRORS as exc:
                 raise from_wire(exc) from None
             model = self.registry.resolve(req.model, req.use_classifier and req.method == "gpd",
                                           hand or HandGeometry())

@@ -28,11 +28,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from graspd_lab.world.mesh_file import MeshError, MeshLimits, check_declared_counts
 
 import graspd
 import graspd_client
 from graspd.gpd import classifier
+from graspd.io.mesh_file import MeshError, MeshLimits, check_declared_counts
 from graspd.server.problems import Problem, from_wire
 from graspd.server.services.registry import ModelRegistry
 from graspd.server.settings import Settings
@@ -80,13 +80,17 @@ class InstanceJob:
 
 
 def training_available() -> bool:
-    """Whether this install can train (torch and onnx, the graspd[train] extra), without importing them."""
-    return all(importlib.util.find_spec(m) is not None for m in ("torch", "onnx"))
+    """Whether this install can train: the lab distribution graspd-lab (it brings torch and onnx) is installed,
+    found without importing it (the server never imports the lab; the job runs it in a subprocess)."""
+    return all(importlib.util.find_spec(m) is not None for m in ("graspd_lab", "torch", "onnx"))
 
 
 def _pythonpath() -> str:
-    """PYTHONPATH for the job: where this graspd and graspd_client come from, then the caller's."""
+    """PYTHONPATH for the job: where this graspd, graspd_client and graspd_lab come from, then the caller's."""
     roots = [str(Path(graspd.__file__).resolve().parents[1]), str(Path(graspd_client.__file__).resolve().parents[1])]
+    lab = importlib.util.find_spec("graspd_lab")
+    if lab is not None and lab.origin:
+        roots.append(str(Path(lab.origin).resolve().parents[1]))
     extra = os.environ.get("PYTHONPATH", "")
     return os.pathsep.join(dict.fromkeys([*roots, *filter(None, extra.split(os.pathsep))]))
 
@@ -134,7 +138,8 @@ class InstanceJobs:
         if not self.settings.instance_training:
             raise Problem(503, "instance training is off on this server (GRASPD_INSTANCE_TRAINING)", None)
         if not training_available():
-            raise Problem(503, "this server cannot train: install graspd[train] (torch, onnx)", None)
+            raise Problem(503, "this server cannot train: install the lab distribution graspd-lab (pip install "
+                                "./lab; it brings torch and onnx)", None)
         try:
             self.models_dir.mkdir(parents=True, exist_ok=True)
             writable = os.access(self.models_dir, os.W_OK | os.X_OK)
@@ -201,7 +206,8 @@ class InstanceJobs:
 
     def command(self, job: InstanceJob) -> list[str]:
         s = self.settings
-        cmd = [sys.executable, "-m", "graspd_lab.training.instance_cli", "--instance", str(job.mesh), "--name", job.name,
+        cmd = [sys.executable, "-m", "graspd_lab.training.instance_cli", "--instance", str(job.mesh),
+               "--name", job.name,
                "--models-dir", str(self.models_dir), "--work-dir", str(job.work), "--hand", job.hand,
                "--views", str(s.instance_views), "--max-minutes", str(s.instance_max_minutes),
                "--threads", str(s.instance_threads), "--base", job.base_model or "none", "--progress-json"]
@@ -355,7 +361,7 @@ class MeshCheckGate:
 
 def check_declared(content: bytes, suffix: str, max_bytes: int) -> None:
     """In this process, before anything is parsed: Problem 422 naming mesh when the file's declared counts
-    cannot be backed by its bytes or exceed the limits (graspd_lab.world.mesh_file.check_declared_counts).  Reads
+    cannot be backed by its bytes or exceed the limits (graspd.io.mesh_file.check_declared_counts).  Reads
     only the bytes already received: no allocation grows with what a header claims."""
     try:
         check_declared_counts(content, suffix, MeshLimits(max_bytes=max_bytes))

@@ -3,43 +3,15 @@ between the fingers into the RGB image and cut a fixed-size window around it.  P
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class Pinhole:
-    """Pinhole intrinsics (pixels): u = fx x/z + cx, v = fy y/z + cy in the camera optical frame
-    (z forward, x right, y down)."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-
 def finger_centres(positions: F64, approach: F64, hand_depth: float) -> F64:
     """The point between the fingers (M,3): hand-base centre plus half the finger length along approach."""
     return np.asarray(positions, np.float64) + 0.5 * hand_depth * np.asarray(approach, np.float64)
-
-
-def project(points: F64, camera_pose: F64, camera: Pinhole) -> tuple[F64, NDArray[np.bool_]]:
-    """Pixel coordinates (M,2) [u, v] of cloud-frame points and whether each lies in front of the camera.
-
-    camera_pose is the 4x4 camera-to-cloud transform; points behind the camera get NaN pixels.
-    """
-    pose = np.asarray(camera_pose, np.float64)
-    local = (np.asarray(points, np.float64) - pose[:3, 3]) @ pose[:3, :3]  # R^T (p - t), row form
-    z = local[:, 2]
-    front = z > 1e-6
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.where(front, camera.fx * local[:, 0] / z + camera.cx, np.nan)
-        v = np.where(front, camera.fy * local[:, 1] / z + camera.cy, np.nan)
-    return np.stack([u, v], axis=1), front
 
 
 def inside_image(pixels: F64, height: int, width: int) -> NDArray[np.bool_]:

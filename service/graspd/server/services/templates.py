@@ -37,7 +37,7 @@ from graspd.core.cloud import CloudError, ViewpointCloud
 from graspd.core.hand import HandGeometry, hand_preset
 from graspd.gpd.detector import Detection
 from graspd.server.logs import current_request
-from graspd.server.problems import Problem, from_error, from_wire
+from graspd.server.problems import CALLER_ERRORS, Problem, from_error, from_wire
 from graspd.server.schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
 from graspd.server.settings import Settings
 from graspd.store.database import redact_url, scrub
@@ -45,7 +45,6 @@ from graspd.store.outcomes import Feedback
 from graspd.templates import TemplateDetection, TemplateDetector, TemplateError, TemplateLibrary, UnknownGrasp
 from graspd.templates.demonstration import grasp_image
 from graspd.templates.library import parse_grasp_id
-from graspd_client.codec import WireError
 
 log = logging.getLogger("graspd.server")
 
@@ -233,7 +232,7 @@ class TemplateService:
         self._check_hand(None if req.hand is None else req.hand.geometry())
         try:
             cloud = req.cloud.to_cloud()
-        except WireError as exc:
+        except CALLER_ERRORS as exc:
             raise from_wire(exc) from None
         ws = req.workspace
         try:

@@ -35,8 +35,9 @@ from graspd.io.ros import Header
 from graspd.server.logs import RequestContext, begin_request
 from graspd.server.metrics import Metrics
 from graspd.server.problems import Problem
+from graspd.server.requests import parse_model, parse_request
 from graspd.server.schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
-from graspd.server.services.engine import DetectionEngine, parse_model, parse_request
+from graspd.server.services.engine import DetectionEngine
 from graspd.server.settings import Settings
 from graspd.server.zenoh.ros_stream import (
     DEFAULT_INPUT_KEYS,

@@ -42,11 +42,10 @@ from graspd.io.ros import (
     encode_pose_array,
 )
 from graspd.io.ros.types import POINTCLOUD2
-from graspd.server.problems import Problem
+from graspd.server.problems import CALLER_ERRORS, Problem
+from graspd.server.requests import json_object, parse_model
 from graspd.server.schemas import MAX_COORDINATE, Cloud, DetectRequest
-from graspd.server.services.engine import json_object, parse_model
 from graspd.templates import TemplateDetection
-from graspd_client.codec import WireError
 
 #: Input name -> default key under the prefix, and the ROS message type it carries.
 INPUT_TYPES: dict[str, str] = {"pointcloud2": "sensor_msgs/msg/PointCloud2",
@@ -216,7 +215,7 @@ def in_robot_frame(msg: CloudMessage, options: StreamOptions) -> CloudMessage:
     camera = options.points_frame == "camera"
     try:  # a PointCloud2 says nothing of which camera saw a point: one pose only
         check_camera_source(options.points_frame, len(poses), msg.msg_type != POINTCLOUD2, "camera_poses")
-    except WireError as exc:
+    except CALLER_ERRORS as exc:
         raise Problem(422, f"a {POINTCLOUD2} of points in the camera's frame takes one camera pose, "
                       f"{len(poses)} are set: send a gpd_ros CloudSources (camera_source per point)",
                       exc.field) from None

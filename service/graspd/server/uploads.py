@@ -13,6 +13,7 @@ import numpy as np
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
+from graspd.core.camera import Intrinsics
 from graspd.core.cloud import CloudError
 from graspd.core.frames import POINTS_FRAMES, pose_matrix
 from graspd.io.cloud_files import (
@@ -26,10 +27,9 @@ from graspd.io.cloud_files import (
     parse_pcd,
     parse_ply,
 )
-from graspd.io.depth import DEFAULT_DEPTH_SCALE, PNG_MAGIC, Intrinsics, depth_metres, depth_points, read_depth_png
-from graspd.server.problems import Problem, from_error, from_wire
+from graspd.io.depth import DEFAULT_DEPTH_SCALE, PNG_MAGIC, depth_metres, depth_points, read_depth_png
+from graspd.server.problems import CALLER_ERRORS, Problem, from_error, from_wire
 from graspd.server.schemas import DetectRequest
-from graspd_client.codec import WireError
 
 PCD_TYPES = ("application/x-pcd", "application/pcd", "image/x-pcd")
 PLY_TYPES = ("application/ply", "application/x-ply", "model/ply", "text/ply")
@@ -163,7 +163,7 @@ def _camera_pose(text: str) -> list[list[float]]:
     n = len([v for v in text.replace(" ", "").split(",") if v != ""])
     try:
         return pose_matrix(_floats(text, 16 if n == 16 else 7, "camera_pose"), "camera_pose").tolist()
-    except WireError as exc:
+    except CALLER_ERRORS as exc:
         raise from_wire(exc) from None
 
 
