@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from fixtures import KRYLON_VIEWPOINT
 from graspd.core.cloud import ViewpointCloud
@@ -34,11 +35,16 @@ def test_sync_client_detect(server: Server, krylon: ViewpointCloud) -> None:
         assert client.models() == {"default": None, "cascade": None, "models": [], "jobs": []}
 
 
-def test_sync_client_file_upload(server: Server, real_data: Path) -> None:
+def test_sync_client_file_upload(server: Server, real_data: Path, krylon: ViewpointCloud) -> None:
+    """The file's points are the cloud detection ran on: every grasp was sampled on the can, best first."""
     url, _, _ = server
     with GraspClient(url, timeout=60) as client:
         g = client.detect_file((real_data / "krylon.pcd").read_bytes(), num_samples=60, viewpoint=KRYLON_VIEWPOINT)
-        assert len(g) > 0
+    assert len(g) > 0 and g.frame == "cloud"
+    gap, _ = cKDTree(krylon.points).query(g.samples)
+    assert gap.max() < 0.005  # a voxel-mean of the file's points, not a point of some other cloud
+    order = g.raw["grasps"]
+    assert [x["id"] for x in order] == g.ids
 
 
 def test_errors_name_the_field(server: Server, krylon: ViewpointCloud) -> None:

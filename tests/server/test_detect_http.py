@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 from fastapi.testclient import TestClient
+from scipy.spatial import cKDTree
 
 from graspd.core.cloud import ViewpointCloud
 from graspd_client import Grasps
@@ -59,7 +60,12 @@ def test_ply_upload(client: TestClient, krylon: ViewpointCloud, tmp_path: Path) 
     r = client.post("/detect?num_samples=60&viewpoint=0.5,0,0.3", content=path.read_bytes(),
                     headers={"Content-Type": "application/ply"})
     assert r.status_code == 200, r.text
-    assert len(r.json()["grasps"]) > 0
+    body = r.json()
+    as_json = client.post("/detect", json={"cloud": {"points": krylon.points.tolist(), "viewpoints": [[0.5, 0, 0.3]]},
+                                           "num_samples": 60}).json()
+    assert body["num_points"] == as_json["num_points"]  # the PLY's points are the cloud's, none lost or invented
+    samples = np.array([g["sample"] for g in body["grasps"]])
+    assert len(samples) > 0 and cKDTree(krylon.points).query(samples)[0].max() < 0.005  # sampled on the can
 
 
 def test_options_are_honoured(client: TestClient, krylon: ViewpointCloud, small_body: Callable) -> None:

@@ -73,7 +73,10 @@ def test_binary_compressed_upload_is_accepted(client: TestClient, krylon: Viewpo
                              compressed=True)
     r = client.post("/detect?num_samples=60&viewpoint=0.5,0,0.3", content=path.read_bytes(), headers=OCTET)
     assert r.status_code == 200, r.text
-    assert r.json()["num_points"] > 0 and len(r.json()["grasps"]) > 0
+    as_json = client.post("/detect", json={"cloud": {"points": krylon.points.tolist(), "viewpoints": [[0.5, 0, 0.3]]},
+                                           "num_samples": 60}).json()
+    assert r.json()["num_points"] == as_json["num_points"]  # LZF-decompressed to the very points written
+    assert len(r.json()["grasps"]) > 0
 
 
 @pytest.mark.parametrize("depth", [1000, 1025, 5000])
@@ -126,7 +129,16 @@ def test_matching_image_still_gives_crops(client: TestClient, small_body: Callab
     image = {"image_png": base64.b64encode(buf.getvalue()).decode()}
     r = client.post("/detect", json={**small_body(krylon), "crops": crops(image, {"fx": 50, "fy": 50, "cx": 32,
                                                                                    "cy": 24})})
-    assert r.status_code == 200 and all("crop" in g for g in r.json()["grasps"])
+    assert r.status_code == 200, r.text
+    grasps = r.json()["grasps"]
+    assert grasps and all("crop" in g for g in grasps)
+    for g in grasps:  # a square RGB PNG cut from the image sent where the grasp projects into it, else none
+        crop = g["crop"]
+        assert (crop["png"] is not None) == crop["in_image"]
+        if crop["in_image"]:
+            with Image.open(io.BytesIO(base64.b64decode(crop["png"]))) as png:
+                assert png.mode == "RGB" and png.size[0] == png.size[1] > 0
+    assert any(g["crop"]["in_image"] for g in grasps)
 
 
 def test_405_carries_allow(client: TestClient) -> None:
