@@ -6,7 +6,19 @@
 #   -p 7447:7447 -e GRASPD_ZENOH_LISTEN='["tcp/0.0.0.0:7447"]' -e GRASPD_TOKEN=...   (and/or GRASPD_ZENOH_CONFIG
 # with TLS and user/password, README "Securing Zenoh").  A non-loopback listener with no token and no
 # authentication in the config refuses to start (GRASPD_ZENOH_ALLOW_ANONYMOUS=true overrides, trusted networks).
+# Two stages: the first builds wheels of the server, the client and every dependency; the second installs them
+# with no compiler, no pip cache and no sources, and holds only the server (no lab: torch, pybullet) and models/.
 # CI has no Docker engine: tests/server/test_container_install.py (slow) replays the pip steps below.
+FROM python:3.11-slim AS build
+
+ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1
+WORKDIR /src
+COPY client/ client/
+COPY pyproject.toml README.md ./
+COPY service/ service/
+# Wheels of graspd (the server distribution: no lab), graspd-client and all their dependencies.
+RUN pip wheel --wheel-dir /wheels ./client ".[postgres]"
+
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -22,13 +34,10 @@ RUN apt-get update \
 RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin graspd
 RUN mkdir -p /var/lib/graspd && chown graspd:graspd /var/lib/graspd
 
+# No lab (graspd-lab: torch, pybullet): the service never imports it (tests/server/test_import_light.py).
+RUN --mount=type=bind,from=build,source=/wheels,target=/wheels \
+    pip install --no-index --find-links /wheels graspd-client "graspd[postgres]"
 WORKDIR /opt/graspd
-COPY client/ client/
-RUN pip install ./client
-COPY pyproject.toml README.md ./
-COPY service/ service/
-# No lab (graspd-lab: torch, pybullet): the service never imports it (tests/server checks the import).
-RUN pip install ".[postgres]"
 COPY models/ models/
 
 ENV GRASPD_MODELS_DIR=/opt/graspd/models \
@@ -40,7 +49,9 @@ ENV GRASPD_MODELS_DIR=/opt/graspd/models \
 USER graspd
 VOLUME /var/lib/graspd
 EXPOSE 8000 7447
+# Ready, not merely alive: /readyz answers 200 once the models are loaded and warmed up, 503 while starting,
+# draining or without a usable model (its details need the token; the status code does not).
 HEALTHCHECK --interval=15s --timeout=3s --start-period=60s --retries=3 \
-    CMD ["python", "-c", "import sys, urllib.request; sys.exit(urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=2).status != 200)"]
+    CMD ["python", "-c", "import sys, urllib.request; sys.exit(urllib.request.urlopen('http://127.0.0.1:8000/readyz', timeout=2).status != 200)"]
 STOPSIGNAL SIGTERM
 CMD ["graspd", "serve"]

@@ -16,10 +16,25 @@ def _run(code: str) -> str:
                           timeout=300).stdout.strip()
 
 
-def test_detector_imports_open3d_without_dash_and_drawing_still_works() -> None:
+def test_the_detector_runs_without_open3d() -> None:
+    """Preprocessing (normals, outliers, the support plane) is numpy and scipy: a detection loads no open3d."""
+    out = _run(
+        "import sys, numpy as np\n"
+        "from graspd.core.cloud import ViewpointCloud\n"
+        "from graspd.gpd.detector import DetectionParams, GraspDetector\n"
+        "rng = np.random.default_rng(0)\n"
+        "pts = np.c_[rng.uniform(-0.1, 0.1, (3000, 2)), np.zeros(3000)].astype(np.float32)\n"
+        "det = GraspDetector().detect(ViewpointCloud(points=pts, viewpoints=np.array([[0, 0, 0.5]], np.float32)),\n"
+        "                             DetectionParams(num_samples=20, exclude_support_plane=True))\n"
+        "print(det.num_points > 0, 'open3d' in sys.modules)\n"
+    )
+    assert out.splitlines() == ["True False"]
+
+
+def test_file_reading_imports_open3d_without_dash_and_drawing_still_works() -> None:
     out = _run(
         "import sys\n"
-        "import graspd.gpd.detector, graspd.gpd.preprocess\n"
+        "import graspd.io.cloud_files\n"
         "import open3d as o3d\n"
         "print('dash' in sys.modules, 'plotly' in sys.modules)\n"
         "pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]))\n"

@@ -1,5 +1,6 @@
 """The Dockerfile's install steps, replayed in a fresh virtual environment (no Docker engine here):
-pip-install the client and the server as the Dockerfile does, start `graspd serve` from that venv, pass
+build the wheels as its first stage does and install them as its second does (the client and the server, no
+lab), start `graspd serve` from that venv, pass
 the image's HEALTHCHECK command, and stop gracefully on SIGTERM.
 
 By default third-party dependencies come from the project venv (a .pth file; nothing is downloaded);
@@ -24,9 +25,13 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def dockerfile_steps() -> tuple[list[list[str]], list[str], dict[str, str]]:
-    """The `RUN pip install ...` commands, the HEALTHCHECK exec form and the ENV values of the Dockerfile."""
+    """What the build stage makes wheels of and what the final stage installs from them (the arguments after
+    the wheel folder of `pip wheel --wheel-dir W ...` and of `pip install --no-index --find-links W ...`), the
+    HEALTHCHECK exec form and the ENV values of the Dockerfile."""
     text = (ROOT / "Dockerfile").read_text().replace("\\\n", " ")
-    pip = [shlex.split(m)[2:] for m in re.findall(r"^RUN (pip install .+)$", text, re.M)]
+    wheels = re.findall(r"^RUN pip wheel --wheel-dir \S+ (.+)$", text, re.M)
+    installs = re.findall(r"pip install --no-index --find-links \S+ (.+)$", text, re.M)
+    pip = [shlex.split(m) for m in [*wheels, *installs]]
     health = json.loads(re.search(r"HEALTHCHECK .*?CMD (\[.+\])", text).group(1))  # type: ignore[union-attr]
     env: dict[str, str] = {}
     for block in re.findall(r"^ENV (.+)$", text, re.M):
@@ -38,7 +43,8 @@ def dockerfile_steps() -> tuple[list[list[str]], list[str], dict[str, str]]:
 @pytest.mark.slow
 def test_dockerfile_install_steps_in_fresh_venv(tmp_path: Path) -> None:
     pip_steps, health, docker_env = dockerfile_steps()
-    assert pip_steps == [["./client"], [".[postgres]"]], pip_steps  # the server with its PostgreSQL extra
+    # wheels of the client and the server with its PostgreSQL extra; installed by name, the lab never
+    assert pip_steps == [["./client", ".[postgres]"], ["graspd-client", "graspd[postgres]"]], pip_steps
     env_dir = tmp_path / "venv"
     venv.EnvBuilder(with_pip=True).create(env_dir)
     py = env_dir / "bin" / "python"
@@ -53,9 +59,12 @@ def test_dockerfile_install_steps_in_fresh_venv(tmp_path: Path) -> None:
     parts = " ".join(p for p in ("client", "service", "pyproject.toml", "README.md", "models") if (ROOT / p).exists())
     subprocess.run(f"tar -C {ROOT} --exclude=__pycache__ -cf - {parts} | (mkdir -p {build} && tar -C {build} -xf -)",
                    shell=True, check=True)
-    for args in pip_steps:
-        extra = [] if full else ["--no-deps", "--no-build-isolation", "--no-index"]
-        subprocess.run([str(py), "-m", "pip", "install", "-q", *extra, *args], cwd=build, check=True, timeout=1800)
+    wheels = tmp_path / "wheels"
+    extra = [] if full else ["--no-deps", "--no-build-isolation", "--no-index"]
+    subprocess.run([str(py), "-m", "pip", "wheel", "-q", "--wheel-dir", str(wheels), *extra, *pip_steps[0]],
+                   cwd=build, check=True, timeout=1800)
+    subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-index", "--find-links", str(wheels),
+                    *([] if full else ["--no-deps"]), *pip_steps[1]], cwd=build, check=True, timeout=1800)
     port = 18000 + os.getpid() % 1000
     env = {**docker_env, "GRASPD_MODELS_DIR": str(build / "models"), "GRASPD_HOST": "127.0.0.1",
            "GRASPD_PORT": str(port), "GRASPD_ZENOH_ENABLED": "false", "PATH": f"{env_dir / 'bin'}:/usr/bin:/bin",
@@ -73,6 +82,8 @@ def test_dockerfile_install_steps_in_fresh_venv(tmp_path: Path) -> None:
         imported = subprocess.check_output([str(py), "-c", "import graspd, graspd_client, psycopg; "
                                             "print(graspd.__file__)"], text=True, cwd=tmp_path)  # postgres extra
         assert str(env_dir) in imported  # the installed copy, not the checkout
+        lab = subprocess.run([str(py), "-c", "import graspd_lab"], capture_output=True, cwd=tmp_path)
+        assert lab.returncode != 0  # the image holds no lab
     finally:
         server.send_signal(signal.SIGTERM)
         out, _ = server.communicate(timeout=60)

@@ -1,4 +1,4 @@
-"""Step 1 of Algorithm 1: clean a viewpoint cloud and estimate camera-facing surface normals (open3d)."""
+"""Step 1 of Algorithm 1: clean a viewpoint cloud and estimate camera-facing surface normals (numpy, scipy)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graspd.core.cloud import CloudError, ViewpointCloud
-from graspd.core.open3d_import import defer_plotly_drawing
-from graspd.core.points import voxel_groups
-
-defer_plotly_drawing()  # open3d's dash/plotly drawing loads when used, not with open3d (~0.5 s of start-up)
+from graspd.core.points import pca_normals, ransac_plane, statistical_inliers, voxel_groups
 
 Workspace = tuple[float, float, float, float, float, float]
 
@@ -60,12 +57,9 @@ def voxelize(points: NDArray[np.float32], camera_source: NDArray[np.int32], voxe
 
 
 def estimate_normals(points: NDArray[np.float32], radius: float, max_nn: int) -> NDArray[np.float32]:
-    """Unit surface normals (N,3) by local PCA over a hybrid radius/kNN neighbourhood (unoriented)."""
-    import open3d as o3d  # noqa: PLC0415
-
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
-    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=max_nn))
-    return np.asarray(pcd.normals, np.float32)
+    """Unit surface normals (N,3) by local PCA over a hybrid radius/kNN neighbourhood (unoriented;
+    graspd.core.points.pca_normals)."""
+    return pca_normals(points, radius, max_nn)
 
 
 def orient_toward_cameras(points: NDArray[np.float32], normals: NDArray[np.float32],
@@ -94,11 +88,7 @@ def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) ->
     if p.voxel_size > 0.0:
         pts, src, nrm = voxelize(pts, src, p.voxel_size, nrm)
     if p.remove_outliers and len(pts) > p.outlier_neighbors:
-        import open3d as o3d  # noqa: PLC0415
-
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts.astype(np.float64)))
-        _, keep = pcd.remove_statistical_outlier(p.outlier_neighbors, p.outlier_std_ratio)
-        keep_idx = np.asarray(keep, np.int64)
+        keep_idx = statistical_inliers(pts, p.outlier_neighbors, p.outlier_std_ratio)
         pts, src = pts[keep_idx], src[keep_idx]
         nrm = None if nrm is None else nrm[keep_idx]
     if nrm is None or p.recompute_normals:
@@ -111,17 +101,11 @@ def support_plane_mask(points: NDArray[np.float32], distance: float = 0.01, min_
                        seed: int = 0) -> NDArray[np.bool_]:
     """Points within `distance` (m) of the dominant plane (RANSAC), if that plane holds at least
     min_fraction of the cloud; else all False.  Used to keep samples off the table."""
-    import open3d as o3d  # noqa: PLC0415
-
     mask = np.zeros(len(points), bool)
     if len(points) < 3:
         return mask
-    o3d.utility.random.seed(seed)
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
-    model, inliers = pcd.segment_plane(distance_threshold=distance, ransac_n=3, num_iterations=200)
-    if len(inliers) >= min_fraction * len(points):
-        # open3d returns the least-squares plane of the inliers but the inliers of the RANSAC hypothesis
-        # before that refit: take every point within distance of the returned plane
-        normal = np.asarray(model[:3], np.float64)
-        mask = np.abs(points @ normal + model[3]) <= distance * float(np.linalg.norm(normal))
+    model, inliers = ransac_plane(points, distance, iterations=200, seed=seed)
+    if inliers >= min_fraction * len(points):
+        # the least-squares plane of the best hypothesis' inliers: take every point within distance of it
+        mask = np.abs(points.astype(np.float64) @ model[:3] + model[3]) <= distance
     return mask

@@ -8,7 +8,7 @@ column, limited to the gripper box depth `depth`, and a region type (paper's Fig
   occlusion   the column enters space no camera saw (height of the upper bound of that space);
   background  the column reaches the table (height of the table);
   void        nothing within the box (height = box depth).
-The table is segmented out with a RANSAC plane (open3d segment_plane) and only the points above it are
+The table is segmented out with a RANSAC plane (graspd.core.points.ransac_plane) and only the points above it are
 the object.  All frames are the cloud's frame, metres.
 """
 
@@ -26,7 +26,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.errors import FieldError
 from graspd.core.hand import HandGeometry
-from graspd.core.points import voxel_downsample
+from graspd.core.points import ransac_plane, voxel_downsample
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
@@ -93,21 +93,17 @@ class TablePlane:
 
 def segment_table(points: F32, viewpoints: F32, distance: float = 0.005, min_fraction: float = 0.1,
                   seed: int = 0, max_fit_points: int = 20000) -> tuple[TablePlane | None, NDArray[np.bool_]]:
-    """The dominant plane (open3d RANSAC on at most max_fit_points, seeded) as the table if it holds
+    """The dominant plane (graspd.core.points.ransac_plane on at most max_fit_points, seeded) as the table if it holds
     min_fraction of the points, and the mask of points within distance (m) of it; (None, all False)
     if there is no such plane."""
-    import open3d as o3d  # noqa: PLC0415
-
     mask = np.zeros(len(points), bool)
     if len(points) < 50:
         return None, mask
     fit = points
     if len(points) > max_fit_points:
         fit = points[np.random.default_rng(seed).choice(len(points), max_fit_points, replace=False)]
-    o3d.utility.random.seed(seed)
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(fit.astype(np.float64)))
-    model, inliers = pcd.segment_plane(distance_threshold=distance, ransac_n=3, num_iterations=200)
-    if len(inliers) < min_fraction * len(fit):
+    model, inliers = ransac_plane(fit, distance, iterations=200, seed=seed)
+    if inliers < min_fraction * len(fit):
         return None, mask
     normal = np.asarray(model[:3], np.float64)
     scale = float(np.linalg.norm(normal))

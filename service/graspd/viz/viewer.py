@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
-from graspd.core.points import voxel_downsample
+from graspd.core.points import eps_clusters, voxel_downsample
 from graspd.gpd.detector import Detection
 from graspd.gpd.environment import Label
 from graspd.viz.plot import (
@@ -79,7 +79,6 @@ def grasp_objects(points: NDArray[np.floating], labels: NDArray[np.integer], sam
     down-sampled to `voxel` (m), split into clusters by DBSCAN (neighbours within eps m; clusters of at least
     min_points voxels, numbered largest first from 0), and each grasp's sample point given the cluster of its
     nearest object voxel within reach m, else -1.  (M,) int16."""
-    import open3d as o3d  # noqa: PLC0415  (only the page needs it)
     from scipy.spatial import cKDTree  # noqa: PLC0415
 
     out = np.full(len(samples), -1, np.int16)
@@ -87,9 +86,7 @@ def grasp_objects(points: NDArray[np.floating], labels: NDArray[np.integer], sam
     if len(obj) == 0 or len(samples) == 0:
         return out
     down = voxel_downsample(obj, voxel)
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(down))
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        cluster = np.asarray(pc.cluster_dbscan(eps=eps, min_points=1))
+    cluster = eps_clusters(down, eps)  # DBSCAN with min_points 1
     ids, counts = np.unique(cluster[cluster >= 0], return_counts=True)
     order = ids[np.argsort(-counts, kind="stable")][counts[np.argsort(-counts, kind="stable")] >= min_points]
     order = order[:100]  # at most 100 objects in the filter
