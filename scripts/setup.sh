@@ -8,8 +8,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 PY=${PYTHON:-python3}
-SYSTEM_PACKAGES="libusb-1.0-0 libgomp1 postgresql"   # open3d loads libusb; onnxruntime/torch use OpenMP;
-                                                     # postgresql: the library-store tests run a real server
+SYSTEM_PACKAGES="libusb-1.0-0 libgomp1 postgresql haproxy"   # open3d loads libusb; onnxruntime/torch use OpenMP;
+                                                             # postgresql: the library-store tests run a real server;
+                                                             # haproxy: tests/fleet run a fleet behind it
 
 missing=""
 for pkg in $SYSTEM_PACKAGES; do
