@@ -45,6 +45,33 @@ def test_the_shipped_config_is_valid(fleet: ModuleType, tmp_path: Path) -> None:
     assert all(line in loopback.splitlines() for line in kept)
 
 
+def test_compose_runs_the_servers_the_config_names(fleet: ModuleType) -> None:
+    """examples/fleet/compose.yaml and haproxy.cfg agree (CI has no Docker to run them): a compose service for
+    each `server` line on port 8000, maxconn equal to the servers' detect workers, haproxy mounting this config
+    and publishing 8000, and every server on the shared PostgreSQL library, started after the database is
+    healthy."""
+    yaml = pytest.importorskip("yaml")
+    compose = yaml.safe_load((fleet.CONFIG.parent / "compose.yaml").read_text())
+    services = compose["services"]
+    text = fleet.CONFIG.read_text()
+    servers = re.findall(r"(?m)^\s*server (\S+) (\S+):8000\b", text)
+    assert servers and all(name == host for name, host in servers)
+    maxconn = re.search(r"(?m)^\s*default-server .*\bmaxconn (\d+)", text)
+    assert maxconn is not None
+    for name, _ in servers:
+        env = services[name]["environment"]
+        assert services[name]["build"]["context"] == "../.." and "8000" in services[name]["expose"]
+        assert env["GRASPD_DETECT_WORKERS"] == maxconn.group(1)
+        assert env["GRASPD_TEMPLATE_LIBRARY"].startswith("postgresql+psycopg://") and "@postgres:5432/" in env[
+            "GRASPD_TEMPLATE_LIBRARY"]
+        assert services[name]["depends_on"]["postgres"]["condition"] == "service_healthy"
+    proxy = services["haproxy"]
+    assert "./haproxy.cfg:/usr/local/etc/haproxy/haproxy.cfg:ro" in proxy["volumes"]
+    assert "8000:8000" in proxy["ports"] and re.search(r"(?m)^\s*bind :8000$", text)
+    assert set(proxy["depends_on"]) == {name for name, _ in servers}
+    assert (fleet.CONFIG.parent / "../../Dockerfile").resolve() == fleet.ROOT / "Dockerfile"
+
+
 def test_three_servers_lose_no_request_when_one_is_killed_mid_request(fleet: ModuleType, mug_1mb: bytes,
                                                                        tmp_path: Path) -> None:
     """Three servers, four clients, 60 requests of a 1.06 MB cloud; graspd1 is SIGKILLed the moment HAProxy hands
