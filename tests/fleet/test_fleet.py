@@ -11,6 +11,7 @@ import re
 import subprocess
 import time
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -108,13 +109,17 @@ def test_a_slow_client_gets_408_from_haproxy_and_never_reaches_a_server(fleet: M
 
 def test_a_fleet_shares_one_postgresql_template_library(fleet: ModuleType, library_url: str, render_box,
                                                          box_pose, tmp_path: Path) -> None:
-    """Two servers on one fresh PostgreSQL database (they create its tables at the same moment): a grasp taught
-    through HAProxy is found by both, and a failure reported through HAProxy (on either server) reaches the
-    library both read."""
+    """Two servers on one fresh PostgreSQL database, both opening it at the same moment (the first open creates
+    the tables): a grasp taught through HAProxy is found by both, and a failure reported through HAProxy (on
+    either server) reaches the library both read."""
     pose = box_pose()
     cloud = render_box(pose)
     with fleet.Fleet(2, tmp_path, env={"GRASPD_TEMPLATE_LIBRARY": library_url}) as f, \
             httpx.Client(base_url=f.url, timeout=60) as c:
+        with ThreadPoolExecutor(2) as pool:  # the library opens on first use: both servers at once
+            empty = list(pool.map(lambda n: httpx.get(f"{f.server_url(n)}/library", timeout=60), f.names))
+        assert [r.status_code for r in empty] == [200, 200], [r.text for r in empty]
+        assert [r.json()["num_entries"] for r in empty] == [0, 0]
         taught = c.post("/demonstrations", json=build_demonstration_request(
             cloud.points, box_top_grasp(pose, BOX), cloud.viewpoints, label="box top"))
         assert taught.status_code == 200, taught.text
