@@ -8,6 +8,7 @@ request, so the main test can fail."""
 from __future__ import annotations
 
 import re
+import signal
 import subprocess
 import time
 from collections import Counter
@@ -105,6 +106,30 @@ def test_a_slow_client_gets_408_from_haproxy_and_never_reaches_a_server(fleet: M
         stats = f.stats()["graspd1"]
     assert status == 408 and 0.5 < waited < 5, (status, waited)
     assert int(stats["stot"] or 0) == 0, stats  # health checks are not requests: the server saw nothing
+
+
+def test_a_hung_server_gets_detections_replayed_but_never_a_taught_grasp(fleet: ModuleType, render_box, box_pose,
+                                                                         tmp_path: Path) -> None:
+    """One server, SIGSTOPped (it accepts connections, never answers), `timeout server` 1 s: a POST
+    /demonstrations gets 504 with no retry (the dead server may already have stored it: a replay could store
+    it twice), while a POST /detect is retried (HAProxy's retry count grows) before it gives up."""
+    config = re.sub(r"(?m)^(\s*timeout server) .*$", r"\1 1s", fleet.CONFIG.read_text())
+    pose = box_pose()
+    cloud = render_box(pose)
+    with fleet.Fleet(1, tmp_path, config=config) as f, httpx.Client(base_url=f.url, timeout=60) as c:
+        server = f.servers["graspd1"]
+        server.send_signal(signal.SIGSTOP)
+        try:
+            before = int(f.stats()["BACKEND"]["wretr"] or 0)
+            taught = c.post("/demonstrations", json=build_demonstration_request(
+                cloud.points, box_top_grasp(pose, BOX), cloud.viewpoints))
+            between = int(f.stats()["BACKEND"]["wretr"] or 0)
+            detected = c.post("/detect", json=build_detect_request(cloud.points, cloud.viewpoints, num_samples=30))
+            after = int(f.stats()["BACKEND"]["wretr"] or 0)
+        finally:
+            server.send_signal(signal.SIGCONT)
+    assert taught.status_code == 504 and between == before, (taught.status_code, before, between)
+    assert detected.status_code in (503, 504) and after > between, (detected.status_code, between, after)
 
 
 def test_a_fleet_shares_one_postgresql_template_library(fleet: ModuleType, library_url: str, render_box,
