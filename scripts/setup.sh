@@ -2,14 +2,16 @@
 # Set up graspd on a fresh Debian machine: system libraries the wheels need, then a virtual
 # environment in .venv with the server, the client, training (CPU torch), PostgreSQL support, the pybullet
 # simulator (graspd-lab: the clutter benchmark) and dev tools.
-# The PostgreSQL server package is for the tests: they start a throwaway server of their own (initdb/pg_ctl).
+# The PostgreSQL server package is for the tests: they start a throwaway server of their own (initdb/pg_ctl);
+# haproxy too: tests/fleet run graspd servers behind it (examples/fleet/haproxy.cfg).
 # Idempotent: re-running after a change to pyproject.toml reinstalls; otherwise it returns at once.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 PY=${PYTHON:-python3}
-SYSTEM_PACKAGES="libusb-1.0-0 libgomp1 postgresql"   # open3d loads libusb; onnxruntime/torch use OpenMP;
-                                                     # postgresql: the library-store tests run a real server
+SYSTEM_PACKAGES="libusb-1.0-0 libgomp1 postgresql haproxy"   # open3d loads libusb; onnxruntime/torch use OpenMP;
+                                                             # postgresql: the library-store tests run a real server;
+                                                             # haproxy: tests/fleet run a fleet behind it
 
 missing=""
 for pkg in $SYSTEM_PACKAGES; do
