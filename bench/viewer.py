@@ -35,7 +35,7 @@ CLOUD = REPO.parent / "shared" / "data" / "real" / "table_mug.pcd"
 
 
 def chromium_command(browser: str, profile: Path) -> list[str]:
-    """Headless Chromium with software WebGL (no GPU), as tests/viewer runs it."""
+    """Headless Chromium with software WebGL (no GPU), as tests/viz runs it."""
     return [browser, "--headless", "--no-sandbox", "--disable-dev-shm-usage", "--enable-unsafe-swiftshader",
             "--use-angle=swiftshader", f"--user-data-dir={profile}", "--no-first-run"]
 

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from graspd.gpd.detector import Detection, DetectionParams, Scorer
 
 #: Subcommands other modules define with register(subparsers): name -> (module, the help line `graspd --help`
-#: shows without importing it; tests/core/test_cli_startup.py keeps the two the same).
+#: shows without importing it; tests/cli/test_cli_startup.py keeps the two the same).
 LAZY_SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "train": ("graspd_lab.training.cli", "train + evaluate + export a grasp classifier from a graspd dataset"),
     "templates": ("graspd.cli.templates", "grasp templates from demonstrations (Herzog et al.)"),

@@ -16,7 +16,7 @@ from graspd.core.hand import HandGeometry
 from graspd_lab.sim.containers import ContainerSpec
 from graspd_lab.sim.world import SimWorld
 
-BENCH = Path(__file__).resolve().parents[2] / "bench" / "containers.py"
+BENCH = Path(__file__).resolve().parents[3] / "bench" / "containers.py"
 
 
 def _bench() -> ModuleType:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "bench" / "clutter.py"
+BENCH = Path(__file__).resolve().parents[3] / "bench" / "clutter.py"
 
 
 def _bench():  # type: ignore[no-untyped-def]
