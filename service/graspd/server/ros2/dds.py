@@ -204,14 +204,20 @@ class RawReader:
         self._take = ddspy_take
         self.name = name
         self.on_sample = on_sample
+        self.reader: DataReader[Any] | None = None
         self.reader = DataReader(participant.dp, participant.topic(name, ros_type, distro), qos=qos,
                                  listener=Listener(on_data_available=self._available))
+        self._available(None)  # what arrived while the reader was being made (transient local data)
 
     @property
     def guid(self) -> bytes:
+        assert self.reader is not None
         return self.reader.guid.bytes
 
-    def _available(self, reader: Any) -> None:
+    def _available(self, _entity: Any) -> None:
+        reader = self.reader  # None while DataReader() runs: its first data is taken right after
+        if reader is None:
+            return
         while True:
             got = self._take(reader._ref, _ANY_STATE, 8)
             if isinstance(got, int) or not got:
@@ -222,4 +228,4 @@ class RawReader:
 
     def matched(self) -> int:
         """Writers matched now."""
-        return len(self.reader.get_matched_publications())
+        return 0 if self.reader is None else len(self.reader.get_matched_publications())
