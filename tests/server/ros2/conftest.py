@@ -15,6 +15,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -183,17 +184,24 @@ NUM_SAMPLES = 30
 MAX_BODY = 3 << 20
 
 
+@contextmanager
+def serve_ros2(tmp: Path, **overrides: Any) -> Iterator[tuple[TestClient, int]]:
+    """A real server with its ROS 2 node on a fresh domain (unscored, 30 samples, 6 grasps, 3 MiB body cap, one
+    worker), settings overridden by overrides; yields (client, domain id)."""
+    domain = next_domain()
+    base: dict[str, Any] = {"zenoh_enabled": False, "ros2_enabled": True, "ros2_domain_id": domain,
+                            "models_dir": tmp / "no-models", "data_dir": tmp / "data", "allow_unscored": True,
+                            "warmup": False, "detect_workers": 1, "deadline_s": 300, "queue_size": 4,
+                            "stream_num_samples": NUM_SAMPLES, "stream_options": NODE_OPTIONS,
+                            "max_body_bytes": MAX_BODY}
+    with TestClient(create_app(Settings(**{**base, **overrides}))) as client:
+        yield client, domain
+
+
 @pytest.fixture(scope="module")
 def ros2_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, int]]:
-    """A real server with its ROS 2 node on a fresh domain (unscored, 30 samples, 6 grasps, 3 MiB body cap)."""
-    domain = next_domain()
-    tmp = tmp_path_factory.mktemp("ros2")
-    settings = Settings(zenoh_enabled=False, ros2_enabled=True, ros2_domain_id=domain, models_dir=tmp / "no-models",
-                        data_dir=tmp / "data", allow_unscored=True, warmup=False, detect_workers=1, deadline_s=300,
-                        queue_size=4, stream_num_samples=NUM_SAMPLES, stream_options=NODE_OPTIONS,
-                        max_body_bytes=MAX_BODY)
-    with TestClient(create_app(settings)) as client:
-        yield client, domain
+    with serve_ros2(tmp_path_factory.mktemp("ros2")) as served:
+        yield served
 
 
 @pytest.fixture(scope="module")
