@@ -108,3 +108,15 @@ def test_environment_variables_reach_the_settings(tmp_path: Path, monkeypatch: p
     s = Settings()
     assert (s.ros2_domain_id, s.ros2_security_enclave) == (17, tmp_path)
     assert s.ros2_topics == {"pointcloud2": "/camera/depth/points", "plan_grasps": ""}
+
+
+def test_serve_ros2_flags_reach_the_settings() -> None:
+    import argparse  # noqa: PLC0415
+
+    from graspd.server.cli import register, settings_from_args  # noqa: PLC0415
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    s = settings_from_args(parser.parse_args(["serve", "--ros2", "--ros2-domain-id", "5"]))
+    assert (s.ros2_enabled, s.ros2_domain_id) == (True, 5)
+    assert settings_from_args(parser.parse_args(["serve"])).ros2_enabled is False
