@@ -117,6 +117,9 @@ class Settings(BaseSettings):
     ros2_peers: list[str] = Field(default_factory=list, description="static DDS peers (addresses)")
     ros2_interfaces: list[str] = Field(default_factory=list, description="network interfaces for subnet discovery "
                                        "(default: Cyclone's choice)")
+    ros2_socket_buffer_bytes: int | None = Field(default=None, ge=65536, description="UDP receive buffer the "
+                                                 "node asks for (bytes; best-effort clouds of megabytes need several: "
+                                                 "raise net.core.rmem_max to at least this); None: Cyclone's default")
     ros2_config: Path | None = Field(default=None, description="CycloneDDS XML file laid over graspd's own DDS "
                                      "configuration (its settings win)")
     ros2_allow_anonymous: bool = Field(default=False, description="allow subnet discovery or peers without DDS "

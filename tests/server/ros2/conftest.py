@@ -126,7 +126,24 @@ class RosPeer:
         raise AssertionError(f"no answer to {writer.name}")
 
     def client(self, service: str, srv_type: str) -> ServiceClient:
-        return ServiceClient(self, service, srv_type)
+        c = ServiceClient(self, service, srv_type)
+        self.readers.append(c.reader)
+        self.writers.append(c.writer)
+        return c
+
+    def reader(self, name: str, ros_type: str, qos: Any, sink: Collector) -> RawReader:
+        """A reader of a DDS topic by its DDS name (ros_discovery_info has no rt/ prefix)."""
+        r = RawReader(self, name, ros_type, "jazzy", qos, sink)
+        self.readers.append(r)
+        return r
+
+    def close(self) -> None:
+        """Delete readers (listeners first), writers, topics and the participant."""
+        for endpoint in [*self.readers, *self.writers]:
+            endpoint.close()
+        for entity in [*self._topics.values(), self.dp]:
+            entity.__del__()
+        self._topics.clear()
 
 
 class ServiceClient:
@@ -205,8 +222,10 @@ def ros2_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Test
 
 
 @pytest.fixture(scope="module")
-def peer(ros2_server: tuple[TestClient, int]) -> RosPeer:
-    return RosPeer(ros2_server[1])
+def peer(ros2_server: tuple[TestClient, int]) -> Iterator[RosPeer]:
+    p = RosPeer(ros2_server[1])
+    yield p
+    p.close()  # before the node deletes the domain
 
 
 Decode = Callable[[bytes, str], Any]

@@ -17,7 +17,7 @@ from cyclonedds.core import Policy
 from scipy.spatial import cKDTree
 
 from graspd.ros import Header, encode_cloud_indexed, encode_pointcloud2
-from graspd.server.ros2.dds import RawReader, latched_qos
+from graspd.server.ros2.dds import latched_qos
 
 from .conftest import NUM_SAMPLES, Collector, Decode, RosPeer, peer_types
 
@@ -214,7 +214,7 @@ def test_the_graph_sees_the_node_its_type_names_and_qos(peer: RosPeer, decode: D
     assert sid.startswith(b"serviceid=") and reply.qos[Policy.Userdata].data == sid  # clients pair them by it
     # ros_discovery_info: the node /graspd with exactly its readers and writers (ros2 node list / node info)
     sink = Collector()  # ros_discovery_info has no rt/ prefix
-    RawReader(peer, "ros_discovery_info", "rmw_dds_common/msg/ParticipantEntitiesInfo", "jazzy", latched_qos(), sink)
+    peer.reader("ros_discovery_info", "rmw_dds_common/msg/ParticipantEntitiesInfo", latched_qos(), sink)
     assert sink.wait()
     info = decode(sink.got[-1], "rmw_dds_common/msg/ParticipantEntitiesInfo")
     (node,) = info.node_entities_info_seq

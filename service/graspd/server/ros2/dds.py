@@ -49,12 +49,16 @@ class DomainConfig:
     qos: Qos
 
 
-def discovery_xml(discovery: str, peers: list[str], interfaces: list[str], max_sample_bytes: int) -> str:
+def discovery_xml(discovery: str, peers: list[str], interfaces: list[str], max_sample_bytes: int,
+                  socket_buffer_bytes: int | None = None) -> str:
     """The CycloneDDS XML of a discovery range, as rmw_cyclonedds builds it for ROS_AUTOMATIC_DISCOVERY_RANGE:
     "localhost" (no multicast, localhost as a static peer, and here also only the loopback interface: nothing
     beyond this machine can reach the node), "subnet" (Cyclone's defaults: multicast on the default interface),
     "off" (no discovery but the static peers); peers are added in every range.  Samples larger than
-    max_sample_bytes are dropped by DDS itself (Internal/MaxSampleSize), in and out."""
+    max_sample_bytes are dropped by DDS itself (Internal/MaxSampleSize), in and out.  socket_buffer_bytes: the
+    UDP receive buffer to insist on (Internal/SocketReceiveBufferSize min; the kernel's net.core.rmem_max must
+    allow it, else the participant is refused): a best-effort cloud of megabytes arrives as thousands of
+    fragments at once, and one lost fragment loses the cloud."""
     general = ""
     if discovery == "localhost":
         general = ('<Interfaces><NetworkInterface address="127.0.0.1" multicast="false"/></Interfaces>'
@@ -68,7 +72,10 @@ def discovery_xml(discovery: str, peers: list[str], interfaces: list[str], max_s
     disco = "<ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>"
     if all_peers:
         disco += "<Peers>" + "".join(f"<Peer address={quoteattr(p)}/>" for p in all_peers) + "</Peers>"
-    internal = f"<Internal><MaxSampleSize>{int(max_sample_bytes)}B</MaxSampleSize></Internal>"
+    internal = f"<MaxSampleSize>{int(max_sample_bytes)}B</MaxSampleSize>"
+    if socket_buffer_bytes:
+        internal += f'<SocketReceiveBufferSize min="{int(socket_buffer_bytes)}B"/>'
+    internal = f"<Internal>{internal}</Internal>"
     return (f"<CycloneDDS><Domain><General>{general}</General><Discovery>{disco}</Discovery>{internal}"
             "</Domain></CycloneDDS>")
 
@@ -155,13 +162,15 @@ class Participant:
         """The participant's 16-byte DDS GUID (a ROS 2 graph Gid)."""
         return self.dp.guid.bytes
 
-    def close(self) -> None:
-        """Delete the participant (every reader, writer and topic with it), then the domain."""
-        for entity in (self.dp, self.domain):
-            try:
-                entity.__del__()
-            except Exception:  # already gone
-                pass
+    def close(self, endpoints: list[Any] | None = None) -> None:
+        """Delete the endpoints (RawReader, RawWriter; their listeners stop first), the topics, the participant,
+        then the domain, in that order: cyclonedds' Python objects do not delete their DDS entity when collected,
+        and a listener freed before its reader would be called after it is gone."""
+        for endpoint in endpoints or []:
+            endpoint.close()
+        for entity in (*self._topics.values(), self.dp, self.domain):
+            _delete(entity)
+        self._topics.clear()
 
 
 class RawWriter:
@@ -191,6 +200,10 @@ class RawWriter:
     def matched(self) -> int:
         """Readers matched now."""
         return len(self.writer.get_matched_subscriptions())
+
+    def close(self) -> None:
+        """Delete the DDS writer."""
+        _delete(self.writer)
 
 
 class RawReader:
@@ -229,3 +242,17 @@ class RawReader:
     def matched(self) -> int:
         """Writers matched now."""
         return 0 if self.reader is None else len(self.reader.get_matched_publications())
+
+    def close(self) -> None:
+        """Delete the DDS reader (its listener is not called after this returns)."""
+        reader, self.reader = self.reader, None
+        if reader is not None:
+            _delete(reader)
+
+
+def _delete(entity: Any) -> None:
+    """dds_delete of a cyclonedds entity, once (an entity already deleted with its parent is skipped)."""
+    try:
+        entity.__del__()
+    except Exception:  # already gone with its parent
+        pass

@@ -5,10 +5,10 @@ decoding, options, camera poses, outputs).
 
 Clouds: the four input topics keep only the newest cloud (a robot wants grasps for what it sees now; a cloud
 replaced before detection is counted in graspd_stream_dropped); one thread detects it and publishes, each with
-the cloud's header: GraspConfigList, PoseArray, one moveit_msgs/Grasp per grasp with finger postures,
-MarkerArray, then the JSON answer.  A sample over GRASPD_MAX_BODY_BYTES, malformed, lying about its sizes, with
-no finite point or beyond the coordinate bound is dropped with a JSON error body (status, error, field, topic) on
-graspd/errors; the node keeps serving.
+the cloud's header: GraspConfigList, PoseArray, one moveit_msgs/Grasp per grasp with finger postures and
+MarkerArray as soon as the grasps are known (from the worker), then the JSON answer.  A sample over
+GRASPD_MAX_BODY_BYTES, malformed, lying about its sizes, with no finite point or beyond the coordinate bound is
+dropped with a JSON error body (status, error, field, topic) on graspd/errors; the node keeps serving.
 
 Services: each request takes a place in the engine's queue on arrival (a full queue answers at once); decoding
 and detection run on a worker; the reply carries the request's rmw_cyclonedds header.  detect_grasps answers a
@@ -81,7 +81,7 @@ def domain_config(settings: Settings) -> DomainConfig:
     the node would be reachable beyond this machine without DDS Security and without GRASPD_ROS2_ALLOW_ANONYMOUS,
     or a file is missing."""
     xml = discovery_xml(settings.ros2_discovery, settings.ros2_peers, settings.ros2_interfaces,
-                        DDS_SIZE_HEADROOM * settings.max_body_bytes)
+                        DDS_SIZE_HEADROOM * settings.max_body_bytes, settings.ros2_socket_buffer_bytes)
     if settings.ros2_config is not None:
         if not settings.ros2_config.is_file():
             raise Ros2SetupError(f"GRASPD_ROS2_CONFIG: {settings.ros2_config} is not a file")
@@ -101,14 +101,23 @@ def domain_config(settings: Settings) -> DomainConfig:
 
 @dataclass
 class _Caught(Captured):
-    """Captured plus the detection's "up" (environment stage; cloud frame, unit), for the retreat direction."""
+    """Captured plus the detection's "up" (environment stage; cloud frame, unit), for the retreat direction, and
+    then(self) called on the worker as soon as the grasps are known: the ROS outputs go out before the engine's
+    request-level checks and JSON answer (they add warnings, never change the grasps), ~10-30 ms sooner at
+    300k points."""
 
     up: np.ndarray | None = None
+    then: Callable[[_Caught], None] | None = None
 
     def __call__(self, det: Any, cloud: Any, hand: Any) -> None:
         super().__call__(det, cloud, hand)
         env = getattr(det, "environment", None)
         self.up = None if env is None or env.up is None else np.asarray(env.up, np.float64)
+        if self.then is not None:
+            try:
+                self.then(self)
+            except Exception:  # the outputs failed; the detection and its JSON answer still stand
+                log.exception("ros2 outputs failed")
 
 
 class Ros2Node:
@@ -189,8 +198,13 @@ class Ros2Node:
         if self._thread is not None:
             self._thread.join(timeout=self.settings.deadline_s)
         if self.participant is not None:
-            self.participant.close()
+            endpoints: list[Any] = [*self.readers, *self.writers.values()]
+            if self._discovery is not None:
+                endpoints.append(self._discovery)
+            self.participant.close(endpoints)
             self.participant = None
+            self.readers.clear()
+            self.writers.clear()
 
     @property
     def ready(self) -> bool:
@@ -266,11 +280,9 @@ class Ros2Node:
         try:
             msg = self.decode(data, entry)
             req = stream_request(msg, self.options)
-            caught = _Caught()
+            caught = _Caught(then=functools.partial(self._publish_outputs, header=msg.header, req=req))
             body = self.engine.run_sync(req, {"decode": time.perf_counter() - t0}, _json_header(msg.header),
                                         on_detection=caught)
-            if caught.grasps is not None and caught.hand is not None:
-                self._publish_outputs(caught, msg.header, req)
             self._write("json", self._string(body.decode()))
         except Problem as exc:
             self.publish_error(exc, self.names[entry], ctx.id)
@@ -283,8 +295,10 @@ class Ros2Node:
         self.metrics.requests.labels("ros2-stream", outcome).inc()
 
     def _publish_outputs(self, caught: _Caught, header: Header, req: DetectRequest) -> None:
+        """The ROS outputs of one detection with the cloud's header, GraspConfigList first, MarkerArray last."""
         grasps, hand = caught.grasps, caught.hand
-        assert grasps is not None and hand is not None
+        if grasps is None or hand is None:
+            return
         for entry, message in ros_outputs(grasps, header, hand, req.approach_distance,
                                           {"grasp_config_list", "pose_array"} & set(self.writers)):
             self._write(entry, message)
