@@ -33,6 +33,6 @@ if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then exit 0; fi
 .venv/bin/python -m pip install -q --upgrade pip
 # CPU build of torch (training and ONNX export only): pin it, a bare `torch` pulls a CUDA build.
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ./client -e ".[dev,postgres]" -e ./lab
+.venv/bin/python -m pip install -q -e ./client -e ".[dev,postgres,ros2]" -e ./lab
 echo "$want" > "$stamp"
 echo "setup: ready (.venv)"

@@ -145,10 +145,22 @@ def rank(module: str) -> tuple[int, int]:
     return layer, sub
 
 
+def transport(module: str) -> str | None:
+    """The server transport (api, zenoh, ros2) a module belongs to, or None."""
+    for prefix in SERVER_RANKS[1]:
+        if module == prefix or module.startswith(prefix + "."):
+            return prefix
+    return None
+
+
 def upward(edges: dict[str, set[str]]) -> list[tuple[str, str]]:
-    """The imports that go from a lower layer (or server rank) to a higher one."""
-    return sorted((a, b) for a, deps in edges.items() for b in deps
-                  if b.startswith("graspd.") and rank(b) > rank(a))
+    """The imports that go from a lower layer (or server rank) to a higher one, or from one transport to
+    another (what two transports share belongs in services/)."""
+    def wrong(a: str, b: str) -> bool:
+        across = transport(a) is not None and transport(b) not in (None, transport(a))
+        return b.startswith("graspd.") and (rank(b) > rank(a) or across)
+
+    return sorted((a, b) for a, deps in edges.items() for b in deps if wrong(a, b))
 
 
 def test_layers_import_only_downward() -> None:
@@ -159,6 +171,7 @@ def test_layers_import_only_downward() -> None:
     # the rule sees a violation: the core importing the detector, an engine importing a router
     assert upward({"graspd.core.cloud": {"graspd.gpd.detector"}}) == [("graspd.core.cloud", "graspd.gpd.detector")]
     assert upward({"graspd.server.services.engine": {"graspd.server.api.detect"}}) != []
+    assert upward({"graspd.server.ros2.node": {"graspd.server.zenoh.node"}}) != []
 
 
 def test_top_level_of_graspd_holds_at_most_eight_modules() -> None:

@@ -284,7 +284,7 @@ def test_the_ros2_example_puts_a_camera_frame_cloud_into_its_base_link_workspace
     """examples/ros2/graspd.env: a camera-frame PointCloud2 and a base_link workspace work together (the issue: the
     viewpoint at the origin with that workspace gave 0 candidates, with no word why)."""
     from graspd.gpd.detector import GraspDetector  # noqa: PLC0415
-    from graspd.server.zenoh.ros_stream import decode_input, parse_options, stream_request  # noqa: PLC0415
+    from graspd.server.services.ros_stream import decode_input, parse_options, stream_request  # noqa: PLC0415
 
     env = (Path(__file__).resolve().parents[2] / "examples" / "ros2" / "graspd.env").read_text()
     found = re.search(r"^GRASPD_STREAM_OPTIONS='(.*)'$", env, re.M)
@@ -311,7 +311,7 @@ def test_gpd_ros_clouds_of_two_cameras_move_with_each_cameras_pose(mug: np.ndarr
     from graspd.io.ros import encode_cloud_samples, encode_cloud_sources  # noqa: PLC0415
     from graspd.server.problems import Problem  # noqa: PLC0415
     from graspd.server.requests import parse_request  # noqa: PLC0415
-    from graspd.server.zenoh.ros_stream import decode_input, parse_options  # noqa: PLC0415
+    from graspd.server.services.ros_stream import decode_input, parse_options  # noqa: PLC0415
 
     second = np.eye(4)
     second[:3, :3] = Rotation.from_euler("z", 90, degrees=True).as_matrix()

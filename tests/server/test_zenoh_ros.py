@@ -33,8 +33,8 @@ from graspd.io.ros import (
 )
 from graspd.io.ros.types import msg_text
 from graspd.server.app import create_app
+from graspd.server.services.ros_stream import DEFAULT_INPUT_KEYS, DEFAULT_OUTPUT_KEYS, parse_options
 from graspd.server.settings import Settings
-from graspd.server.zenoh.ros_stream import DEFAULT_INPUT_KEYS, DEFAULT_OUTPUT_KEYS, parse_options
 from graspd_client import RequestRejected
 from graspd_client.wire import zenoh_token_attachment
 from graspd_client.zenoh_client import ZenohGraspClient, zenoh_config

@@ -153,16 +153,23 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
         if settings.zenoh_enabled:
             state.zenoh = ZenohNode(settings, engine, mets)
             state.zenoh.start()
+        if settings.ros2_enabled:  # graspd serve --ros2: the DDS node (the extra graspd[ros2])
+            from graspd.server.ros2 import make_node  # noqa: PLC0415
+
+            app.state.ros2 = make_node(settings, engine, mets)
         log.info("graspd ready", extra={"models": reg.names(), "default_model": reg.default,
                                         "model_errors": reg.errors, "not_ready": reg.load_error,
                                         "workers": engine.workers, "queue": settings.queue_size,
-                                        "zenoh": settings.zenoh_enabled, "warmup_s": warmup_s})
+                                        "zenoh": settings.zenoh_enabled, "ros2": settings.ros2_enabled,
+                                        "warmup_s": warmup_s})
         try:
             yield
         finally:
             log.info("graspd shutting down: finishing running detections")
             if state.zenoh is not None:
                 state.zenoh.close()
+            if getattr(app.state, "ros2", None) is not None:
+                app.state.ros2.close()
             await asyncio.to_thread(state.jobs.close)
             engine.close(wait=True)
 

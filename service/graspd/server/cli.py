@@ -1,5 +1,5 @@
-"""`graspd serve`: run the HTTP app (uvicorn) with its embedded Zenoh node; settings from GRASPD_* env
-variables, command-line flags override them."""
+"""`graspd serve`: run the HTTP app (uvicorn) with its embedded Zenoh node, and with --ros2 its ROS 2 node;
+settings from GRASPD_* env variables, command-line flags override them."""
 
 from __future__ import annotations
 
@@ -31,13 +31,18 @@ def register(subparsers: Any) -> None:
     p.add_argument("--zenoh-config", metavar="PATH",
                    help="Zenoh JSON5 config file (TLS/mTLS, user/password, access control); keys it sets win "
                         "over --zenoh-listen/--zenoh-connect (GRASPD_ZENOH_CONFIG)")
+    p.add_argument("--ros2", dest="ros2_enabled", action="store_true", default=None,
+                   help="also join ROS 2 natively over DDS as the node /graspd (needs graspd[ros2]; "
+                        "GRASPD_ROS2_*)")
+    p.add_argument("--ros2-domain-id", type=int, help="ROS 2 domain (default ROS_DOMAIN_ID, else 0)")
     p.set_defaults(func=serve)
 
 
 def settings_from_args(args: argparse.Namespace) -> Any:
     overrides = {k: getattr(args, k, None) for k in ("host", "port", "models_dir", "default_model", "detect_workers",
                                                      "zenoh_enabled", "zenoh_listen", "zenoh_connect",
-                                                     "zenoh_instance", "zenoh_config")}
+                                                     "zenoh_instance", "zenoh_config", "ros2_enabled",
+                                                     "ros2_domain_id")}
     return Settings(**{k: v for k, v in overrides.items() if v is not None})
 
 

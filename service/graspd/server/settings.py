@@ -96,6 +96,51 @@ class Settings(BaseSettings):
     stream_outputs: dict[str, str] = Field(default_factory=dict, description="output -> key under the prefix, "
                                            "over the defaults json: grasps, grasp_config_list, pose_array: "
                                            "grasp_poses, moveit_grasps, marker_array: grasp_markers, errors")
+    # ROS 2 natively over DDS (graspd serve --ros2; graspd.server.ros2, the extra graspd[ros2]); the clouds are
+    # detected with the stream options above, laid over by ros2_options
+    ros2_enabled: bool = Field(default=False, description="a DDS participant that ROS 2 nodes see as the node "
+                               "/graspd: gpd_ros topics and the detect_grasps / plan_grasps services")
+    ros2_domain_id: int = Field(default_factory=lambda: int(os.environ.get("ROS_DOMAIN_ID") or 0), ge=0, le=232,
+                                description="DDS domain (ROS_DOMAIN_ID when unset)")
+    ros2_distro: str = Field(default="jazzy", pattern="^(humble|iron|jazzy|kilted|rolling)$",
+                             description="ROS 2 distribution of the peers (Humble's graph Gid and Humble/Iron's "
+                             "MoveItErrorCodes differ on the wire)")
+    ros2_node_name: str = Field(default="graspd", pattern=r"^[A-Za-z][A-Za-z0-9_]{0,63}$")
+    ros2_namespace: str = Field(default="/", pattern=r"^/([A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*)?$",
+                                description="node namespace; relative topic and service names go under it")
+    ros2_topics: dict[str, str] = Field(default_factory=dict, description="ROS topic or service name per input, "
+                                        "output and service over the defaults (graspd.server.ros2.names); '' "
+                                        "turns one off")
+    ros2_options: dict[str, Any] = Field(default_factory=dict, description="detection options of ROS 2 clouds "
+                                         "and services laid over stream_options (camera_poses, points_frame, "
+                                         "camera_frame_id, robot_frame_id, num_samples, ...)")
+    ros2_discovery: str = Field(default="localhost", pattern="^(localhost|subnet|off)$", description="discovery "
+                                "range as ROS_AUTOMATIC_DISCOVERY_RANGE; localhost also binds to loopback only")
+    ros2_peers: list[str] = Field(default_factory=list, description="static DDS peers (addresses)")
+    ros2_interfaces: list[str] = Field(default_factory=list, description="network interfaces for subnet discovery "
+                                       "(default: Cyclone's choice)")
+    ros2_socket_buffer_bytes: int | None = Field(default=None, ge=65536, description="UDP receive buffer the "
+                                                 "node asks for (bytes; best-effort clouds of megabytes need several: "
+                                                 "raise net.core.rmem_max to at least this); None: Cyclone's default")
+    ros2_config: Path | None = Field(default=None, description="CycloneDDS XML file laid over graspd's own DDS "
+                                     "configuration (its settings win)")
+    ros2_allow_anonymous: bool = Field(default=False, description="allow subnet discovery or peers without DDS "
+                                       "Security (trusted networks)")
+    ros2_security_enclave: Path | None = Field(default=None, description="SROS2 enclave folder (identity and "
+                                               "permissions certificates, governance.p7s, permissions.p7s): DDS "
+                                               "Security for the participant")
+    ros2_security_plugins: Path | None = Field(default=None, description="folder of the Cyclone DDS security "
+                                               "plugins (libdds_security_auth/_ac/_crypto.so); None: the "
+                                               "dynamic loader's path")
+    ros2_finger_joints: list[str] = Field(default_factory=lambda: ["panda_finger_joint1", "panda_finger_joint2"],
+                                          description="the hand's finger joints in moveit_msgs/Grasp postures; "
+                                          "each is set to half the opening (m)")
+    ros2_finger_squeeze_m: float = Field(default=0.01, ge=0, le=0.1, description="closed posture: the grasp "
+                                         "width less this (m), so that the fingers press")
+    ros2_finger_effort: float = Field(default=0.0, ge=0, description="closed posture's effort per finger joint "
+                                      "(N; 0: none given)")
+    ros2_plan_cloud_age_s: float = Field(default=10.0, gt=0, description="plan_grasps detects on the newest "
+                                         "cloud received within this (s)")
     data_dir: Path | None = Field(default=None, description="service data folder (the template library's default "
                                   "SQLite file); None: $XDG_DATA_HOME/graspd, else ~/.local/share/graspd")
     template_library: str | None = Field(default=None, description="SQLAlchemy URL of the grasp-template library "

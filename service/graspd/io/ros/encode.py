@@ -9,6 +9,7 @@ Grasps follow DESIGN.md: position = hand base centre, rotation columns [approach
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from functools import lru_cache
 from typing import Any
 
@@ -142,15 +143,24 @@ def encode_marker_array(grasps: GraspSet, header: Header, hand: HandGeometry, *,
     return bytes(store.serialize_cdr(msg, MARKER_ARRAY))
 
 
-def encode_moveit_grasps(grasps: GraspSet, header: Header, *, approach_distance: float = 0.05,
-                         min_approach_distance: float | None = None,
-                         retreat_direction: ArrayLike = (0.0, 0.0, 1.0), retreat_distance: float = 0.1,
-                         hand_to_link: ArrayLike | None = None, id_prefix: str = "graspd") -> list[bytes]:
-    """One CDR moveit_msgs/Grasp per grasp, best first as given: id "{id_prefix}/{rank}"; grasp_pose = hand base
+def encode_moveit_grasps(grasps: GraspSet, header: Header, **options: Any) -> list[bytes]:
+    """One CDR moveit_msgs/Grasp per grasp, best first: the messages of moveit_grasp_messages(grasps, header,
+    **options), serialised."""
+    store = typestore()
+    return [bytes(store.serialize_cdr(msg, MOVEIT_GRASP)) for msg in moveit_grasp_messages(grasps, header, **options)]
+
+
+def moveit_grasp_messages(grasps: GraspSet, header: Header, *, approach_distance: float = 0.05,
+                          min_approach_distance: float | None = None,
+                          retreat_direction: ArrayLike = (0.0, 0.0, 1.0), retreat_distance: float = 0.1,
+                          hand_to_link: ArrayLike | None = None, id_prefix: str = "graspd",
+                          postures: Callable[[int], tuple[Any, Any]] | None = None) -> list[Any]:
+    """One moveit_msgs/Grasp (rosbags message) per grasp, best first: id "{id_prefix}/{rank}"; grasp_pose = hand base
     pose (x = approach) in header.frame_id, times hand_to_link (4x4 pose of the MoveIt end-effector parent link in
     the hand frame, default identity); pre_grasp_approach along approach for approach_distance (m, min default
     half); post_grasp_retreat along retreat_direction (header frame, default +z "up") for retreat_distance (m);
-    post_place_retreat back along -approach; grasp_quality = score; hand postures left empty."""
+    post_place_retreat back along -approach; grasp_quality = score; hand postures postures(rank) ->
+    (pre_grasp_posture, grasp_posture), trajectory_msgs/JointTrajectory messages, else left empty."""
     store = typestore()
     t = store.types
     hdr = header_message(header)
@@ -173,11 +183,12 @@ def encode_moveit_grasps(grasps: GraspSet, header: Header, *, approach_distance:
                       desired_distance=float(approach_distance), min_distance=float(min_app))
         back = gt(direction=v3s(header=hdr, vector=vec(x=-a[0], y=-a[1], z=-a[2])),
                   desired_distance=float(approach_distance), min_distance=float(min_app))
-        msg = grasp(id=f"{id_prefix}/{i}", pre_grasp_posture=posture, grasp_posture=posture,
+        opened, closed = (posture, posture) if postures is None else postures(i)
+        msg = grasp(id=f"{id_prefix}/{i}", pre_grasp_posture=opened, grasp_posture=closed,
                     grasp_pose=t["geometry_msgs/msg/PoseStamped"](header=hdr, pose=pose_msgs[i]),
                     grasp_quality=float(score), pre_grasp_approach=approach, post_grasp_retreat=retreat,
                     post_place_retreat=back, max_contact_force=0.0, allowed_touch_objects=[])
-        out.append(bytes(store.serialize_cdr(msg, MOVEIT_GRASP)))
+        out.append(msg)
     return out
 
 

@@ -38,8 +38,7 @@ from graspd.server.problems import Problem
 from graspd.server.requests import parse_model, parse_request
 from graspd.server.schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
 from graspd.server.services.engine import DetectionEngine
-from graspd.server.settings import Settings
-from graspd.server.zenoh.ros_stream import (
+from graspd.server.services.ros_stream import (
     DEFAULT_INPUT_KEYS,
     DEFAULT_OUTPUT_KEYS,
     INPUT_TYPES,
@@ -53,6 +52,7 @@ from graspd.server.zenoh.ros_stream import (
     ros_outputs,
     stream_request,
 )
+from graspd.server.settings import Settings
 from graspd_client.wire import (
     ZENOH_DEMONSTRATIONS_KEY,
     ZENOH_DETECT_KEY,

@@ -26,6 +26,7 @@ from graspd.core.cloud import CloudError, ViewpointCloud
 from graspd.core.frames import camera_positions, check_camera_source, frame_name, to_robot
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd.core.limits import MAX_COORDINATE
 from graspd.gpd.detector import Detection, DetectionParams
 from graspd.io.inputs import CloudInput, apply_frames, no_finite_point
 from graspd.io.ros import (
@@ -44,7 +45,7 @@ from graspd.io.ros import (
 from graspd.io.ros.types import POINTCLOUD2
 from graspd.server.problems import CALLER_ERRORS, Problem
 from graspd.server.requests import json_object, parse_model
-from graspd.server.schemas import MAX_COORDINATE, Cloud, DetectRequest
+from graspd.server.schemas import Cloud, DetectRequest
 from graspd.templates import TemplateDetection
 
 #: Input name -> default key under the prefix, and the ROS message type it carries.

@@ -1,0 +1,482 @@
+"""The ROS 2 node: one DDS participant that ROS 2 nodes see as /graspd (ros_discovery_info), its topics and its
+two services, all fed through the server's one DetectionEngine (the same admission, queue, deadline, memory
+budget and request checks as HTTP and Zenoh) and the Zenoh stream's ROS layer (graspd.server.services.ros_stream:
+decoding, options, camera poses, outputs).
+
+Clouds: the four input topics keep only the newest cloud (a robot wants grasps for what it sees now; a cloud
+replaced before detection is counted in graspd_stream_dropped); one thread detects it and publishes, each with
+the cloud's header: GraspConfigList, PoseArray, one moveit_msgs/Grasp per grasp with finger postures and
+MarkerArray as soon as the grasps are known (from the worker), then the JSON answer.  A sample over
+GRASPD_MAX_BODY_BYTES, malformed, lying about its sizes, with no finite point or beyond the coordinate bound is
+dropped with a JSON error body (status, error, field, topic) on graspd/errors; the node keeps serving.
+
+Services: each request takes a place in the engine's queue on arrival (a full queue answers at once); decoding
+and detection run on a worker; the reply carries the request's rmw_cyclonedds header.  detect_grasps answers a
+GraspConfigList (empty, with the error on graspd/errors, when the request is refused); plan_grasps answers
+moveit_msgs/Grasp[] in the target's frame and a MoveItErrorCodes.
+
+Frames: a cloud is in its header.frame_id; with camera_poses and points_frame "camera" in the options (stream
+options laid over by GRASPD_ROS2_OPTIONS) it is moved into the robot frame (robot_frame_id, default base_link)
+and every output names that frame (graspd.core.frames, as the HTTP and Zenoh entrances do).
+"""
+
+from __future__ import annotations
+
+import contextvars
+import functools
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from graspd.core.grasp import GraspSet
+from graspd.core.hand import HandGeometry
+from graspd.io.ros import CloudMessage, Header, RosDecodeError, encode_grasp_config_list
+from graspd.io.ros.encode import moveit_grasp_messages
+from graspd.io.ros.types import MOVEIT_GRASP, typestore
+from graspd.server.logs import begin_request
+from graspd.server.metrics import Metrics
+from graspd.server.problems import Problem
+from graspd.server.schemas import DetectRequest
+from graspd.server.services.engine import DetectionEngine
+from graspd.server.services.ros_stream import (
+    Captured,
+    StreamOptions,
+    decode_input,
+    parse_options,
+    ros_outputs,
+    stream_request,
+)
+from graspd.server.settings import Settings
+
+from . import moveit
+from .dds import (
+    DomainConfig,
+    Participant,
+    RawReader,
+    RawWriter,
+    Ros2SetupError,
+    discovery_xml,
+    latched_qos,
+    participant_qos,
+    reliable_qos,
+    security_properties,
+    sensor_qos,
+)
+from .interfaces import PARTICIPANT_ENTITIES_INFO, STRING, ros_types, service_topics, topic_name
+from .names import INPUTS, OUTPUTS, SERVICES, resolve_names
+from .wire import RequestId, frame_sample, participant_entities_info, request_id, service_id, split_request
+
+log = logging.getLogger("graspd.server")
+#: Depth of the moveit_grasps writer's history: a burst of one message per grasp (at most max_grasps) is kept
+#: whole for a reliable reader that takes them a little late.
+MOVEIT_DEPTH = 256
+#: Headroom of DDS's own sample-size cap over GRASPD_MAX_BODY_BYTES: samples up to it arrive and are refused
+#: with a 413 on graspd/errors; larger ones DDS drops itself (with a warning in its log).
+DDS_SIZE_HEADROOM = 2
+
+
+def domain_config(settings: Settings) -> DomainConfig:
+    """The participant's DDS configuration from the settings: discovery range and peers, the sample-size cap,
+    the user's CycloneDDS XML last (its settings win), DDS Security from the SROS2 enclave.  Ros2SetupError when
+    the node would be reachable beyond this machine without DDS Security and without GRASPD_ROS2_ALLOW_ANONYMOUS,
+    or a file is missing."""
+    xml = discovery_xml(settings.ros2_discovery, settings.ros2_peers, settings.ros2_interfaces,
+                        DDS_SIZE_HEADROOM * settings.max_body_bytes, settings.ros2_socket_buffer_bytes)
+    if settings.ros2_config is not None:
+        if not settings.ros2_config.is_file():
+            raise Ros2SetupError(f"GRASPD_ROS2_CONFIG: {settings.ros2_config} is not a file")
+        xml += f",file://{settings.ros2_config.resolve()}"
+    props: dict[str, str] = {}
+    if settings.ros2_security_enclave is not None:
+        props = security_properties(settings.ros2_security_enclave, settings.ros2_security_plugins)
+    reach = settings.ros2_discovery != "localhost" or bool(settings.ros2_peers) or settings.ros2_config is not None
+    if reach and not props and not settings.ros2_allow_anonymous:
+        raise Ros2SetupError(
+            "the ROS 2 node would be reachable from other machines (GRASPD_ROS2_DISCOVERY="
+            f"{settings.ros2_discovery}, peers {settings.ros2_peers}, config {settings.ros2_config}) with no DDS "
+            "Security, so anyone there could run detections.  Set GRASPD_ROS2_SECURITY_ENCLAVE (an SROS2 enclave), "
+            "or keep GRASPD_ROS2_DISCOVERY=localhost; on a trusted network only, GRASPD_ROS2_ALLOW_ANONYMOUS=true")
+    return DomainConfig(settings.ros2_domain_id, xml, participant_qos("/", props))
+
+
+@dataclass
+class _Caught(Captured):
+    """Captured plus the detection's "up" (environment stage; cloud frame, unit), for the retreat direction, and
+    then(self) called on the worker as soon as the grasps are known: the ROS outputs go out before the engine's
+    request-level checks and JSON answer (they add warnings, never change the grasps), ~10-30 ms sooner at
+    300k points."""
+
+    up: np.ndarray | None = None
+    then: Callable[[_Caught], None] | None = None
+
+    def __call__(self, det: Any, cloud: Any, hand: Any) -> None:
+        super().__call__(det, cloud, hand)
+        env = getattr(det, "environment", None)
+        self.up = None if env is None or env.up is None else np.asarray(env.up, np.float64)
+        if self.then is not None:
+            try:
+                self.then(self)
+            except Exception:  # the outputs failed; the detection and its JSON answer still stand
+                log.exception("ros2 outputs failed")
+
+
+class Ros2Node:
+    """Owns the DDS participant; start() declares everything, close() takes it down (running work finishes in
+    the engine, whose shutdown follows)."""
+
+    def __init__(self, settings: Settings, engine: DetectionEngine, metrics: Metrics) -> None:
+        self.settings = settings
+        self.engine = engine
+        self.metrics = metrics
+        self.distro = settings.ros2_distro
+        self.store = ros_types(self.distro)
+        try:
+            self.names = resolve_names(settings.ros2_topics, settings.ros2_namespace)
+        except ValueError as exc:
+            raise Ros2SetupError(str(exc)) from None
+        base = {"num_samples": settings.stream_num_samples, **settings.stream_options, **settings.ros2_options}
+        try:
+            self.options: StreamOptions = parse_options(base, {}, (settings.stream_viewpoint,))
+        except Problem as exc:
+            raise Ros2SetupError(f"GRASPD_ROS2_OPTIONS / GRASPD_STREAM_OPTIONS: {exc.field}: {exc.message}") from None
+        hand = self.options.request.hand_geometry()
+        self.postures = moveit.FingerPostures(tuple(settings.ros2_finger_joints),
+                                              (hand or HandGeometry()).max_aperture,
+                                              settings.ros2_finger_squeeze_m, settings.ros2_finger_effort)
+        self.config = domain_config(settings)
+        self.participant: Participant | None = None
+        self.readers: list[RawReader] = []
+        self.writers: dict[str, RawWriter] = {}
+        self._discovery: RawWriter | None = None
+        self._latest: tuple[bytes, str] | None = None
+        self._last_cloud: tuple[bytes, str, float] | None = None  # for plan_grasps: payload, input, arrival
+        self._wake = threading.Condition()
+        self._stop = False
+        self._thread: threading.Thread | None = None
+
+    # ---- lifecycle -------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Create the participant (Ros2SetupError when DDS refuses it) and declare the topics, the services and
+        the node on ros_discovery_info; start the stream thread."""
+        p = self.participant = Participant(self.config)
+        d = self.distro
+        for entry, (_, ros_type) in INPUTS.items():
+            if entry in self.names:
+                self.readers.append(RawReader(p, topic_name(self.names[entry]), ros_type, d, sensor_qos(),
+                                              functools.partial(self._on_cloud, entry=entry)))
+        for entry, (_, ros_type) in OUTPUTS.items():
+            if entry in self.names:
+                depth = MOVEIT_DEPTH if entry == "moveit_grasps" else 10
+                self.writers[entry] = RawWriter(p, topic_name(self.names[entry]), ros_type, d, reliable_qos(depth))
+        handlers: dict[str, Callable[[bytes], None]] = {"detect_grasps": self._on_detect_request,
+                                                        "plan_grasps": self._on_plan_request}
+        for counter, (entry, (_, srv_type)) in enumerate(SERVICES.items(), start=1):
+            if entry not in self.names:
+                continue
+            requests, replies = service_topics(self.names[entry])
+            user_data = service_id(p.guid, counter)
+            self.writers[entry] = RawWriter(p, replies, f"{srv_type}_Response", d, reliable_qos(10, user_data))
+            self.readers.append(RawReader(p, requests, f"{srv_type}_Request", d, reliable_qos(10, user_data),
+                                          handlers[entry]))
+        self._discovery = RawWriter(p, "ros_discovery_info", PARTICIPANT_ENTITIES_INFO, d, latched_qos())
+        self._discovery.write(participant_entities_info(
+            p.guid, self.settings.ros2_node_name, self.settings.ros2_namespace, [r.guid for r in self.readers],
+            [w.guid for w in self.writers.values()], d))
+        self._thread = threading.Thread(target=self._stream_loop, name="graspd-ros2-stream", daemon=True)
+        self._thread.start()
+        log.info("ros2 node up", extra={"domain_id": self.config.domain_id, "node": self.settings.ros2_node_name,
+                                        "namespace": self.settings.ros2_namespace, "distro": d,
+                                        "discovery": self.settings.ros2_discovery,
+                                        "security": self.settings.ros2_security_enclave is not None,
+                                        "topics": self.names})
+
+    def close(self) -> None:
+        """Stop the stream thread (after the frame in progress) and delete the participant."""
+        with self._wake:
+            self._stop = True
+            self._wake.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=self.settings.deadline_s)
+        if self.participant is not None:
+            endpoints: list[Any] = [*self.readers, *self.writers.values()]
+            if self._discovery is not None:
+                endpoints.append(self._discovery)
+            self.participant.close(endpoints)
+            self.participant = None
+            self.readers.clear()
+            self.writers.clear()
+
+    @property
+    def ready(self) -> bool:
+        return self.participant is not None and not self._stop
+
+    # ---- errors ----------------------------------------------------------------------------------------------
+    def _string(self, text: str) -> bytes:
+        return bytes(self.store.serialize_cdr(self.store.types[STRING](data=text), STRING))
+
+    def publish_error(self, problem: Problem, where: str, request_id: str | None = None) -> None:
+        """A JSON error body (HTTP's, plus status, the topic or service it concerns and the request id) on
+        graspd/errors, and a log line."""
+        body: dict[str, Any] = {**problem.body(), "status": problem.status, "topic": where}
+        if request_id is not None:
+            body["request_id"] = request_id
+        log.warning("ros2 input refused", extra={"transport": "ros2", "topic": where, "status": problem.status,
+                                                  "field": problem.field, "error": problem.message})
+        self._write("errors", self._string(json.dumps(body)))
+
+    def _write(self, entry: str, payload: bytes) -> None:
+        writer = self.writers.get(entry)
+        if writer is None:
+            return
+        try:
+            writer.write(payload)
+        except Exception:  # a failed write never stops the node
+            log.exception("ros2 write failed", extra={"topic": writer.name})
+
+    # ---- clouds ----------------------------------------------------------------------------------------------
+    def _too_large(self, size: int) -> Problem | None:
+        limit = self.settings.max_body_bytes
+        return Problem(413, f"message of {size} bytes exceeds the limit of {limit}", "payload") if size > limit \
+            else None
+
+    def _on_cloud(self, data: bytes, entry: str) -> None:
+        """On Cyclone's listener thread: refuse an oversized sample, else make it the newest cloud."""
+        try:
+            problem = self._too_large(len(data))
+            if problem is not None:
+                self.metrics.requests.labels("ros2-stream", "too_large").inc()
+                self.publish_error(problem, self.names[entry])
+                return
+            with self._wake:
+                if self._latest is not None:
+                    self.metrics.stream_dropped.inc()
+                self._latest = (data, entry)
+                self._last_cloud = (data, entry, time.monotonic())
+                self._wake.notify()
+        except Exception:  # never let an exception into Cyclone's thread
+            log.exception("ros2 cloud refused")
+
+    def _stream_loop(self) -> None:
+        while True:
+            with self._wake:
+                while self._latest is None and not self._stop:
+                    self._wake.wait()
+                if self._stop or self._latest is None:
+                    return
+                data, entry = self._latest
+                self._latest = None
+            contextvars.Context().run(self._stream_frame, data, entry)
+
+    def decode(self, data: bytes, entry: str) -> CloudMessage:
+        """A CDR input (INPUTS entry) as detection sees it (graspd.server.services.ros_stream.decode_input: bounded
+        decoding, coordinate checks, camera poses); Problem 422 naming the ROS field otherwise."""
+        return decode_input(data, entry, self.options)
+
+    def _stream_frame(self, data: bytes, entry: str) -> None:
+        """Detect on one cloud and publish its outputs with its header; an error on graspd/errors instead."""
+        t0 = time.perf_counter()
+        ctx = begin_request()
+        outcome = "ok"
+        try:
+            msg = self.decode(data, entry)
+            req = stream_request(msg, self.options)
+            caught = _Caught(then=functools.partial(self._publish_outputs, header=msg.header, req=req))
+            body = self.engine.run_sync(req, {"decode": time.perf_counter() - t0}, _json_header(msg.header),
+                                        on_detection=caught)
+            self._write("json", self._string(body.decode()))
+        except Problem as exc:
+            self.publish_error(exc, self.names[entry], ctx.id)
+            outcome = "invalid" if exc.status < 500 else "error"
+        except Exception:  # keep serving whatever one frame did
+            log.exception("ros2 detect failed", extra={"request_id": ctx.id})
+            self.publish_error(Problem(500, f"internal error (request {ctx.id}; the server log has the details)"),
+                               self.names[entry], ctx.id)
+            outcome = "error"
+        self.metrics.requests.labels("ros2-stream", outcome).inc()
+
+    def _publish_outputs(self, caught: _Caught, header: Header, req: DetectRequest) -> None:
+        """The ROS outputs of one detection with the cloud's header, GraspConfigList first, MarkerArray last."""
+        grasps, hand = caught.grasps, caught.hand
+        if grasps is None or hand is None:
+            return
+        for entry, message in ros_outputs(grasps, header, hand, req.approach_distance,
+                                          {"grasp_config_list", "pose_array"} & set(self.writers)):
+            self._write(entry, message)
+        if "moveit_grasps" in self.writers:
+            store = typestore()
+            for msg in self.moveit_messages(caught, header, req.approach_distance, np.eye(4)):
+                self._write("moveit_grasps", bytes(store.serialize_cdr(msg, MOVEIT_GRASP)))
+        for entry, message in ros_outputs(grasps, header, hand, req.approach_distance,
+                                          {"marker_array"} & set(self.writers)):
+            self._write(entry, message)
+
+    def moveit_messages(self, caught: _Caught, header: Header, approach_distance: float,
+                        to_output: np.ndarray) -> list[Any]:
+        """moveit_msgs/Grasp messages of a detection, moved by to_output (4x4, detection frame -> header's
+        frame): finger postures from each grasp's width, retreat along "up" when the detection found it, else
+        back along the approach."""
+        grasps = caught.grasps
+        assert grasps is not None
+        rot, shift = to_output[:3, :3], to_output[:3, 3]
+        moved = grasps.transformed(rot, shift)
+        up = None if caught.up is None else rot @ caught.up
+        widths = grasps.widths.tolist()
+        store = typestore()
+        options: dict[str, Any] = {"approach_distance": approach_distance,
+                                   "postures": lambda i: self.postures.messages(store, widths[i])}
+        if up is not None:
+            options["retreat_direction"] = up
+        messages = moveit_grasp_messages(moved, header, **options)
+        if up is None:  # no "up": retreat the way the hand came
+            vec = store.types["geometry_msgs/msg/Vector3"]
+            for msg, a in zip(messages, moved.approach.tolist(), strict=True):
+                msg.post_grasp_retreat.direction.vector = vec(x=-a[0], y=-a[1], z=-a[2])
+        return messages
+
+    # ---- services --------------------------------------------------------------------------------------------
+    def _service_call(self, data: bytes, entry: str, prepare: Callable[[bytes, dict[str, Any]], DetectRequest],
+                      finish: Callable[[RequestId, dict[str, Any], _Caught], bytes],
+                      refuse: Callable[[RequestId, Problem | moveit.PlanningError], bytes]) -> None:
+        """On Cyclone's listener thread: read the request header, take a place in the engine's queue (a refusal
+        is answered at once), and queue the work: prepare(sample, state) decodes the request into a
+        DetectRequest on a worker (state keeps what finish needs), the engine detects, finish(request id, state,
+        detection) builds the reply, written from the worker; a refusal or failure is answered by refuse()."""
+        ctx = begin_request()
+        where = self.names[entry]
+        try:
+            rid = request_id(data)
+        except RosDecodeError as exc:  # no header: nobody to answer
+            self.publish_error(Problem(422, str(exc), exc.field), where, ctx.id)
+            return
+        try:
+            problem = self._too_large(len(data))
+            if problem is not None:
+                raise problem
+            self.engine.admit()
+        except Problem as exc:
+            self.publish_error(exc, where, ctx.id)
+            self._write(entry, refuse(rid, exc))
+            self.metrics.requests.labels("ros2-service", "refused").inc()
+            return
+        state: dict[str, Any] = {}
+        header: dict[str, Any] = {}
+        caught = _Caught()
+        t0 = time.perf_counter()
+
+        def parse() -> DetectRequest:  # on the worker
+            req = prepare(data, state)
+            header.update(_json_header(state["msg"].header))
+            return req
+
+        def done(fut: Future[bytes]) -> None:  # on the worker that ran the detection
+            outcome = "ok"
+            try:
+                exc = None if fut.cancelled() else fut.exception()
+                if fut.cancelled():
+                    exc = Problem(504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline")
+                if exc is None:
+                    self._write(entry, finish(rid, state, caught))
+                    return
+                if not isinstance(exc, Problem | moveit.PlanningError):
+                    log.error("ros2 service failed", exc_info=exc, extra={"request_id": ctx.id})
+                    exc = Problem(500, f"internal error (request {ctx.id}; the server log has the details)")
+                if isinstance(exc, Problem):
+                    self.publish_error(exc, where, ctx.id)
+                outcome = "invalid"
+                self._write(entry, refuse(rid, exc))
+            except Exception:  # never leave the worker with an exception
+                log.exception("ros2 service reply failed", extra={"request_id": ctx.id})
+                outcome = "error"
+            finally:
+                self.metrics.requests.labels("ros2-service", outcome).inc()
+                self.metrics.request_seconds.labels("ros2").observe(time.perf_counter() - t0)
+
+        try:
+            fut, _ = self.engine.enqueue(parse, {"read": 0.0}, header, on_detection=caught)
+        except Problem as exc:  # shutting down (the place was given back)
+            self._write(entry, refuse(rid, exc))
+            return
+        fut.add_done_callback(done)
+        self.engine.trim_after(fut)
+
+    # detect_grasps: gpd_ros/srv/DetectGrasps (CloudIndexed -> GraspConfigList with the cloud's header)
+    def _on_detect_request(self, data: bytes) -> None:
+        self._service_call(data, "detect_grasps", self._detect_prepare, self._detect_finish, self._detect_refused)
+
+    def _detect_prepare(self, data: bytes, state: dict[str, Any]) -> DetectRequest:
+        _, body = split_request(data)
+        msg = state["msg"] = self.decode(body, "cloud_indexed")
+        return stream_request(msg, self.options)
+
+    def _detect_finish(self, rid: RequestId, state: dict[str, Any], caught: _Caught) -> bytes:
+        grasps = caught.grasps if caught.grasps is not None else GraspSet()
+        return frame_sample(rid, encode_grasp_config_list(grasps, state["msg"].header))
+
+    def _detect_refused(self, rid: RequestId, _error: Problem | moveit.PlanningError) -> bytes:
+        return frame_sample(rid, encode_grasp_config_list(GraspSet(), Header()))
+
+    # plan_grasps: moveit_msgs/srv/GraspPlanning (CollisionObject target -> Grasp[] in its frame)
+    def _on_plan_request(self, data: bytes) -> None:
+        self._service_call(data, "plan_grasps", self._plan_prepare, self._plan_finish, self._plan_refused)
+
+    def _plan_prepare(self, data: bytes, state: dict[str, Any]) -> DetectRequest:
+        """The target of a GraspPlanning request on the newest cloud: samples within its geometry, the map from
+        its frame into the detection frame (moveit.frame_transform); PlanningError when that cannot be."""
+        _, body = split_request(data)
+        try:
+            request: Any = self.store.deserialize_cdr(body, "moveit_msgs/srv/GraspPlanning_Request")
+        except Exception as exc:  # rosbags: a truncated request or one lying about its sizes
+            raise Problem(422, f"not a usable moveit_msgs/srv/GraspPlanning request: {exc}", "request") from None
+        last = self._last_cloud
+        if last is None:
+            raise moveit.PlanningError(moveit.UNABLE_TO_ACQUIRE_SENSOR_DATA, "no cloud received yet on "
+                                       f"{', '.join(self.names[e] for e in INPUTS if e in self.names)}")
+        cloud, entry, arrived = last
+        age = time.monotonic() - arrived
+        if age > self.settings.ros2_plan_cloud_age_s:
+            raise moveit.PlanningError(moveit.SENSOR_INFO_STALE, f"the newest cloud is {age:.1f} s old (more than "
+                                       f"GRASPD_ROS2_PLAN_CLOUD_AGE_S = {self.settings.ros2_plan_cloud_age_s:g})")
+        msg = self.decode(cloud, entry)
+        target = request.target
+        opts = self.options
+        to_detection = moveit.frame_transform(target.header.frame_id, msg.header.frame_id,
+                                              opts.camera_frame_id or "", opts.camera_poses, opts.points_frame)
+        samples = moveit.sample_points_on_target(msg.cloud.points, target, to_detection,
+                                                 opts.request.num_samples)
+        if samples is not None:
+            msg = replace(msg, samples=samples, sample_indices=None)
+        state.update(msg=msg, frame=target.header.frame_id or msg.header.frame_id, to_detection=to_detection)
+        return stream_request(msg, opts)
+
+    def _plan_finish(self, rid: RequestId, state: dict[str, Any], caught: _Caught) -> bytes:
+        if caught.grasps is None:
+            return self._plan_reply(rid, [], moveit.PLANNING_FAILED, "the detection gave no grasps")
+        header = Header(state["frame"], state["msg"].header.stamp)
+        grasps = self.moveit_messages(caught, header, self.options.request.approach_distance,
+                                      np.linalg.inv(state["to_detection"]))
+        if not grasps:
+            return self._plan_reply(rid, [], moveit.PLANNING_FAILED, "no grasp found on the target")
+        return self._plan_reply(rid, grasps, moveit.SUCCESS, "")
+
+    def _plan_reply(self, rid: RequestId, grasps: list[Any], code: int, message: str) -> bytes:
+        name = "moveit_msgs/srv/GraspPlanning_Response"
+        response = self.store.types[name](grasps=grasps, error_code=moveit.error_code(self.store, code, message))
+        return frame_sample(rid, bytes(self.store.serialize_cdr(response, name)))
+
+    def _plan_refused(self, rid: RequestId, error: Problem | moveit.PlanningError) -> bytes:
+        if isinstance(error, moveit.PlanningError):
+            return self._plan_reply(rid, [], error.code, error.message)
+        code = moveit.TIMED_OUT if error.status == 504 else (
+            moveit.PLANNING_FAILED if error.status < 500 else moveit.FAILURE)
+        return self._plan_reply(rid, [], code, f"{error.status}: {error.message}")
+
+
+def _json_header(header: Header) -> dict[str, Any]:
+    return {"frame_id": header.frame_id, "stamp": {"sec": header.stamp[0], "nanosec": header.stamp[1]}}
