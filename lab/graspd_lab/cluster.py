@@ -37,8 +37,9 @@ R = TypeVar("R")
 RAY_MISSING = ("Ray is not installed: install the lab's cluster extra, "
                "`.venv/bin/pip install -e \"./lab[cluster]\"` (or `pip install \"ray>=2.9\"`), "
                "or run without --ray / --address (a local process pool)")
-#: Object store of a Ray started here: the jobs pass parameters and small records, never arrays.
-LOCAL_OBJECT_STORE_BYTES = 128 * 2**20
+#: Object store of a Ray started here: parameters, records and at most an instance model's view rows (a few MB
+#: each); Ray spills to disk beyond it.
+LOCAL_OBJECT_STORE_BYTES = 512 * 2**20
 
 
 class RayMissingError(RuntimeError):
@@ -78,7 +79,7 @@ def ray_available() -> bool:
     return importlib.util.find_spec("ray") is not None
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
     """--ray and --address on a job's command line (its own --workers / --jobs says how many)."""
     parser.add_argument("--ray", action="store_true",
                         help="run the work items as Ray tasks (Ray started on this machine with num_cpus = the "

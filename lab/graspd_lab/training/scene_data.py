@@ -48,9 +48,8 @@ from graspd.gpd.detector import DetectionParams, GraspDetector
 from graspd.gpd.environment import Environment, EnvironmentParams
 from graspd.gpd.images import channel_layout, encode_images
 from graspd.gpd.scene import ClosingRegionPoints
-from graspd_lab.cluster import RayMissingError, Runner, imap
+from graspd_lab.cluster import RayMissingError, Runner, imap, runner_from_args
 from graspd_lab.cluster import add_arguments as add_cluster_arguments
-from graspd_lab.cluster import runner_from_args
 from graspd_lab.training.dataset import (
     CHUNK_KEYS,
     DERIVABLE,
