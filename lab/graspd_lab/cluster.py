@@ -132,7 +132,7 @@ def _python_path() -> str:
     return os.pathsep.join(keep)
 
 
-def _start_ray(runner: Runner) -> bool:
+def start_ray(runner: Runner) -> bool:
     """ray.init for the runner unless Ray is already up in this process; True if this call started it."""
     try:
         import ray  # noqa: PLC0415 - the optional cluster extra
@@ -169,13 +169,14 @@ def _by_value(fn: Callable[..., Any]) -> None:
 def _ray_imap(fn: Callable[[T], R], work: list[T], runner: Runner) -> Iterator[R]:
     """One Ray task per item (1 CPU each); results as they finish (ray.wait).  Items left when the caller
     stops (an error, Ctrl-C) are cancelled; a Ray this call started is shut down."""
-    started = _start_ray(runner)
+    started = start_ray(runner)
     import ray  # noqa: PLC0415
 
     _by_value(fn)
     pending: list[Any] = []
     try:
-        task = ray.remote(num_cpus=1)(fn)
+        # this process's import folders now (a script may have added its own since Ray started: bench/)
+        task = ray.remote(num_cpus=1, runtime_env={"env_vars": {"PYTHONPATH": _python_path()}})(fn)
         pending = [task.remote(item) for item in work]
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
@@ -188,4 +189,4 @@ def _ray_imap(fn: Callable[[T], R], work: list[T], runner: Runner) -> Iterator[R
 
 
 __all__ = ["RAY_MISSING", "RayMissingError", "Runner", "add_arguments", "imap", "ray_available",
-           "runner_from_args"]
+           "runner_from_args", "start_ray"]
