@@ -117,8 +117,8 @@ def git_commit() -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", type=int, default=10)
-    ap.add_argument("--views", type=int, default=2, help="views per scene")
-    ap.add_argument("--samples", type=int, default=100, help="detector num_samples per view")
+    ap.add_argument("--views", type=int, default=4, help="views per scene (scene_data's default)")
+    ap.add_argument("--samples", type=int, default=150, help="detector num_samples per view (scene_data's default)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--runs", nargs="+", default=[label for label, _ in RUNS], help="which runs, by label")
     ap.add_argument("--work", type=Path, default=None, help="folder for the datasets (default: a temporary one)")
