@@ -97,8 +97,11 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
         vs_ray1 = f"{ray1 / r['wall_s']:.2f}x" if ray1 and r["run"].startswith("Ray") else ""
         load = f"{_load(r['uptime_before'])} -> {_load(r['uptime_after'])}"
         lines.append(f"| {r['run']} | {r['wall_s']:.1f} | {base / r['wall_s']:.2f}x | {vs_ray1} | {load} |")
-    lines += ["", "The machine's 2 cores are shared with other engineers' jobs: the load column says how much CPU "
-              "was left; a speed-up below 2x on 2 workers is what the cores could give, not Ray's limit."]
+    loads = [float(_load(r[k]).split(",")[0]) for r in rows for k in ("uptime_before", "uptime_after")]
+    lines += ["", f"The 1-minute load average was {min(loads):.1f}-{max(loads):.1f} during these runs, on "
+              f"{meta['cpus']} cores shared with other engineers' jobs.  Where the load is above the core count a "
+              "second worker finds no free core, and the table shows the runners' overhead and that they write "
+              "the same bytes, not what 2 workers gain on idle cores."]
     return "\n".join(lines) + "\n"
 
 
