@@ -20,6 +20,9 @@ Examples:
   PYTHONPATH=service:client .venv/bin/python bench/clutter.py --rounds 30 --settings gpd@pile-side --tag pile
   ... --service http://127.0.0.1:8000   (use a running service instead of starting one)
   ... --in-process                      (developer runs: GraspDetector in this process, no HTTP)
+  ... --jobs 2 --ray                    (rounds as Ray tasks on this machine; graspd-lab[cluster])
+  ... --ray --address auto --in-process (rounds on a Ray cluster: the gpd detectors need --in-process or a
+                                         --service URL the nodes reach; rounds.jsonl stays on this machine)
 """
 
 from __future__ import annotations
@@ -32,7 +35,6 @@ import socket
 import subprocess
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -50,6 +52,8 @@ from graspd.core.progress import Progress  # noqa: E402
 from graspd.gpd.classifier import available_models, default_model_name, load_model, read_card  # noqa: E402
 from graspd.gpd.classifier import default_models_dir as models_dir  # noqa: E402
 from graspd_client import GraspClient  # noqa: E402
+from graspd_lab.cluster import RayMissingError, imap, runner_from_args  # noqa: E402
+from graspd_lab.cluster import add_arguments as add_cluster_arguments  # noqa: E402
 from graspd_lab.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, TopDownBaseline  # noqa: E402
 from graspd_lab.sim.protocol import RoundResult, Setting, Summary, cameras_for, run_round, summarize  # noqa: E402
 from graspd_lab.sim.sensing import observe, render_rgb  # noqa: E402
@@ -315,7 +319,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=30, help="rounds per setting (seeds seed..seed+rounds-1)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--objects", type=int, default=None, help="objects per round (default: 10 pour, 5 pile)")
-    ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes")
+    ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes (Ray CPUs with --ray)")
+    add_cluster_arguments(ap)
     ap.add_argument("--model", default=None, help="classifier for gpd / gpd-noselect (default: first in models/)")
     ap.add_argument("--service", default=None, help="URL of a running graspd service for the gpd detectors "
                     "(default: start one on a free local port for the run)")
@@ -334,6 +339,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(str(exc))
     if args.in_process and args.service:
         ap.error("--in-process and --service exclude each other")
+    try:
+        runner = runner_from_args(args, args.jobs, context="fork")
+    except RayMissingError as exc:
+        ap.error(str(exc))
     proc = None
     service = args.service
     if service is None and not args.in_process and any(det != "baseline" for det, _ in parsed):
@@ -348,6 +357,7 @@ def main(argv: list[str] | None = None) -> int:
         "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "cpus": os.cpu_count(),
         "jobs": args.jobs,
+        "runner": runner.describe(),
         "service": service,
         "models": dict(models),
     }
@@ -369,18 +379,13 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.perf_counter()
             if done:
                 print(f"{spec}: resuming, {len(seeds) - len(jobs)} of {len(seeds)} rounds recorded", flush=True)
-            pool = ProcessPoolExecutor(max_workers=args.jobs) if args.jobs > 1 else None
-            finished = pool.map(_one_round, jobs) if pool is not None else map(_one_round, jobs)
             succeeded = attempted = 0
-            try:
-                with Progress(len(jobs), spec, "round") as bar:  # a bar on a terminal, a line a minute in a log
-                    for r in finished:
-                        done[r.seed] = record_round(log, spec, setting, r)
-                        succeeded, attempted = succeeded + r.successes, attempted + r.attempts
-                        bar.update(1, grasps=f"{succeeded}/{attempted} succeeded")
-            finally:
-                if pool is not None:
-                    pool.shutdown()
+            # rounds come back as they finish (a pool or Ray tasks: graspd_lab.cluster), each logged at once
+            with Progress(len(jobs), spec, "round") as bar:  # a bar on a terminal, a line a minute in a log
+                for r in imap(_one_round, jobs, runner):
+                    done[r.seed] = record_round(log, spec, setting, r)
+                    succeeded, attempted = succeeded + r.successes, attempted + r.attempts
+                    bar.update(1, grasps=f"{succeeded}/{attempted} succeeded")
             results = [done[s] for s in seeds]
             summaries[spec] = summarize(results)
             rounds[spec] = [r.to_dict() for r in results]

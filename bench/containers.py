@@ -32,6 +32,8 @@ Examples:
   PYTHONPATH=service:client .venv/bin/python bench/containers.py --rounds 30 --tag heldout
   ... --rounds 2 --in-process --tag smoke
   ... --split training --styles tray tote --rounds 10 --tag tuned   (training styles and ranges: "tuned on")
+  ... --jobs 2 --ray                  (rounds as Ray tasks on this machine; graspd-lab[cluster]; --address: a
+                                       cluster, with --in-process or a --service URL the nodes reach)
 """
 
 from __future__ import annotations
@@ -43,7 +45,6 @@ import shlex
 import subprocess
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,8 @@ import clutter  # noqa: E402  (bench/clutter.py: service start, detectors, round
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.core.progress import Progress  # noqa: E402
+from graspd_lab.cluster import RayMissingError, imap, runner_from_args  # noqa: E402
+from graspd_lab.cluster import add_arguments as add_cluster_arguments  # noqa: E402
 from graspd_lab.sim.containers import (  # noqa: E402
     HELD_OUT_STYLES,
     SPLITS,
@@ -315,7 +318,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--objects", type=int, default=5, help="objects per scene")
     ap.add_argument("--sensing", choices=SENSINGS, default="passive")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes")
+    ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes (Ray CPUs with --ray)")
+    add_cluster_arguments(ap)
     ap.add_argument("--model", default=None, help="classifier for gpd (default: the service's default model)")
     ap.add_argument("--service", default=None, help="URL of a running graspd service (default: start one)")
     ap.add_argument("--in-process", action="store_true", help="run gpd in this process, without HTTP (developer "
@@ -341,6 +345,10 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--styles {style}: {exc}")
     if args.in_process and args.service:
         ap.error("--in-process and --service exclude each other")
+    try:
+        runner = runner_from_args(args, args.jobs, context="fork")
+    except RayMissingError as exc:
+        ap.error(str(exc))
     proc = None
     service = args.service
     if service is None and not args.in_process and any(d != "baseline" for d in detectors):
@@ -351,7 +359,8 @@ def main(argv: list[str] | None = None) -> int:
         "command": "PYTHONPATH=service:client .venv/bin/python bench/containers.py "
         + shlex.join(sys.argv[1:] if argv is None else argv),
         "commit": git_commit(), "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "cpus": os.cpu_count(),
-        "jobs": args.jobs, "gpd": "in-process GraspDetector" if args.in_process else f"POST /detect to {service}",
+        "jobs": args.jobs, "runner": runner.describe(),
+        "gpd": "in-process GraspDetector" if args.in_process else f"POST /detect to {service}",
         "models": dict(models), "split": args.split, "objects": args.objects, "sensing": args.sensing,
         "styles": styles, "headline_styles": [s for s in styles if s in HELD_OUT_STYLES],
         "containers": {s: [scene_container(s, args.seed + i, args.split).to_dict() for i in range(args.rounds)]
@@ -377,21 +386,12 @@ def main(argv: list[str] | None = None) -> int:
                 if done:
                     print(f"{spec}: resuming, {len(seeds) - len(jobs)} of {len(seeds)} rounds recorded", flush=True)
 
-                def keep(job_seed: int, out: tuple[RoundResult, dict[str, Any]], spec: str = spec,
-                         setting: Setting = setting, done: dict[int, dict[str, Any]] = done) -> None:
-                    clutter.record_round(log, spec, setting, out[0], precision=out[1])
-                    done[job_seed] = {"round": out[0].to_dict(), "precision": out[1]}
-
-                pool = ProcessPoolExecutor(max_workers=args.jobs) if args.jobs > 1 else None
-                finished = pool.map(_one_round, jobs) if pool is not None else map(_one_round, jobs)
-                try:
-                    with Progress(len(jobs), spec, "round") as bar:  # a bar on a terminal, a line a minute in logs
-                        for j, out in zip(jobs, finished, strict=True):
-                            keep(j[-1], out)
-                            bar.update(1)
-                finally:
-                    if pool is not None:
-                        pool.shutdown()
+                # rounds come back as they finish (a pool or Ray tasks: graspd_lab.cluster), each logged at once
+                with Progress(len(jobs), spec, "round") as bar:  # a bar on a terminal, a line a minute in logs
+                    for rnd, check in imap(_one_round, jobs, runner):
+                        clutter.record_round(log, spec, setting, rnd, precision=check)
+                        done[rnd.seed] = {"round": rnd.to_dict(), "precision": check}
+                        bar.update(1)
                 results = [RoundResult(**done[s]["round"]) for s in seeds]
                 precision = [done[s]["precision"] for s in seeds]
                 summary, psum = summarize(results), precision_summary(precision)

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up graspd on a fresh Debian machine: system libraries the wheels need, then a virtual
 # environment in .venv with the server, the client, training (CPU torch), PostgreSQL support, the pybullet
-# simulator (graspd-lab: the clutter benchmark) and dev tools.
+# simulator (graspd-lab: the clutter benchmark), Ray (graspd-lab[cluster]: the lab's jobs as Ray tasks), the ROS 2
+# node's DDS (graspd[ros2]) and dev tools.
 # The PostgreSQL server package is for the tests: they start a throwaway server of their own (initdb/pg_ctl);
 # haproxy too: tests/fleet run graspd servers behind it (examples/fleet/haproxy.cfg).
 # Idempotent: re-running after a change to pyproject.toml reinstalls; otherwise it returns at once.
@@ -33,6 +34,7 @@ if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then exit 0; fi
 .venv/bin/python -m pip install -q --upgrade pip
 # CPU build of torch (training and ONNX export only): pin it, a bare `torch` pulls a CUDA build.
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ./client -e ".[dev,postgres,ros2]" -e ./lab
+# ./lab[cluster]: Ray, so that the lab's jobs can run as Ray tasks (--ray) and tests/lab/test_ray_jobs.py runs
+.venv/bin/python -m pip install -q -e ./client -e ".[dev,postgres,ros2]" -e "./lab[cluster]"
 echo "$want" > "$stamp"
 echo "setup: ready (.venv)"

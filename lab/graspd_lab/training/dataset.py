@@ -34,6 +34,10 @@ num_candidates, num_labelled, num_positive, num_negative (among the labelled), k
 chunks ([{file, rows, positive, sha256}]), counts ({total, positive, negative, by_category, target}),
 per_view (the quota), dataset_sha256 (sha256 of the chunk hashes concatenated in order), command.
 timing.json beside it holds the generation time and exemplars per minute (not part of the hashes).
+Resumable: each chunk's record (chunk_NNNNN.npz.json) is written beside it; rerunning the same command after an
+interruption keeps the chunks already written (params.json holds the run's parameters).  The chunks run
+serially, on a pool of --workers processes or as Ray tasks (--ray, --address; graspd_lab.cluster): the same
+bytes whichever.
 
 Objects 900-999 of pybullet_data random_urdfs are never used (graspd_lab.world.objects refuses them).
 """
@@ -43,7 +47,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import multiprocessing as mp
 import time
 import zipfile
 from collections.abc import Iterator
@@ -64,6 +67,8 @@ from graspd.gpd.images import channel_layout, encode_images
 from graspd.gpd.preprocess import PreprocessParams, preprocess
 from graspd.gpd.scene import Scene
 from graspd.viz.plot import gripper_segments
+from graspd_lab.cluster import RayMissingError, Runner, imap, runner_from_args
+from graspd_lab.cluster import add_arguments as add_cluster_arguments
 from graspd_lab.training.labels import LabelParams, label_grasps, normal_slack_deg
 from graspd_lab.world.noise import DepthNoise
 from graspd_lab.world.objects import PROCEDURAL_KINDS, GraspObject, load_object, object_catalogue
@@ -327,8 +332,12 @@ def write_npz(path: Path, arrays: dict[str, NDArray[Any]]) -> str:
 def _generate_chunk(task: tuple[int, list[tuple[int, str, int]], int, GenerationParams, str]
                     ) -> tuple[int, list[dict[str, Any]], list[dict[str, Any]], dict[str, Any]]:
     """Worker: all views of a group of objects -> one chunk file; returns (chunk index, object records,
-    view records, chunk entry)."""
+    view records, chunk entry); a chunk whose record an earlier, interrupted run wrote is not made again."""
     chunk_index, group, quota, params, out_dir = task
+    done = Path(out_dir) / f"chunk_{chunk_index:05d}.npz.json"
+    if done.exists():
+        saved = json.loads(done.read_text())
+        return chunk_index, saved["objects"], saved["views"], saved["entry"]
     objects, views, parts = [], [], []
     for object_id, kind, index in group:
         try:
@@ -348,6 +357,7 @@ def _generate_chunk(task: tuple[int, list[tuple[int, str, int]], int, Generation
     digest = write_npz(Path(out_dir) / name, arrays)
     labels = arrays["labels"]
     entry = {"file": name, "rows": int(len(labels)), "positive": int(labels.sum()), "sha256": digest}
+    done.write_text(json.dumps({"objects": objects, "views": views, "entry": entry}))
     return chunk_index, objects, views, entry
 
 
@@ -380,13 +390,20 @@ def _splits(objects: list[dict[str, Any]], views_per_object: int, fractions: tup
 
 
 def generate_dataset(out_dir: str | Path, params: GenerationParams, workers: int = 2,
-                     progress: bool = False) -> dict[str, Any]:
+                     progress: bool = False, runner: Runner | None = None) -> dict[str, Any]:
     """Write a dataset (format above) to out_dir and return its manifest; deterministic from params
-    (the same params give the same chunk hashes whatever the number of workers)."""
+    (the same params give the same chunk hashes whatever the number of workers or the runner).  Rerun after
+    an interruption, it keeps the chunks already written.  runner: graspd_lab.cluster (serial, a pool, Ray
+    tasks); default: a fork pool of `workers`."""
+    runner = runner or Runner(workers=max(1, workers), context="fork")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if (out / "manifest.json").exists() or any(out.glob("chunk_*.npz")):
+    saved = out / "params.json"
+    if (out / "manifest.json").exists() or (any(out.glob("chunk_*.npz")) and not saved.exists()):
         raise FileExistsError(f"{out} already holds a dataset; choose an empty --out folder")
+    if saved.exists() and json.loads(saved.read_text()) != json.loads(json.dumps(params.to_dict())):
+        raise FileExistsError(f"{out} holds chunks of a run with other parameters; choose an empty --out folder")
+    saved.write_text(json.dumps(params.to_dict(), indent=1))
     specs = params.object_specs()
     quota = params.quota(len(specs))
     tasks = []
@@ -396,15 +413,13 @@ def generate_dataset(out_dir: str | Path, params: GenerationParams, workers: int
         tasks.append((c, group, quota, params, str(out)))
     t0 = time.perf_counter()
     results: list[tuple[int, list[dict[str, Any]], list[dict[str, Any]], dict[str, Any]]] = []
-    if workers <= 1:
-        iterator: Iterator[Any] = map(_generate_chunk, tasks)
-        results = _collect(iterator, len(tasks), t0, progress)
-    else:
-        ctx = mp.get_context("fork")
-        with ctx.Pool(workers) as pool:
-            results = _collect(pool.imap(_generate_chunk, tasks), len(tasks), t0, progress)
+    results = _collect(imap(_generate_chunk, tasks, runner), len(tasks), t0, progress)
     elapsed = time.perf_counter() - t0
     results.sort(key=lambda r: r[0])
+    missing = [r[3]["file"] for r in results if not (out / r[3]["file"]).is_file()]
+    if missing:  # Ray workers on other nodes wrote them into a folder of their own
+        raise FileNotFoundError(f"chunks {missing[:3]} were written elsewhere: on a Ray cluster --out must be a "
+                                "folder every node sees (a shared file system)")
     objects = [o for r in results for o in r[1]]
     views = [v for r in results for v in r[2]]
     chunks = [r[3] for r in results]
@@ -437,7 +452,8 @@ def generate_dataset(out_dir: str | Path, params: GenerationParams, workers: int
         "command": command_line(params, str(out)),
     }
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
-    (out / "timing.json").write_text(json.dumps({"seconds": elapsed, "workers": workers, "exemplars": total,
+    (out / "timing.json").write_text(json.dumps({"seconds": elapsed, "workers": runner.workers,
+                                                 "runner": runner.describe(), "exemplars": total,
                                                  "exemplars_per_minute": 60.0 * total / max(elapsed, 1e-9)}))
     return manifest
 
@@ -614,7 +630,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="fraction of views seen by one camera instead of two 53 deg apart")
     ap.add_argument("--hand", default="gpd", help=f"hand preset: {sorted(HAND_PRESETS)}")
     ap.add_argument("--mu", type=float, default=None, help="label with friction cones (default: frictionless)")
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2, help="processes (or Ray CPUs with --ray)")
+    add_cluster_arguments(ap)
     ap.add_argument("--objects-per-chunk", type=int, default=16)
     ap.add_argument("--preview", metavar="PNG", help="also write a PNG of object 0, view 0 and its exemplars")
     args = ap.parse_args(argv)
@@ -624,13 +641,14 @@ def main(argv: list[str] | None = None) -> int:
             views_per_object=args.views, num_samples=args.samples, max_samples=args.max_samples, per_view=args.per_view,
             single_camera_fraction=args.single_camera_fraction, hand=hand_preset(args.hand),
             labels=LabelParams(mu=args.mu), objects_per_chunk=args.objects_per_chunk)
-    except (ValueError, KeyError) as exc:
+        runner = runner_from_args(args, args.workers, context="fork")
+    except (ValueError, KeyError, RayMissingError) as exc:
         ap.error(str(exc))
-    manifest = generate_dataset(args.out, params, workers=args.workers, progress=True)
+    manifest = generate_dataset(args.out, params, progress=True, runner=runner)
     timing = json.loads((Path(args.out) / "timing.json").read_text())
     c = manifest["counts"]
     print(f"{c['total']} exemplars ({c['positive']} positive) from {len(manifest['objects'])} objects x "
-          f"{params.views_per_object} views in {timing['seconds']:.1f} s on {args.workers} workers: "
+          f"{params.views_per_object} views in {timing['seconds']:.1f} s, {runner.describe()}: "
           f"{timing['exemplars_per_minute']:.0f} exemplars/min; dataset_sha256 {manifest['dataset_sha256']}")
     if args.preview:
         print(f"preview: {write_preview(args.out, args.preview)}")

@@ -9,6 +9,10 @@ BASE.onnx), exports models_dir/NAME.onnx with its card, and scores the generic, 
 on the object's held-out test views: accuracy, RA99P and AP go to the card under "instance_comparison".
 
     graspd train --instance mug.ply --name mug --category cylinder --views 24 --max-minutes 2
+    ... --workers 2 [--ray [--address ADDR]]   (the views rendered and labelled on a pool or as Ray tasks)
+
+The views are rendered and labelled in this process by default; with a graspd_lab.cluster Runner of more than
+one worker, or Ray, each view is a task that reads the mesh file itself (the same object, the same bytes).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import shutil
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +37,7 @@ from graspd.core.hand import HandGeometry
 from graspd.gpd.classifier import OnnxGraspClassifier, card_fits_hand, load_model, read_card
 from graspd.gpd.images import channel_layout
 from graspd.store.instances import BASE_MODELS, InstanceError, check_category, check_name
+from graspd_lab.cluster import Runner, imap
 from graspd_lab.training.config import TrainConfig
 from graspd_lab.training.dataset import (
     CATEGORIES,
@@ -105,11 +111,41 @@ class InstanceParams:
 # ---------------------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class MeshSource:
+    """Where a task finds the object: the mesh file and what read_mesh_object made of it (open3d meshes do not
+    pickle, so each worker reads the file; on a Ray cluster the path must be one every node sees)."""
+
+    path: str
+    name: str
+    category: str
+    hand: HandGeometry
+    limits: MeshLimits | None = None
+
+
+@lru_cache(maxsize=4)
+def _source_scene(source: MeshSource) -> tuple[GraspObject, MeshScene]:
+    """The object and its raycasting scene, read once per worker process."""
+    obj = read_mesh_object(source.path, source.name, source.category, source.hand, source.limits)
+    return obj, MeshScene([obj.mesh])
+
+
+def _source_view(task: tuple[MeshSource, int, int, GenerationParams]
+                 ) -> tuple[int, dict[str, NDArray[Any]], dict[str, Any]]:
+    """Worker: the labelled rows and record of one view of the object in the mesh file."""
+    source, view_id, quota, gen = task
+    obj, scene = _source_scene(source)
+    rows, record = _view_exemplars(obj, scene, 0, view_id, quota, gen)
+    return view_id, rows, record
+
+
 def make_instance_dataset(obj: GraspObject, out_dir: str | Path, params: InstanceParams,
-                          progress: Progress | None = None, command: str | None = None) -> dict[str, Any]:
+                          progress: Progress | None = None, command: str | None = None,
+                          runner: Runner | None = None, source: MeshSource | None = None) -> dict[str, Any]:
     """Write a one-object dataset of obj (graspd_lab.training.dataset's format: one chunk, splits/view.json over
     its views) to out_dir and return the manifest.  InstanceError naming "mesh" when a part of the view split
-    lacks grasps or non-grasps (the hand finds nothing to learn on this object)."""
+    lacks grasps or non-grasps (the hand finds nothing to learn on this object).  runner (with source, the
+    mesh file obj was read from): the views as tasks on a pool or Ray (graspd_lab.cluster); the same bytes."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if (out / "manifest.json").exists() or any(out.glob("chunk_*.npz")):
@@ -120,13 +156,25 @@ def make_instance_dataset(obj: GraspObject, out_dir: str | Path, params: Instanc
     t0 = time.perf_counter()
     parts: list[dict[str, NDArray[Any]]] = [_empty_rows()]
     views: list[dict[str, Any]] = []
-    for view_id in range(params.views):
-        rows, record = _view_exemplars(obj, scene, 0, view_id, quota, gen)
-        parts.append(rows)
-        views.append(record)
-        if progress is not None:
-            progress({"stage": "dataset", "view": view_id + 1, "views": params.views,
-                      "exemplars": int(sum(len(p["labels"]) for p in parts))})
+    if runner is not None and source is not None and (runner.uses_ray or runner.workers > 1):
+        tasks = [(source, view_id, quota, gen) for view_id in range(params.views)]
+        by_view: dict[int, tuple[dict[str, NDArray[Any]], dict[str, Any]]] = {}
+        exemplars = 0
+        for view_id, rows, record in imap(_source_view, tasks, runner):  # as they finish; kept in view order
+            by_view[view_id] = (rows, record)
+            exemplars += len(rows["labels"])
+            if progress is not None:
+                progress({"stage": "dataset", "view": len(by_view), "views": params.views, "exemplars": exemplars})
+        parts += [by_view[v][0] for v in range(params.views)]
+        views = [by_view[v][1] for v in range(params.views)]
+    else:
+        for view_id in range(params.views):
+            rows, record = _view_exemplars(obj, scene, 0, view_id, quota, gen)
+            parts.append(rows)
+            views.append(record)
+            if progress is not None:
+                progress({"stage": "dataset", "view": view_id + 1, "views": params.views,
+                          "exemplars": int(sum(len(p["labels"]) for p in parts))})
     arrays = {k: np.concatenate([p[k] for p in parts]) for k in CHUNK_KEYS}
     digest = write_npz(out / "chunk_00000.npz", arrays)
     labels = arrays["labels"]
@@ -158,7 +206,9 @@ def make_instance_dataset(obj: GraspObject, out_dir: str | Path, params: Instanc
     }
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     elapsed = time.perf_counter() - t0
-    (out / "timing.json").write_text(json.dumps({"seconds": elapsed, "workers": 1, "exemplars": total,
+    how = runner if runner is not None and source is not None else Runner()
+    (out / "timing.json").write_text(json.dumps({"seconds": elapsed, "workers": how.workers,
+                                                 "runner": how.describe(), "exemplars": total,
                                                  "exemplars_per_minute": 60.0 * total / max(elapsed, 1e-9)}))
     return manifest
 
@@ -354,9 +404,10 @@ def train_instance(mesh: str | Path, name: str, models_dir: str | Path, category
                    params: InstanceParams | None = None, base: str | None = "auto",
                    work_dir: str | Path | None = None, overwrite: bool = False, command: str | None = None,
                    log: Callable[[str], None] = print, progress: Progress | None = None,
-                   limits: MeshLimits | None = None) -> Path:
+                   limits: MeshLimits | None = None, runner: Runner | None = None) -> Path:
     """Make the instance model NAME for the object in mesh; returns models_dir/NAME.onnx (its card holds
-    "instance" and "instance_comparison").  InstanceError / MeshError name the option at fault."""
+    "instance" and "instance_comparison").  InstanceError / MeshError name the option at fault.  runner: how
+    the dataset's views run (graspd_lab.cluster; default: in this process)."""
     params = params or InstanceParams()
     models = Path(models_dir)
     check_name(name)
@@ -373,7 +424,8 @@ def train_instance(mesh: str | Path, name: str, models_dir: str | Path, category
     dataset = work / "dataset"
     if dataset.exists():  # a previous attempt's (the work folder is this model's own)
         shutil.rmtree(dataset)
-    manifest = make_instance_dataset(obj, dataset, params, emit, command)
+    source = MeshSource(str(Path(mesh).resolve()), name, category or "other", params.hand, limits)
+    manifest = make_instance_dataset(obj, dataset, params, emit, command, runner=runner, source=source)
     log(f"[{name}] dataset: {manifest['counts']['total']} exemplars ({manifest['counts']['positive']} positive) "
         f"from {params.views} views in {time.perf_counter() - t0:.1f} s")
     init_from = base_weights(base_name, models, work, dataset, representation) if base_name else None

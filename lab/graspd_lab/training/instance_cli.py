@@ -1,7 +1,8 @@
 """`graspd train --instance MESH --name NAME [--category box|cylinder] [--views N] [--max-minutes M]`: an instance
 model (graspd_lab.training.instance) from the command line.  add_arguments/run hang it on `graspd train`; the same
 command runs standalone as `python -m graspd_lab.training.instance_cli --instance MESH --name NAME ...` (the
-server's POST /models jobs run it so, with --progress-json)."""
+server's POST /models jobs run it so, with --progress-json).  --workers N [--ray [--address ADDR]]: the dataset's
+views rendered and labelled on a pool of N processes or as Ray tasks (graspd_lab.cluster)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ from graspd.core.hand import HAND_PRESETS, hand_preset
 from graspd.core.progress import Progress
 from graspd.gpd.classifier import default_models_dir
 from graspd.store.instances import INSTANCE_CATEGORIES, progress_line
+from graspd_lab.cluster import RayMissingError, runner_from_args
+from graspd_lab.cluster import add_arguments as add_cluster_arguments
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -37,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--overwrite", action="store_true", help="replace an existing model called NAME")
     g.add_argument("--progress-json", action="store_true", dest="progress_json",
                    help="progress events as 'graspd-progress {json}' lines on stdout (the log goes to stderr)")
+    g.add_argument("--workers", type=int, default=1, help="render and label the views on N processes (or N Ray "
+                   "CPUs with --ray; default 1: in this process)")
+    add_cluster_arguments(g)
 
 
 #: argparse destinations that become InstanceParams fields when given.
@@ -78,12 +84,16 @@ def run(args: argparse.Namespace, argv: list[str] | None = None) -> int:
         except KeyError as exc:
             raise FieldError("hand", str(exc.args[0])) from None
         params = InstanceParams(hand=hand, **fields)
+        try:
+            runner = runner_from_args(args, getattr(args, "workers", 1) or 1, context="spawn")
+        except (RayMissingError, ValueError) as exc:
+            raise FieldError("workers", str(exc)) from None
         models_dir = Path(args.models_dir) if getattr(args, "models_dir", None) else default_models_dir()
         base = "auto" if args.base is None else (None if args.base == "none" else args.base)
         path = train_instance(args.instance, args.name, models_dir, args.category, params, base=base,
                               work_dir=getattr(args, "work_dir", None), overwrite=args.overwrite,
                               command=command_line(argv if argv is not None else sys.argv[2:]), log=log,
-                              progress=emit)
+                              progress=emit, runner=runner)
     except (FieldError, ValueError, OSError) as exc:
         field = exc.field if isinstance(exc, FieldError) else None
         emit({"stage": "failed", "error": str(exc), "field": field})

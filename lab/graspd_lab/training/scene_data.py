@@ -21,13 +21,16 @@ cap, up to three negatives per positive; training weights the classes): clutter 
 than positives, and the highest-scoring ones are what precision at the top depends on.
 
   PYTHONPATH=service python -m graspd_lab.training.scene_data --out DATA --scenes 600 --workers 2
+  ... --workers 2 --ray              (Ray tasks on this machine; graspd-lab[cluster])
+  ... --ray --address auto           (a Ray cluster; --out must be a folder every node sees)
+
+The chunks depend only on the parameters: one process, a pool or Ray write the same bytes (graspd_lab.cluster).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import sys
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -45,6 +48,8 @@ from graspd.gpd.detector import DetectionParams, GraspDetector
 from graspd.gpd.environment import Environment, EnvironmentParams
 from graspd.gpd.images import channel_layout, encode_images
 from graspd.gpd.scene import ClosingRegionPoints
+from graspd_lab.cluster import RayMissingError, Runner, imap, runner_from_args
+from graspd_lab.cluster import add_arguments as add_cluster_arguments
 from graspd_lab.training.dataset import (
     CHUNK_KEYS,
     DERIVABLE,
@@ -351,10 +356,12 @@ def _splits(scenes: list[dict[str, Any]], views: list[dict[str, Any]], params: S
     return view, obj
 
 
-def generate_scene_dataset(out_dir: str | Path, params: SceneParams, workers: int = 2, progress: bool = False
-                           ) -> dict[str, Any]:
+def generate_scene_dataset(out_dir: str | Path, params: SceneParams, workers: int = 2, progress: bool = False,
+                           runner: Runner | None = None) -> dict[str, Any]:
     """Write a scene dataset to out_dir and return its manifest; rerunning the same command after an
-    interruption keeps the chunks already written (each chunk's record sits beside it)."""
+    interruption keeps the chunks already written (each chunk's record sits beside it).  runner: how the
+    chunks run (graspd_lab.cluster: serial, a pool, Ray tasks); default: a spawn pool of `workers`."""
+    runner = runner or Runner(workers=max(1, workers), context="spawn")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if (out / "manifest.json").exists():
@@ -368,12 +375,12 @@ def generate_scene_dataset(out_dir: str | Path, params: SceneParams, workers: in
     g = params.scenes_per_chunk
     tasks = [(c, specs[a : a + g], params, str(out)) for c, a in enumerate(range(0, len(specs), g))]
     t0 = time.perf_counter()
-    if workers <= 1:
-        results = _collect(map(_generate_chunk, tasks), len(tasks), t0, progress)
-    else:
-        with mp.get_context("spawn").Pool(workers) as pool:
-            results = _collect(pool.imap_unordered(_generate_chunk, tasks), len(tasks), t0, progress)
+    results = _collect(imap(_generate_chunk, tasks, runner), len(tasks), t0, progress)
     results.sort(key=lambda r: r[0])
+    missing = [r[3]["file"] for r in results if not (out / r[3]["file"]).is_file()]
+    if missing:  # Ray workers on other nodes wrote them into a folder of their own
+        raise FileNotFoundError(f"chunks {missing[:3]} were written elsewhere: on a Ray cluster --out must be a "
+                                "folder every node sees (a shared file system)")
     scenes = [s for r in results for s in r[1]]
     views = [v for r in results for v in r[2]]
     chunks = [r[3] for r in results]
@@ -395,7 +402,8 @@ def generate_scene_dataset(out_dir: str | Path, params: SceneParams, workers: in
     }
     (out / "manifest.json").write_text(json.dumps(manifest))
     seconds = time.perf_counter() - t0
-    (out / "timing.json").write_text(json.dumps({"seconds": seconds, "workers": workers,
+    (out / "timing.json").write_text(json.dumps({"seconds": seconds, "workers": runner.workers,
+                                                 "runner": runner.describe(),
                                                  "exemplars_per_minute": 60.0 * total / max(seconds, 1e-9)}))
     return manifest
 
@@ -411,7 +419,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--objects", type=int, nargs=2, default=(4, 10), metavar=("MIN", "MAX"))
     ap.add_argument("--hand", default="gpd", help=f"hand preset: {sorted(HAND_PRESETS)}")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2, help="processes (or Ray CPUs with --ray)")
+    add_cluster_arguments(ap)
     ap.add_argument("--scenes-per-chunk", type=int, default=10)
     ap.add_argument("--mix", choices=sorted(MIXES), default="clutter",
                     help="scene kinds: clutter (trays, piles, packed rows, lone objects) or containers (the "
@@ -425,13 +434,14 @@ def main(argv: list[str] | None = None) -> int:
                              per_view=args.per_view, scenes_per_chunk=args.scenes_per_chunk,
                              hand=hand_preset(args.hand), scene_mix=MIXES[args.mix],
                              hard_negatives_per_view=args.hard_negatives)
-    except (ValueError, KeyError) as exc:
+        runner = runner_from_args(args, args.workers, context="spawn")
+    except (ValueError, KeyError, RayMissingError) as exc:
         ap.error(str(exc))
-    manifest = generate_scene_dataset(args.out, params, workers=args.workers, progress=True)
+    manifest = generate_scene_dataset(args.out, params, progress=True, runner=runner)
     timing = json.loads((Path(args.out) / "timing.json").read_text())
     c = manifest["counts"]
     print(f"{c['total']} exemplars ({c['positive']} positive) from {len(manifest['objects'])} scenes in "
-          f"{timing['seconds']:.0f} s on {args.workers} workers; dataset_sha256 {manifest['dataset_sha256']}")
+          f"{timing['seconds']:.0f} s, {runner.describe()}; dataset_sha256 {manifest['dataset_sha256']}")
     return 0
 
 
