@@ -38,7 +38,7 @@ from graspd_lab.sim.detectors import InProcessGPD, TopDownBaseline
 from graspd_lab.sim.gripper import Gripper
 from graspd_lab.sim.objects import graspable_scale
 from graspd_lab.sim.protocol import feasible
-from graspd_lab.sim.sensing import NO_NOISE, DepthNoise, observe, side_camera
+from graspd_lab.sim.sensing import NO_NOISE, SIM_NOISE, observe, side_camera
 from graspd_lab.sim.world import SimWorld, random_quat
 from graspd_lab.world import objects as catalogue
 
@@ -83,7 +83,7 @@ def make_trial(object_id: int, seed: int, hand: HandGeometry, noise: bool = True
         world.add_object(object_id, pos, random_quat(rng), graspable_scale(object_id, hand))
     world.settle()
     view_rng = rng if view_seed is None else np.random.default_rng(view_seed)
-    cloud = observe(world.client, side_camera(), DepthNoise() if noise else NO_NOISE, view_rng, REGION)
+    cloud = observe(world.client, side_camera(), SIM_NOISE if noise else NO_NOISE, view_rng, REGION)
     return Trial(world, cloud, object_id)
 
 

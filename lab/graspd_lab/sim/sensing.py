@@ -16,23 +16,16 @@ from numpy.typing import NDArray
 
 from graspd.core.camera import Camera, active_cameras, passive_cameras, side_camera
 from graspd.core.cloud import ViewpointCloud
-from graspd_lab.world.noise import DepthNoise as _DepthNoise
-from graspd_lab.world.noise import noisy_depth
+from graspd_lab.world.noise import DepthNoise, noisy_depth
 
 F64 = NDArray[np.float64]
 
 #: The clutter benchmark's sensor noise (its figures were measured with it) and exact depth.
-SIM_NOISE = _DepthNoise.benchmark()
-NO_NOISE = _DepthNoise.none()
+SIM_NOISE = DepthNoise.benchmark()
+NO_NOISE = DepthNoise.none()
 
-__all__ = ["NO_NOISE", "SIM_NOISE", "Camera", "DepthNoise", "active_cameras", "camera_matrices", "noisy_depth",
+__all__ = ["NO_NOISE", "SIM_NOISE", "Camera", "active_cameras", "camera_matrices", "noisy_depth",
            "observe", "passive_cameras", "pixel_rays", "render_depth", "render_rgb", "side_camera"]
-
-
-def DepthNoise() -> _DepthNoise:  # noqa: N802 - shim, see below
-    """Shim for importers not yet updated (sim/protocol.py, sim/experiments.py, bench/clutter.py): the old
-    sim DepthNoise() was the benchmark's model; use graspd_lab.world.noise.DepthNoise.benchmark() (SIM_NOISE)."""
-    return SIM_NOISE
 
 
 def camera_matrices(camera: Camera) -> tuple[list[float], list[float]]:
@@ -75,7 +68,7 @@ def pixel_rays(camera: Camera) -> F64:
     return eye @ cam_to_world.T
 
 
-def observe(client: int, cameras: list[Camera], noise: _DepthNoise, rng: np.random.Generator,
+def observe(client: int, cameras: list[Camera], noise: DepthNoise, rng: np.random.Generator,
             region: tuple[float, float, float, float, float, float]) -> ViewpointCloud:
     """Render every camera, add noise, back-project and keep points inside region
     [xmin, xmax, ymin, ymax, zmin, zmax] (world, m); camera_source indexes the camera list."""
