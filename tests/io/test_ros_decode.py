@@ -216,6 +216,68 @@ def test_builder_round_trip_through_decoder(points: np.ndarray) -> None:
     assert out.header == Header("cam", (1, 2))
 
 
+
+def test_packed_float32_cloud_is_one_copy_of_the_message(points: np.ndarray) -> None:
+    """x y z float32 at point_step 12 (what encode_pointcloud2 and a packed driver send): the same values, in an
+    array of its own (writeable, sharing no memory with the message's bytes)."""
+    payload = encode_pointcloud2(points, Header("cam", (1, 2)))
+    msg = decode_pointcloud2(payload)
+    np.testing.assert_array_equal(msg.cloud.points, points)
+    assert msg.cloud.points.flags.writeable and msg.cloud.points.flags.c_contiguous
+    assert not np.shares_memory(msg.cloud.points, np.frombuffer(payload, np.uint8))
+    assert (msg.received, msg.dropped) == (len(points), 0)
+
+
+@pytest.mark.parametrize("code", ["i2", "u1", "i4"])
+def test_integer_fields_are_read_at_their_offsets(code: str) -> None:
+    """Integer x y z (a depth camera's raw units) at unaligned offsets with row padding: the strided copy converts
+    each column as the structured read did."""
+    rng = np.random.default_rng(5)
+    height, width, pad = 3, 7, 3
+    dt = np.dtype({"names": ["i", "x", "y", "z"], "formats": ["u1", code, code, code], "offsets": [0, 1, 5, 9],
+                   "itemsize": 14})
+    rec = np.zeros(height * width, dt)
+    values = rng.integers(0, 100, (height * width, 3))
+    for k, name in enumerate("xyz"):
+        rec[name] = values[:, k]
+    rows = rec.view(np.uint8).reshape(height, width * dt.itemsize)
+    data = np.concatenate([rows, np.zeros((height, pad), np.uint8)], axis=1).reshape(-1)
+    datatype = {"u1": 2, "i2": 3, "i4": 5}[code]
+    fields = [T["sensor_msgs/msg/PointField"](name=name, offset=off, datatype=datatype, count=1)
+              for name, off in zip("xyz", (1, 5, 9), strict=True)]
+    cloud = T[POINTCLOUD2](header=ros_header(), height=height, width=width, fields=fields, is_bigendian=False,
+                           point_step=dt.itemsize, row_step=width * dt.itemsize + pad, data=data, is_dense=True)
+    msg = decode_pointcloud2(cdr(cloud, POINTCLOUD2))
+    np.testing.assert_array_equal(msg.cloud.points, values.astype(np.float32))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_dropped_rows_follow_the_one_finite_rule(points: np.ndarray, seed: int) -> None:
+    """NaN, +inf and -inf in points and normals drop exactly the rows graspd.io.inputs.finite_rows drops (the rule
+    of every entrance); float32-sized extremes (3e38) are finite and kept."""
+    from graspd.io.inputs import finite_rows  # noqa: PLC0415 - the reference rule
+
+    rng = np.random.default_rng(seed)
+    pts = points.copy()
+    normals = rng.normal(size=pts.shape).astype(np.float32)
+    for arr in (pts, normals):
+        cells = rng.integers(0, arr.size, int(rng.integers(0, 6)))
+        arr.reshape(-1)[cells] = rng.choice([np.nan, np.inf, -np.inf], len(cells))
+    pts[0, 1] = 3e38
+    normals[1, 2] = -3e38
+    src = np.arange(len(pts)) % 3
+    msg = decode_cloud_sources(encode_cloud_sources(pts, VIEWS, src, normals=normals))
+    keep = finite_rows(pts, normals)
+    np.testing.assert_array_equal(msg.cloud.points, pts[keep])
+    assert msg.cloud.normals is not None
+    np.testing.assert_array_equal(msg.cloud.normals, normals[keep])
+    np.testing.assert_array_equal(msg.cloud.camera_source, src[keep])
+    assert (msg.received, msg.dropped) == (len(pts), int((~keep).sum()))
+    indexed = decode_cloud_indexed(encode_cloud_indexed(pts, VIEWS, np.arange(len(pts)), src, normals=normals))
+    assert indexed.sample_indices is not None
+    assert indexed.sample_indices.tolist() == list(range(int(keep.sum())))
+
+
 # ------------------------------------------------------------------------------------------------ malformed
 
 

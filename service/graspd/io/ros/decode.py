@@ -18,7 +18,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from graspd.core.cloud import CloudError, ViewpointCloud
 from graspd.core.limits import MAX_NUM_SAMPLES, MAX_POINTS
-from graspd.io.inputs import finite_rows
 from graspd.io.ros.types import CLOUD_INDEXED, CLOUD_SAMPLES, CLOUD_SOURCES, POINTCLOUD2, Header
 
 #: Most camera positions (view_points) a CloudSources may carry.
@@ -185,23 +184,30 @@ def _read_pointcloud2(r: _Reader, prefix: str) -> _RawCloud:
     if n == 0:
         empty = np.zeros((0, 3), np.float32)
         return _RawCloud(header, empty, empty.copy() if has_normals else None)
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
-    if row_step == width * point_step:
-        rec = data[: n * point_step].view(dtype)
-    else:  # padded rows: drop the padding first
-        rows = data[: height * row_step].reshape(height, row_step)[:, : width * point_step]
-        rec = np.ascontiguousarray(rows).reshape(-1).view(dtype)
-
-    def stack(keys: list[str]) -> NDArray[np.float32]:
-        out = np.empty((n, 3), np.float32)
-        with np.errstate(over="ignore", invalid="ignore"):  # float64 beyond float32 -> inf, dropped as non-finite
-            for k, key in enumerate(keys):
-                out[:, k] = rec[key]
-        return out
-
-    points = stack(names[:3])
-    normals = stack(names[3:]) if has_normals else None
+    points = _gather(data, offsets[:3], formats[:3], height, width, point_step, row_step)
+    normals = _gather(data, offsets[3:], formats[3:], height, width, point_step, row_step) if has_normals else None
     return _RawCloud(header, points, normals)
+
+
+def _gather(data: NDArray[np.generic], offsets: list[int], formats: list[np.dtype[np.generic]], height: int,
+            width: int, point_step: int, row_step: int) -> NDArray[np.float32]:
+    """Three fields of every point of data (the PointCloud2's bytes, rows row_step bytes apart, points point_step
+    apart) as (height x width, 3) float32: one copy out of the message, no intermediate.  Packed native float32
+    x, y, z (point_step 12, unpadded rows) is one memcpy; anything else three strided column copies, converting
+    the field's type and byte order (float64 beyond float32 -> inf, dropped as non-finite later).  The caller has
+    checked that every field lies within point_step and height x row_step within data."""
+    n = height * width
+    f32 = np.dtype(np.float32)
+    if (point_step == 3 * f32.itemsize and offsets == [0, 4, 8] and all(f == f32 for f in formats)
+            and (height == 1 or row_step == width * point_step)):
+        return data[: n * point_step].view(f32).reshape(n, 3).copy()
+    out = np.empty((n, 3), np.float32)
+    grid = out.reshape(height, width, 3)
+    with np.errstate(over="ignore", invalid="ignore"):
+        for k, (offset, fmt) in enumerate(zip(offsets, formats, strict=True)):
+            grid[:, :, k] = np.ndarray((height, width), fmt, buffer=data, offset=offset,
+                                       strides=(row_step, point_step))
+    return out
 
 
 def _read_cloud_sources(r: _Reader, prefix: str) -> tuple[_RawCloud, NDArray[np.int64], NDArray[np.float64]]:
@@ -213,18 +219,29 @@ def _read_cloud_sources(r: _Reader, prefix: str) -> tuple[_RawCloud, NDArray[np.
     return raw, camera_source, view_points
 
 
-def _finite_rows(raw: _RawCloud) -> NDArray[np.bool_]:
-    """Rows to keep: finite point and normal (graspd.io.inputs.finite_rows, the one rule of every entrance)."""
-    return finite_rows(raw.points, raw.normals)
+def _finite_rows(raw: _RawCloud) -> NDArray[np.bool_] | None:
+    """Rows to keep: finite point and normal (graspd.io.inputs.finite_rows' rule, the one of every entrance);
+    None when every row is (the usual case, found by a min and a max over all values: NaN and inf carry through
+    both), else the mask, one column at a time (np.isfinite(...).all(axis=1) takes ~4 ms at 300k points)."""
+    arrays = [raw.points] if raw.normals is None else [raw.points, raw.normals]
+    with np.errstate(invalid="ignore"):
+        if all(len(a) == 0 or (np.isfinite(a.min()) and np.isfinite(a.max())) for a in arrays):
+            return None
+    keep = np.isfinite(raw.points[:, 0])
+    for a in arrays:
+        for k in range(3):
+            keep &= np.isfinite(a[:, k])
+    return keep
 
 
-def _dropped(keep: NDArray[np.bool_]) -> int:
+def _dropped(keep: NDArray[np.bool_] | None) -> int:
     """The dropped field of a CloudMessage: rows not kept."""
-    return int(len(keep) - np.count_nonzero(keep))
+    return 0 if keep is None else int(len(keep) - np.count_nonzero(keep))
 
 
 def _viewpoint_cloud(raw: _RawCloud, camera_source: NDArray[np.int64] | None, view_points: NDArray[np.float64],
-                     keep: NDArray[np.bool_], prefix: str) -> ViewpointCloud:
+                     keep: NDArray[np.bool_] | None, prefix: str) -> ViewpointCloud:
+    """The ViewpointCloud of the rows kept (keep None: all of them, no copy)."""
     n = len(raw.points)
     k = len(view_points)
     if k == 0:
@@ -242,13 +259,12 @@ def _viewpoint_cloud(raw: _RawCloud, camera_source: NDArray[np.int64] | None, vi
             raise RosDecodeError(f"{prefix}camera_source", f"indices must lie in [0, {k - 1}] (one per view point), "
                                                            f"got [{lo}, {hi}]")
         src = camera_source.astype(np.int32)
-    all_kept = bool(keep.all())
     try:
         return ViewpointCloud(
-            points=raw.points if all_kept else raw.points[keep],
+            points=raw.points if keep is None else raw.points[keep],
             viewpoints=view_points.astype(np.float32),
-            camera_source=src if all_kept else src[keep],
-            normals=None if raw.normals is None else (raw.normals if all_kept else raw.normals[keep]),
+            camera_source=src if keep is None else src[keep],
+            normals=raw.normals if raw.normals is None or keep is None else raw.normals[keep],
         )
     except CloudError as exc:  # unreachable after the checks above; kept so nothing escapes unnamed
         raise RosDecodeError(f"{prefix}cloud", str(exc)) from None
@@ -263,7 +279,7 @@ def decode_pointcloud2(payload: bytes | bytearray | memoryview,
     vps = np.asarray(viewpoints, np.float64).reshape(-1, 3)
     keep = _finite_rows(raw)
     cloud = _viewpoint_cloud(raw, None, vps, keep, "")
-    return CloudMessage(cloud, raw.header, msg_type=POINTCLOUD2, received=len(keep), dropped=_dropped(keep))
+    return CloudMessage(cloud, raw.header, msg_type=POINTCLOUD2, received=len(raw.points), dropped=_dropped(keep))
 
 
 def decode_cloud_sources(payload: bytes | bytearray | memoryview) -> CloudMessage:
@@ -273,7 +289,7 @@ def decode_cloud_sources(payload: bytes | bytearray | memoryview) -> CloudMessag
     raw, src, vps = _read_cloud_sources(r, "")
     keep = _finite_rows(raw)
     cloud = _viewpoint_cloud(raw, src, vps, keep, "")
-    return CloudMessage(cloud, raw.header, msg_type=CLOUD_SOURCES, received=len(keep), dropped=_dropped(keep))
+    return CloudMessage(cloud, raw.header, msg_type=CLOUD_SOURCES, received=len(raw.points), dropped=_dropped(keep))
 
 
 def decode_cloud_indexed(payload: bytes | bytearray | memoryview) -> CloudMessage:
@@ -290,10 +306,13 @@ def decode_cloud_indexed(payload: bytes | bytearray | memoryview) -> CloudMessag
                                         f"got [{int(indices.min())}, {int(indices.max())}]")
     keep = _finite_rows(raw)
     cloud = _viewpoint_cloud(raw, src, vps, keep, "cloud_sources.")
-    new_row = np.cumsum(keep, dtype=np.int64) - 1
-    kept = indices[keep[indices]] if nidx else indices
-    return CloudMessage(cloud, raw.header, sample_indices=new_row[kept], msg_type=CLOUD_INDEXED,
-                        received=len(keep), dropped=_dropped(keep))
+    if keep is None:  # every row kept: the indices stand
+        sample_indices = indices
+    else:
+        new_row = np.cumsum(keep, dtype=np.int64) - 1
+        sample_indices = new_row[indices[keep[indices]] if nidx else indices]
+    return CloudMessage(cloud, raw.header, sample_indices=sample_indices, msg_type=CLOUD_INDEXED,
+                        received=len(raw.points), dropped=_dropped(keep))
 
 
 def decode_cloud_samples(payload: bytes | bytearray | memoryview) -> CloudMessage:
@@ -307,7 +326,7 @@ def decode_cloud_samples(payload: bytes | bytearray | memoryview) -> CloudMessag
         raise RosDecodeError("samples", f"must be finite, within {MAX_COORD:g} m")
     keep = _finite_rows(raw)
     cloud = _viewpoint_cloud(raw, src, vps, keep, "cloud_sources.")
-    return CloudMessage(cloud, raw.header, samples=samples, msg_type=CLOUD_SAMPLES, received=len(keep),
+    return CloudMessage(cloud, raw.header, samples=samples, msg_type=CLOUD_SAMPLES, received=len(raw.points),
                         dropped=_dropped(keep))
 
 
