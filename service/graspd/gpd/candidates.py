@@ -109,15 +109,6 @@ def sample_candidates(scene: Scene, hand: HandGeometry, params: SamplingParams |
     return search_hands(scene, hand, params)[0]
 
 
-def _segment_expand(seg_of: NDArray[np.int64], starts: NDArray[np.int64], lengths: NDArray[np.int64]
-                    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """For items i with segments seg_of[i] = [starts, starts+lengths): (item id, element index) pairs."""
-    n = lengths[seg_of]
-    item = np.repeat(np.arange(len(seg_of)), n)
-    offsets = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
-    return item, starts[seg_of][item] + offsets
-
-
 def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None = None
                  ) -> tuple[GraspSet, ClosingRegionPoints]:
     """sample_candidates, also returning the cloud points in each hand's closing region (for images)."""
@@ -135,15 +126,11 @@ def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None
     sample_idx, frames = sample_idx[ok], frames[ok]
     if len(sample_idx) == 0:
         return empty
-    if p.obstacles is None:
-        tree, obstacle_idx = scene.tree, None
-    else:
-        obstacle_idx = np.flatnonzero(p.obstacles)
-        tree = cKDTree(scene.points[obstacle_idx])
+    obstacles = _Obstacles.of(scene, p.obstacles)
     # Chunks of samples keep the neighbour arrays small: time stays linear in the number of samples; they run
     # on the process's thread budget (a lone request uses every core).
     parts = THREADS.map(lambda a: _search_chunk(scene, hand, p, sample_idx[a : a + CHUNK], frames[a : a + CHUNK],
-                                                tree, obstacle_idx), range(0, len(sample_idx), CHUNK))
+                                                obstacles), range(0, len(sample_idx), CHUNK))
     offsets = np.cumsum([0] + [len(g) for g, _ in parts])
     region = ClosingRegionPoints(
         np.concatenate([r.grasp + off for (_, r), off in zip(parts, offsets, strict=False)]),
@@ -151,6 +138,77 @@ def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None
         np.concatenate([r.index for _, r in parts]),
     )
     return GraspSet.concatenate([g for g, _ in parts]), region
+
+
+@dataclass(frozen=True)
+class _Obstacles:
+    """The points the hands are tested against: scene indices (None = every scene point), their coordinates
+    (m, cloud frame) in float32 and float64, their largest coordinate (m, at least 1) and a kd-tree over them."""
+
+    index: NDArray[np.int64] | None
+    points: NDArray[np.float32]
+    points64: NDArray[np.float64]
+    scale: float
+    tree: cKDTree
+
+    @staticmethod
+    def of(scene: Scene, mask: NDArray[np.bool_] | None) -> _Obstacles:
+        if mask is None:
+            index, pts, tree = None, scene.points, scene.tree
+        else:
+            index = np.flatnonzero(mask)
+            pts = scene.points[index]
+            tree = cKDTree(pts)
+        scale = max(float(np.abs(pts).max()), 1.0) if len(pts) else 1.0
+        return _Obstacles(index, pts, pts.astype(np.float64), scale, tree)
+
+
+#: The dense pair test (every obstacle point against every sample, by matrix products) runs when it tests at
+#: most this many times the pairs a kd-tree ball query would return; else the kd-tree does.
+DENSE_FACTOR = 12
+#: Obstacle points x samples tested densely at once (bounds the temporaries: ~40 MB).
+DENSE_BLOCK = 1 << 21
+#: Margin of the dense slab pre-test, relative to the largest coordinate (m/m): pairs this close to the slab's
+#: border go on to the exact test, so the dense and the kd-tree paths find the same pairs.
+DENSE_EPS = 1e-5
+
+
+def slab_pairs(obstacles: _Obstacles, samples: NDArray[np.float32], axes: NDArray[np.float32], reach: float,
+               half_height: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(sample row, obstacle row) pairs closer than reach (m), in sample order then obstacle order, holding at
+    least every pair within half_height (m) of the sample's plane normal to its axis (S,3): a kd-tree ball query
+    when the balls hold few of the points, else a dense test by matrix products that keeps only pairs near the
+    slab.  Either way the caller's exact slab test (|(p - s) . axis| <= half_height, float32) gives the same set."""
+    n_s, n_p = len(samples), len(obstacles.points)
+    if n_s == 0 or n_p == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    expected = int(np.sum(obstacles.tree.query_ball_point(samples, reach, return_length=True)))
+    if n_s * n_p > DENSE_FACTOR * expected:
+        sid, idx = ball_pairs(obstacles.tree, samples, reach)
+        order = np.argsort(sid * n_p + idx)
+        return sid[order], idx[order]
+    pts = obstacles.points
+    # float32 products err by a few ulp of the coordinates: a margin well above that keeps every slab pair
+    scale = max(obstacles.scale, float(np.abs(samples).max()))
+    margin = np.float32(half_height + DENSE_EPS * scale)
+    offsets = np.einsum("ij,ij->i", samples, axes)
+    r2 = reach * reach
+    rows = max(1, DENSE_BLOCK // n_p)
+    sids, idxs = [], []
+    for a in range(0, n_s, rows):
+        ax = axes[a : a + rows]
+        # (rows, N): height of each point along each sample's axis; elementwise, not a BLAS product, whose
+        # threads would spin beside the process's own (graspd.core.parallel)
+        z = ax[:, 0:1] * pts[None, :, 0] - offsets[a : a + rows, None]
+        z += ax[:, 1:2] * pts[None, :, 1]
+        z += ax[:, 2:3] * pts[None, :, 2]
+        np.abs(z, out=z)
+        sid, idx = np.nonzero(z <= margin)
+        d = obstacles.points64[idx] - samples[a : a + rows][sid].astype(np.float64)
+        inside = np.einsum("ij,ij->i", d, d) <= r2  # the ball test, in float64 as the kd-tree's
+        sids.append(sid[inside] + a)
+        idxs.append(idx[inside])
+    return np.concatenate(sids).astype(np.int64), np.concatenate(idxs).astype(np.int64)
 
 
 def _support_limit(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.float32],
@@ -178,31 +236,29 @@ def _support_limit(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.fl
 
 
 def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_idx: NDArray[np.int64],
-                  frames: NDArray[np.float64], tree: cKDTree, obstacle_idx: NDArray[np.int64] | None
-                  ) -> tuple[GraspSet, ClosingRegionPoints]:
-    """Algorithm 2 steps 5-10 for a batch of samples with their frames; tree indexes the obstacle points
-    (scene indices obstacle_idx, or all scene points when None)."""
+                  frames: NDArray[np.float64], obstacles: _Obstacles) -> tuple[GraspSet, ClosingRegionPoints]:
+    """Algorithm 2 steps 5-10 for a batch of samples with their frames, tested against the obstacle points."""
     s_grid = finger_offsets(hand, p.num_finger_placements)
     phis = orientations(p.num_orientations)
     od, fw, hd, hh = hand.hand_outer_diameter, hand.finger_width, hand.hand_depth, hand.hand_height
     y_max = float(np.abs(s_grid).max()) + od / 2.0
     samples = scene.points[sample_idx]
 
-    # Neighbours that can touch any hand of this sample, in the sample frame, within the hand's height.
+    # Neighbours that can touch any hand of this sample, in the sample frame, within the hand's height; pairs
+    # ordered by sample, then by point.
     behind = 0.0 if p.clear_behind is None else p.clear_behind
     reach = float(np.sqrt(y_max**2 + (hd + behind) ** 2 + (hh / 2) ** 2))
-    sid, idx = ball_pairs(tree, samples, reach)
-    if obstacle_idx is not None:
-        idx = obstacle_idx[idx]
-    d = scene.points[idx] - samples[sid]
     fr = frames.astype(np.float32)
-    z = np.einsum("tj,tj->t", d, fr[sid, :, 2])
+    axes = [np.ascontiguousarray(fr[:, :, k]) for k in range(3)]
+    sid, idx = slab_pairs(obstacles, samples, axes[2], reach, hh / 2.0)
+    d = obstacles.points[idx] - samples[sid]
+    if obstacles.index is not None:
+        idx = obstacles.index[idx]
+    z = np.einsum("tj,tj->t", d, axes[2][sid])
     slab = np.abs(z) <= hh / 2.0
     sid, idx, d, z = sid[slab], idx[slab], d[slab], z[slab]
-    order = np.argsort(sid, kind="stable")
-    sid, idx, d, z = sid[order], idx[order], d[order], z[order]
-    local_x = np.einsum("tj,tj->t", d, fr[sid, :, 0])
-    local_y = np.einsum("tj,tj->t", d, fr[sid, :, 1])
+    local_x = np.einsum("tj,tj->t", d, axes[0][sid])
+    local_y = np.einsum("tj,tj->t", d, axes[1][sid])
 
     # Binned minimum approach depth per (sample, orientation, y-bin).
     bin_w = min(fw / 4.0, 0.0025)
@@ -244,16 +300,24 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     bj = best_j[si, pi]
     t_star = tip[si, pi, bj].astype(np.float64)
 
-    # Closing-region points of each hand, from its sample's slab (same axis for every orientation).
-    starts = np.searchsorted(sid, np.arange(n_s))
-    lengths = np.searchsorted(sid, np.arange(n_s), side="right") - starts
-    cand, elem = _segment_expand(si, starts, lengths)
-    hx = x_phi[pi[cand], elem] - (t_star[cand] - hd)
-    hy = y_phi[pi[cand], elem] - s_grid[bj][cand]
-    half_w = hand.closing_half_width
-    inside_c = (hx >= 0.0) & (hx <= hd) & (np.abs(hy) <= half_w)
-    cand, elem, hx, hy = cand[inside_c], elem[inside_c], hx[inside_c], hy[inside_c]
+    # Closing-region points of each hand, from its sample's slab (same axis for every orientation): every
+    # (orientation, slab point) pair tested at once against the hand of its (sample, orientation), if any.
     m = len(si)
+    cand_of = np.full((n_s, n_phi), -1, np.int64)
+    cand_of[si, pi] = np.arange(m)
+    shift = np.zeros((n_s, n_phi))  # hand base along the rotated approach, past the sample (m)
+    shift[si, pi] = t_star - hd
+    across = np.zeros((n_s, n_phi))  # hand centre along the rotated binormal (m)
+    across[si, pi] = s_grid[bj]
+    hx_all = x_phi - shift.T[:, sid]  # (Phi, T) float64, as (x - (t* - hd)) per hand
+    hy_all = y_phi - across.T[:, sid]
+    half_w = hand.closing_half_width
+    inside_c = (cand_of.T[:, sid] >= 0) & (hx_all >= 0.0) & (hx_all <= hd) & (np.abs(hy_all) <= half_w)
+    ph, elem = np.nonzero(inside_c)
+    cand = cand_of[sid[elem], ph]
+    order = np.argsort(cand, kind="stable")  # by hand, each hand's points in slab order
+    ph, elem, cand = ph[order], elem[order], cand[order]
+    hx, hy = hx_all[ph, elem], hy_all[ph, elem]
     ymin = np.full(m, np.inf)
     ymax = np.full(m, -np.inf)
     np.minimum.at(ymin, cand, hy)

@@ -149,6 +149,8 @@ class ClosingRegionPoints:
 
     def subset(self, keep: NDArray[np.bool_]) -> ClosingRegionPoints:
         """The points of the grasps where keep is True, grasp indices renumbered to match grasps[keep]."""
+        if bool(keep.all()):
+            return self
         new_id = np.cumsum(keep) - 1
         rows = keep[self.grasp]
         return ClosingRegionPoints(new_id[self.grasp[rows]], self.local[rows], self.index[rows])
