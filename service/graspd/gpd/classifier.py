@@ -1,4 +1,5 @@
-"""Step 5 of Algorithm 1: score grasp images with a trained CNN, run through onnxruntime on the CPU.
+"""Step 5 of Algorithm 1: score grasp images with a trained CNN, run through onnxruntime: on a CUDA GPU when
+onnxruntime offers the CUDA execution provider (the onnxruntime-gpu package), else on the CPU.
 
 A shipped model is two files in the models folder: ``<name>.onnx`` (float32 input "images" of shape
 (batch, C, S, S), output "score" of shape (batch,), the probability that the candidate is a grasp)
@@ -108,8 +109,30 @@ def read_card(path: str | Path) -> dict[str, Any]:
     return card
 
 
+#: Environment variable naming the execution provider to use ("cpu" forces the CPU where a GPU is offered).
+PROVIDER_ENV = "GRASPD_ORT_PROVIDER"
+#: The GPU execution providers used when onnxruntime offers them, in order of preference.
+GPU_PROVIDERS = ("CUDAExecutionProvider",)
+CPU_PROVIDER = "CPUExecutionProvider"
+
+
+def choose_providers(available: list[str] | None = None) -> list[str]:
+    """The execution providers a session gets: the first of GPU_PROVIDERS onnxruntime offers, then the CPU (the
+    fallback for operators the GPU lacks), or the CPU alone; $GRASPD_ORT_PROVIDER=cpu forces the CPU."""
+    if available is None:
+        import onnxruntime as ort  # noqa: PLC0415
+
+        available = list(ort.get_available_providers())
+    if os.environ.get(PROVIDER_ENV, "").strip().lower() == "cpu":
+        return [CPU_PROVIDER]
+    gpu = [p for p in GPU_PROVIDERS if p in available]
+    return [gpu[0], CPU_PROVIDER] if gpu else [CPU_PROVIDER]
+
+
 class OnnxGraspClassifier:
-    """A grasp classifier backed by an ONNX network run on the CPU by onnxruntime.
+    """A grasp classifier backed by an ONNX network run by onnxruntime (choose_providers: a CUDA GPU when
+    offered, else the CPU); `provider` names the one the session uses, also given in the card as
+    card["runtime"]["provider"].
 
     threads: onnxruntime intra-op threads (0 = onnxruntime's choice); batch_size: images per run,
     bounding the float32 buffer to batch_size * C * S * S * 4 bytes.
@@ -126,13 +149,13 @@ class OnnxGraspClassifier:
             raise ModelError(f"threads must be >= 0, got {threads}")
         if batch_size < 1:
             raise ModelError(f"batch_size must be >= 1, got {batch_size}")
-        self.card: dict[str, Any] = card if card is not None else read_card(self.path.with_suffix(".json"))
-        self.name: str = str(self.card["name"])
-        self.representation: str = str(self.card["representation"])
-        self.channels = int(self.card["channels"])
-        self.image_size = int(self.card["image_size"])
-        self.scale = np.float32(self.card["input"]["scale"])
-        self.offset = np.float32(self.card["input"]["offset"])
+        card = card if card is not None else read_card(self.path.with_suffix(".json"))
+        self.name: str = str(card["name"])
+        self.representation: str = str(card["representation"])
+        self.channels = int(card["channels"])
+        self.image_size = int(card["image_size"])
+        self.scale = np.float32(card["input"]["scale"])
+        self.offset = np.float32(card["input"]["offset"])
         self.batch_size = batch_size
         self.threads = threads  # intra-op threads of one run (0: onnxruntime's choice, every core)
         opts = ort.SessionOptions()
@@ -140,10 +163,14 @@ class OnnxGraspClassifier:
         opts.inter_op_num_threads = 1
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        # intra-op threads (threads > 1) wait on a lock, not spinning: the process's other detections need the cores
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
-            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+            self.session = ort.InferenceSession(str(self.path), opts, providers=choose_providers())
         except Exception as exc:  # onnxruntime raises its own exception types
             raise ModelError(f"model file {self.path} could not be loaded by onnxruntime: {exc}") from None
+        self.provider: str = str(self.session.get_providers()[0])
+        self.card: dict[str, Any] = {**card, "runtime": {"provider": self.provider, "threads": threads}}
         self.input_name = self.session.get_inputs()[0].name
         self.output_name = self.session.get_outputs()[0].name
 
@@ -166,8 +193,8 @@ class OnnxGraspClassifier:
         self.check_images(images)
         out = np.empty(len(images), np.float32)
         for a in range(0, len(images), self.batch_size):
-            batch = images[a : a + self.batch_size].astype(np.float32)
-            batch *= self.scale
+            # images * scale + offset in float32, in two passes (the cast happens inside the multiplication)
+            batch = np.multiply(images[a : a + self.batch_size], self.scale, dtype=np.float32)
             batch += self.offset
             res = self.session.run([self.output_name], {self.input_name: batch})[0]
             out[a : a + len(batch)] = np.asarray(res, np.float32).reshape(-1)
