@@ -1,22 +1,30 @@
-"""Warm start: one detection on a small bundled cloud before the service says ready, so that the first real
-request pays no first-use costs (open3d's import and normal estimation, the KD-tree and numpy code paths,
-onnxruntime's first runs and buffer allocation, BLAS thread start-up)."""
+"""Warm start: before the service says ready, one request on a small bundled cloud takes the path a real request
+takes, so that the first real request pays no first-use costs: the JSON body parsed and validated
+(server/requests.py, schemas.py), the cloud made into the detection frame, preprocessing (the KD-tree, normal
+estimation), the environment model, the hand search, both stages of the model cascade (the prefilter on its own
+images, then the full model) with full batches of both representations, onnxruntime's buffers sized for the
+largest batch a request scores, the process's thread pool (graspd.core.parallel) and the response built and
+serialised."""
 
 from __future__ import annotations
 
 import logging
 import time
+from typing import Any
 
 import numpy as np
 
 from graspd.core.cloud import ViewpointCloud
-from graspd.gpd.detector import DetectionParams
+from graspd.core.hand import HandGeometry
+from graspd.core.parallel import THREADS
+from graspd.gpd.detector import Detection, score_parallel
 from graspd.server.services.registry import ModelRegistry
 
 log = logging.getLogger("graspd.server")
 
-#: Samples of the warm-up detection: enough candidates for a full scoring batch path, little time.
-WARMUP_SAMPLES = 40
+#: Samples of the warm-up detection: enough candidates that the cascade's first pass runs (more than
+#: DetectionParams.cascade_min survive the filters on warmup_cloud) and scores a full batch.
+WARMUP_SAMPLES = 400
 
 
 def warmup_cloud(seed: int = 0) -> ViewpointCloud:
@@ -40,16 +48,53 @@ def warmup_cloud(seed: int = 0) -> ViewpointCloud:
     return ViewpointCloud(points=pts.astype(np.float32), viewpoints=np.array([[-0.5, -0.5, 0.6]], np.float32))
 
 
+def warmup_body(samples: int = WARMUP_SAMPLES) -> dict[str, Any]:
+    """The warm-up request as a client sends it (graspd_client's wire format: binary arrays): warmup_cloud()
+    with `samples` samples and the service's defaults for everything else."""
+    from graspd_client import build_detect_request  # noqa: PLC0415 - the server's own wire codec
+
+    cloud = warmup_cloud()
+    return dict(build_detect_request(cloud.points, cloud.viewpoints, cloud.camera_source, num_samples=samples))
+
+
+def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tuple[Detection, bytes]:
+    """The warm-up request end to end, as the engine runs one (without its queue): parsed from JSON, detected
+    with the default model (its cascade included) inside THREADS.request(), every scorer of the detector then
+    scoring one full batch (DetectionParams.score_batch images), and the response serialised.  Returns the
+    detection and the response bytes.  Raises what the request raises."""
+    from graspd.server.requests import dumps, parse_request  # noqa: PLC0415 - keeps this module light
+    from graspd.server.schemas import DetectResponse  # noqa: PLC0415
+
+    req = parse_request(dumps(warmup_body(samples)))
+    given = req.to_input()
+    params = req.to_params()
+    hand = req.hand_geometry()
+    detector = registry.detector(registry.resolve(req.model, req.use_classifier and req.method == "gpd",
+                                                  hand or HandGeometry()))
+    with THREADS.request():
+        det = detector.detect(given.cloud, params, hand)
+        for scorer in (detector.prefilter, detector.classifier):
+            if scorer is None:
+                continue
+            channels = int(getattr(scorer, "channels", 0)) or None
+            size = int(getattr(scorer, "image_size", 60))
+            if channels is not None:  # a full batch: onnxruntime sizes its buffers for the largest one
+                score_parallel(scorer, np.zeros((params.score_batch, channels, size, size), np.uint8))
+    body = DetectResponse.from_detection(det, request_id="warm-up", timings=dict(det.timings), hand=det.hand,
+                                         frame=given.frame).to_json()
+    return det, body
+
+
 def warm_up(registry: ModelRegistry) -> float:
-    """Run one detection with the default model (unscored when there is none) on warmup_cloud(); seconds taken.
-    Errors are logged, never raised: a failed warm-up leaves a working, merely cold, service."""
+    """Run warm_detection(registry); seconds taken.  Errors are logged, never raised: a failed warm-up leaves a
+    working, merely cold, service."""
     t = time.perf_counter()
     try:
-        det = registry.detector(registry.default).detect(warmup_cloud(), DetectionParams(num_samples=WARMUP_SAMPLES))
+        det, _ = warm_detection(registry)
     except Exception as exc:  # anything: the warm-up must not stop the service
         log.warning("warm-up detection failed", exc_info=True, extra={"error": type(exc).__name__})
         return time.perf_counter() - t
     seconds = time.perf_counter() - t
     log.info("warm-up detection done", extra={"seconds": round(seconds, 3), "candidates": det.num_candidates,
-                                               "model": det.model})
+                                               "model": det.model, "cascade": "prefilter" in det.timings})
     return seconds
