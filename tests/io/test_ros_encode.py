@@ -183,3 +183,104 @@ def test_gpd_ros_msg_text_ships_in_the_package() -> None:
     assert "float32 width" not in msg_text("gpd_ros", "GraspConfig")  # std_msgs/Float32, as gpd_ros has it
     assert [n for n, _ in TS.fielddefs["gpd_ros/msg/GraspConfig"][1]] == \
         ["position", "approach", "binormal", "axis", "width", "score", "sample"]
+
+
+# ------------------------------------------------------------------- the array encoders against rosbags' serializer
+
+
+def _ros_points(kind: str, xyz: np.ndarray) -> list[Any]:
+    return [TS.types[kind](x=float(a), y=float(b), z=float(c)) for a, b, c in xyz.tolist()]
+
+
+def _ros_header(header: Header) -> Any:
+    t = TS.types
+    return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=header.stamp[0],
+                                                                          nanosec=header.stamp[1]),
+                                    frame_id=header.frame_id)
+
+
+def _ros_pose(p: list[float], q: list[float]) -> Any:
+    t = TS.types
+    return t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
+                                       orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]))
+
+
+def rosbags_grasp_config_list(grasps: GraspSet, header: Header) -> bytes:
+    """The reference: one rosbags message object per field, serialised by rosbags."""
+    t = TS.types
+    f32, cfg = t["std_msgs/msg/Float32"], t["gpd_ros/msg/GraspConfig"]
+    pos, smp = (_ros_points("geometry_msgs/msg/Point", a) for a in (grasps.positions, grasps.samples))
+    app, bi, ax = (_ros_points("geometry_msgs/msg/Vector3", a) for a in (grasps.approach, grasps.binormal,
+                                                                          grasps.axis))
+    pairs = zip(grasps.widths.tolist(), grasps.scores.tolist(), strict=True)
+    items = [cfg(position=pos[i], approach=app[i], binormal=bi[i], axis=ax[i], width=f32(data=w), score=f32(data=s),
+                 sample=smp[i]) for i, (w, s) in enumerate(pairs)]
+    return bytes(TS.serialize_cdr(t[GRASP_CONFIG_LIST](header=_ros_header(header), grasps=items), GRASP_CONFIG_LIST))
+
+
+def rosbags_pose_array(grasps: GraspSet, header: Header) -> bytes:
+    poses = [_ros_pose(p, q) for p, q in zip(grasps.positions.tolist(), grasps.quat_xyzw.tolist(), strict=True)]
+    return bytes(TS.serialize_cdr(TS.types[POSE_ARRAY](header=_ros_header(header), poses=poses), POSE_ARRAY))
+
+
+def rosbags_marker_array(grasps: GraspSet, header: Header, hand: HandGeometry, lifetime_s: float,
+                         score_range: tuple[float, float] | None, alpha: float) -> bytes:
+    """The reference MarkerArray: rosbags Marker objects (ROS defaults for what graspd does not set)."""
+    from graspd.io.ros.encode import _hand_parts  # noqa: PLC0415 - the part boxes, not under test here
+    from graspd.io.ros.types import default_message  # noqa: PLC0415
+
+    t = TS.types
+    sec = int(np.floor(lifetime_s))
+    lifetime = t["builtin_interfaces/msg/Duration"](sec=sec, nanosec=int(round((lifetime_s - sec) * 1e9)))
+    base = {"header": _ros_header(header), "ns": "graspd"}
+    markers = [default_message("visualization_msgs/msg/Marker", **base, action=3)]
+    centres, sizes = _hand_parts(hand)
+    world = grasps.positions[:, None, :] + np.einsum("mij,pj->mpi", grasps.rotations, centres)
+    colors = score_colors(grasps.scores, score_range).tolist()
+    for i, (parts, q, c) in enumerate(zip(world.tolist(), grasps.quat_xyzw.tolist(), colors, strict=True)):
+        for k, p in enumerate(parts):
+            s = sizes[k].tolist()
+            markers.append(default_message(
+                "visualization_msgs/msg/Marker", **base, id=3 * i + k, type=1, action=0, pose=_ros_pose(p, q),
+                scale=t["geometry_msgs/msg/Vector3"](x=s[0], y=s[1], z=s[2]),
+                color=t["std_msgs/msg/ColorRGBA"](r=c[0], g=c[1], b=c[2], a=float(alpha)), lifetime=lifetime))
+    return bytes(TS.serialize_cdr(t[MARKER_ARRAY](markers=markers), MARKER_ARRAY))
+
+
+@pytest.mark.parametrize("frame_id", ["", "a", "ab", "abc", "base_link", "camera_depth_optical_frame", "/x/yz"])
+@pytest.mark.parametrize("m", [0, 1, 2, 3, 12])
+def test_array_encoders_write_what_rosbags_writes(grasps: GraspSet, frame_id: str, m: int) -> None:
+    """GraspConfigList, PoseArray and MarkerArray byte for byte as rosbags serialises the message objects, for
+    every alignment the frame_id's length gives (a Marker's padding depends on where it starts)."""
+    g, header = grasps[:m], Header(frame_id, (-3, 999))
+    assert encode_grasp_config_list(g, header) == rosbags_grasp_config_list(g, header)
+    assert encode_pose_array(g, header) == rosbags_pose_array(g, header)
+    hand = hand_preset("panda") if m == 3 else HandGeometry()
+    assert encode_marker_array(g, header, hand) == rosbags_marker_array(g, header, hand, 2.0, None, 0.8)
+    assert encode_marker_array(g, header, hand, lifetime_s=0.25, score_range=(0.2, 0.9), alpha=0.5) == \
+        rosbags_marker_array(g, header, hand, 0.25, (0.2, 0.9), 0.5)
+
+
+@pytest.mark.parametrize("start", [0, 4, 12])
+def test_marker_runs_match_markers_written_one_by_one(start: int) -> None:
+    """The columns filled into repeated templates give the bytes of each Marker written field by field, whichever
+    alignment the first one starts at (a MarkerArray's first gripper marker follows the DELETEALL: 4 past 8)."""
+    from graspd.io.ros.encode import _markers, _write_message, _Writer  # noqa: PLC0415 - the internals compared
+
+    rng = np.random.default_rng(start)
+    count = 7
+    columns = {"id": np.arange(count), "pose.position.x": rng.normal(size=(count, 7)),
+               "scale.x": rng.random((count, 3)), "color.r": rng.random((count, 4))}
+    shared = {"header.frame_id": "abcde", "header.stamp.sec": 3, "ns": "graspd", "type": 1, "lifetime.sec": 2}
+    w = _Writer()
+    w.chunks, w.size = [], start
+    for j in range(count):
+        w._align(4)
+        values = dict(shared, id=int(columns["id"][j]))
+        for name, prefix in (("pose.position.x", "pose."), ("scale.x", "scale."), ("color.r", "color.")):
+            keys = [f"{prefix}{k}" for k in ("position.x", "position.y", "position.z", "orientation.x",
+                                             "orientation.y", "orientation.z", "orientation.w")] \
+                if name.startswith("pose") else [f"{prefix}{k}" for k in ("xyz" if name == "scale.x" else "rgba")]
+            values.update(zip(keys, columns[name][j].tolist(), strict=True))
+        _write_message(w, "visualization_msgs/msg/Marker", values)
+    assert _markers(count, start, columns, shared) == b"".join(w.chunks)

@@ -8,22 +8,18 @@ Grasps follow DESIGN.md: position = hand base centre, rotation columns [approach
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from rosbags.typesys.base import Nodetype
 
 from graspd.core.grasp import GraspSet, rotation_to_quat_xyzw
 from graspd.core.hand import HandGeometry
 from graspd.io.ros.types import (
-    GRASP_CONFIG_LIST,
     MARKER,
-    MARKER_ARRAY,
     MOVEIT_GRASP,
-    POSE_ARRAY,
     Header,
     default_message,
     header_message,
@@ -39,43 +35,56 @@ MARKER_CUBE, MARKER_ADD, MARKER_DELETEALL = 1, 0, 3
 # --------------------------------------------------------------------------------------------------- outputs
 
 
-def _points(t: dict[str, Any], xyz: NDArray[np.float64], kind: str) -> list[Any]:
-    cls = t[kind]
-    return [cls(x=float(a), y=float(b), z=float(c)) for a, b, c in xyz.tolist()]
-
-
 def _poses(t: dict[str, Any], positions: NDArray[np.float64], quats: NDArray[np.float64]) -> list[Any]:
     point, quat, pose = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Quaternion"], t["geometry_msgs/msg/Pose"]
     return [pose(position=point(x=p[0], y=p[1], z=p[2]), orientation=quat(x=q[0], y=q[1], z=q[2], w=q[3]))
             for p, q in zip(positions.tolist(), quats.tolist(), strict=True)]
 
 
+#: gpd_ros/GraspConfig as CDR lays it out: position, approach, binormal, axis (3 x float64 each), width and score
+#: (float32), sample (3 x float64); 128 bytes, a multiple of 8, so that every element of a sequence starts 8-aligned
+#: as the first one does and a whole GraspConfig[] is one array's bytes.
+GRASP_CONFIG_CDR = np.dtype({"names": ["position", "approach", "binormal", "axis", "width", "score", "sample"],
+                             "formats": [("<f8", 3)] * 4 + ["<f4", "<f4", ("<f8", 3)],
+                             "offsets": [0, 24, 48, 72, 96, 100, 104], "itemsize": 128})
+#: geometry_msgs/Pose: position (3 x float64), orientation x y z w (4 x float64); 56 bytes.
+POSE_CDR = np.dtype({"names": ["position", "orientation"], "formats": [("<f8", 3), ("<f8", 4)],
+                     "offsets": [0, 24], "itemsize": 56})
+
+
+def _with_sequence(header: Header, rec: NDArray[np.void]) -> bytes:
+    """CDR of a message {std_msgs/Header header, T[] items} whose T is all float64-aligned (rec: its elements in
+    CDR layout, little-endian)."""
+    w = _Writer()
+    w.header(header)
+    w.scalar("u4", len(rec))
+    if len(rec):
+        w.raw(rec.tobytes(), 8)
+    return w.getvalue()
+
+
 def encode_grasp_config_list(grasps: GraspSet, header: Header) -> bytes:
     """gpd_ros/GraspConfigList: one GraspConfig per grasp in order (position, approach, binormal, axis in
-    header.frame_id, m; width m; score NaN when unscored; sample = the cloud point it was found at)."""
-    store = typestore()
-    t = store.types
-    f32 = t["std_msgs/msg/Float32"]
-    cfg = t["gpd_ros/msg/GraspConfig"]
-    pos = _points(t, grasps.positions, "geometry_msgs/msg/Point")
-    app = _points(t, grasps.approach, "geometry_msgs/msg/Vector3")
-    bi = _points(t, grasps.binormal, "geometry_msgs/msg/Vector3")
-    ax = _points(t, grasps.axis, "geometry_msgs/msg/Vector3")
-    smp = _points(t, grasps.samples, "geometry_msgs/msg/Point")
-    items = [cfg(position=pos[i], approach=app[i], binormal=bi[i], axis=ax[i], width=f32(data=w),
-                 score=f32(data=s), sample=smp[i])
-             for i, (w, s) in enumerate(zip(grasps.widths.tolist(), grasps.scores.tolist(), strict=True))]
-    msg = t[GRASP_CONFIG_LIST](header=header_message(header), grasps=items)
-    return bytes(store.serialize_cdr(msg, GRASP_CONFIG_LIST))
+    header.frame_id, m; width m; score NaN when unscored; sample = the cloud point it was found at); written as one
+    array (GRASP_CONFIG_CDR), byte for byte what rosbags' serialize_cdr writes."""
+    rec = np.zeros(len(grasps), GRASP_CONFIG_CDR)
+    rec["position"] = grasps.positions
+    rec["approach"] = grasps.approach
+    rec["binormal"] = grasps.binormal
+    rec["axis"] = grasps.axis
+    rec["width"] = grasps.widths
+    rec["score"] = grasps.scores
+    rec["sample"] = grasps.samples
+    return _with_sequence(header, rec)
 
 
 def encode_pose_array(grasps: GraspSet, header: Header) -> bytes:
     """geometry_msgs/PoseArray: per grasp the hand base pose in header.frame_id (m; orientation x = approach,
-    y = binormal, z = axis)."""
-    store = typestore()
-    t = store.types
-    msg = t[POSE_ARRAY](header=header_message(header), poses=_poses(t, grasps.positions, grasps.quat_xyzw))
-    return bytes(store.serialize_cdr(msg, POSE_ARRAY))
+    y = binormal, z = axis); one array (POSE_CDR), byte for byte what rosbags' serialize_cdr writes."""
+    rec = np.zeros(len(grasps), POSE_CDR)
+    rec["position"] = grasps.positions
+    rec["orientation"] = grasps.quat_xyzw
+    return _with_sequence(header, rec)
 
 
 def score_colors(scores: NDArray[np.float64], score_range: tuple[float, float] | None = None) -> NDArray[np.float64]:
@@ -101,46 +110,116 @@ def _hand_parts(hand: HandGeometry) -> tuple[NDArray[np.float64], NDArray[np.flo
     return boxes.mean(axis=1), boxes[:, 1] - boxes[:, 0]
 
 
-@lru_cache(maxsize=1)
-def _marker_defaults() -> dict[str, Any]:
-    base = default_message(MARKER)
-    return {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
+#: The fields of one gripper part's Marker that differ between parts and grasps, (dotted path of the first value,
+#: CDR type, values): id, pose (position then orientation, 7 float64), scale (3 float64), color (4 float32).
+_MARKER_COLUMNS = (("id", "<i4", 1), ("pose.position.x", "<f8", 7), ("scale.x", "<f8", 3), ("color.r", "<f4", 4))
+_CDR_CODES = {"bool": "u1", "int8": "i1", "uint8": "u1", "byte": "u1", "char": "u1", "int16": "i2", "uint16": "u2",
+              "int32": "i4", "uint32": "u4", "int64": "i8", "uint64": "u8", "float32": "f4", "float64": "f8"}
+
+
+def _write_message(w: _Writer, msgtype: str, values: dict[str, Any], offsets: dict[str, int] | None = None,
+                   path: str = "") -> None:
+    """msgtype's CDR into w with every field at its ROS default (zeros, "", empty sequences) but those in values
+    (dotted paths, e.g. "header.frame_id"); offsets, when given, gets where each leaf field went (w.size)."""
+    fields: list[tuple[str, Any]] = typestore().fielddefs[msgtype][1]
+    for name, (kind, detail) in fields:
+        key = f"{path}{name}"
+        if kind == Nodetype.NAME:
+            _write_message(w, detail, values, offsets, f"{key}.")
+            continue
+        if kind == Nodetype.SEQUENCE and key not in values:  # every sequence of a marker graspd draws is empty
+            w.scalar("u4", 0)
+            continue
+        if kind != Nodetype.BASE:
+            raise TypeError(f"{msgtype}.{name}: only plain fields and empty sequences are written here")
+        value = values.get(key)
+        if detail[0] == "string":
+            w.string(value or "")
+            continue
+        code = _CDR_CODES[detail[0]]
+        w._align(np.dtype(code).itemsize)
+        if offsets is not None:
+            offsets[key] = w.size
+        w.scalar(code, value or 0)
+
+
+def _marker_chunk(phase: int, values: dict[str, Any]) -> tuple[bytes, dict[str, int], int]:
+    """One Marker's CDR starting phase bytes past an 8-aligned position (0 or 4: a Marker starts 4-aligned and holds
+    float64s), padded to 4 bytes for the next one: (bytes, offsets of its leaf fields in those bytes, the padding
+    at the end)."""
+    w = _Writer()
+    w.chunks, w.size = [], phase
+    offsets: dict[str, int] = {}
+    _write_message(w, MARKER, values, offsets)
+    end = w.size
+    w._align(4)
+    return b"".join(w.chunks), {k: v - phase for k, v in offsets.items()}, w.size - end
+
+
+def _markers(count: int, start: int, columns: dict[str, NDArray[np.generic]], values: dict[str, Any]) -> bytes:
+    """count Markers written from start (a 4-aligned offset in the message), values the fields they share, columns
+    (_MARKER_COLUMNS) one row per Marker.  A Marker's padding, hence its layout, depends on whether it starts
+    8-aligned: each run of Markers of one layout is one template repeated with the varying fields written as
+    strided columns (in practice one run, or the first Marker then one run).  Ends after the last Marker (no
+    padding)."""
+    chunks: dict[int, tuple[bytes, dict[str, int], int]] = {}
+    phases = []
+    at = start
+    for _ in range(count):
+        phase = at % 8
+        if phase not in chunks:
+            chunks[phase] = _marker_chunk(phase, values)
+        phases.append(phase)
+        at += len(chunks[phase][0])
+    out: list[bytes] = []
+    first = 0
+    while first < count:
+        phase = phases[first]
+        last = first
+        while last + 1 < count and phases[last + 1] == phase:
+            last += 1
+        chunk, offsets, _pad = chunks[phase]
+        rows = last + 1 - first
+        flat = np.tile(np.frombuffer(chunk, np.uint8), rows)
+        for name, code, width in _MARKER_COLUMNS:
+            view = np.ndarray((rows, width), code, buffer=flat, offset=offsets[name],
+                              strides=(len(chunk), np.dtype(code).itemsize))
+            view[...] = columns[name][first:last + 1].reshape(rows, width)
+        out.append(flat.tobytes())
+        first = last + 1
+    data = b"".join(out)
+    return data[: len(data) - chunks[phases[-1]][2]] if count else data
 
 
 def encode_marker_array(grasps: GraspSet, header: Header, hand: HandGeometry, *, lifetime_s: float = 2.0,
                         score_range: tuple[float, float] | None = None, alpha: float = 0.8) -> bytes:
     """visualization_msgs/MarkerArray for RViz: a DELETEALL of namespace "graspd", then per grasp (rank i) three
     CUBE markers, ids 3i..3i+2 [left finger, right finger, palm], sized from hand (m), posed in header.frame_id,
-    coloured red -> green by score (score_colors), vanishing after lifetime_s seconds."""
-    store = typestore()
-    t = store.types
-    marker = t[MARKER]
-    hdr = header_message(header)
-    base = dict(_marker_defaults(), header=hdr, ns=MARKER_NS)
+    coloured red -> green by score (score_colors), vanishing after lifetime_s seconds.  The grasps' markers are
+    written as arrays (one template per layout, the varying fields filled in by columns), byte for byte what
+    rosbags' serialize_cdr writes."""
     sec = int(np.floor(lifetime_s))
-    lifetime = t["builtin_interfaces/msg/Duration"](sec=sec, nanosec=int(round((lifetime_s - sec) * 1e9)))
-    markers = [marker(**dict(base, action=MARKER_DELETEALL))]
-    centres, sizes = _hand_parts(hand)
     m = len(grasps)
+    w = _Writer()
+    w.scalar("u4", 1 + MARKER_PARTS * m)
+    hdr = {"header.stamp.sec": header.stamp[0], "header.stamp.nanosec": header.stamp[1],
+           "header.frame_id": header.frame_id, "ns": MARKER_NS}
+    _write_message(w, MARKER, {**hdr, "action": MARKER_DELETEALL})
     if m:
+        centres, sizes = _hand_parts(hand)
         # part centres in the cloud frame: position + R @ centre, (M, 3 parts, 3)
         world = grasps.positions[:, None, :] + np.einsum("mij,pj->mpi", grasps.rotations, centres)
-        quats = grasps.quat_xyzw.tolist()
-        colors = score_colors(grasps.scores, score_range).tolist()
-        point, quat, pose = (t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Quaternion"],
-                             t["geometry_msgs/msg/Pose"])
-        vec, rgba = t["geometry_msgs/msg/Vector3"], t["std_msgs/msg/ColorRGBA"]
-        scales = [vec(x=s[0], y=s[1], z=s[2]) for s in sizes.tolist()]
-        for i, (parts, q, c) in enumerate(zip(world.tolist(), quats, colors, strict=True)):
-            orientation = quat(x=q[0], y=q[1], z=q[2], w=q[3])
-            color = rgba(r=c[0], g=c[1], b=c[2], a=float(alpha))
-            for k, p in enumerate(parts):
-                markers.append(marker(**dict(base, id=MARKER_PARTS * i + k, type=MARKER_CUBE, action=MARKER_ADD,
-                                             pose=pose(position=point(x=p[0], y=p[1], z=p[2]),
-                                                       orientation=orientation),
-                                             scale=scales[k], color=color, lifetime=lifetime)))
-    msg = t[MARKER_ARRAY](markers=markers)
-    return bytes(store.serialize_cdr(msg, MARKER_ARRAY))
+        quats = np.repeat(grasps.quat_xyzw, MARKER_PARTS, axis=0)
+        rgba = np.concatenate([score_colors(grasps.scores, score_range), np.full((m, 1), float(alpha))], axis=1)
+        columns = {"id": np.arange(MARKER_PARTS * m),
+                   "pose.position.x": np.concatenate([world.reshape(-1, 3), quats], axis=1),
+                   "scale.x": np.tile(sizes, (m, 1)),
+                   "color.r": np.repeat(rgba, MARKER_PARTS, axis=0)}
+        shared = {**hdr, "type": MARKER_CUBE, "action": MARKER_ADD, "lifetime.sec": sec,
+                  "lifetime.nanosec": int(round((lifetime_s - sec) * 1e9))}
+        w._align(4)
+        w.raw(_markers(MARKER_PARTS * m, w.size, columns, shared))
+    return w.getvalue()
 
 
 def encode_moveit_grasps(grasps: GraspSet, header: Header, **options: Any) -> list[bytes]:
