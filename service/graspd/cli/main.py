@@ -65,8 +65,6 @@ def _detect(args: argparse.Namespace) -> int:
     from graspd.gpd.environment import EnvironmentParams
     from graspd.gpd.preprocess import PreprocessParams, preprocess
     from graspd.io.cloud_files import read_input
-    from graspd.viz.plot import plot_grasps
-    from graspd.viz.viewer import viewer_html
 
     try:
         viewpoints = np.array(args.viewpoint, np.float32).reshape(-1, 3) if args.viewpoint else None
@@ -107,6 +105,9 @@ def _detect(args: argparse.Namespace) -> int:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text)
     if args.plot or args.view:
+        from graspd.viz.plot import plot_grasps  # matplotlib: only when a picture is asked for
+        from graspd.viz.viewer import viewer_html
+
         # the cloud the environment labelled: the detector's preprocessing of the input
         shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
         title = f"{Path(args.cloud).name}: {_drawn(args.top, detection)}"
