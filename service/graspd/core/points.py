@@ -11,6 +11,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from graspd.core.parallel import THREADS
+
 FloatArray = TypeVar("FloatArray", NDArray[np.float32], NDArray[np.float64])
 
 
@@ -41,10 +43,16 @@ def _padded(points: NDArray[np.floating]) -> NDArray[np.float64]:
     return np.vstack([np.asarray(points, np.float64), np.zeros((1, 3))])
 
 
-def pca_normals(points: NDArray[np.floating], radius: float, max_nn: int, chunk: int = 32_768) -> NDArray[np.float32]:
+#: Points whose normals one task of pca_normals computes (tasks run on the process's thread budget).
+NORMALS_CHUNK = 4096
+
+
+def pca_normals(points: NDArray[np.floating], radius: float, max_nn: int, chunk: int = NORMALS_CHUNK
+                ) -> NDArray[np.float32]:
     """Unit surface normals (N,3), unoriented: the least-variance axis of each point's neighbourhood, the at most
     max_nn nearest points within radius (m; the point itself included: open3d's hybrid search).  (0, 0, 1)
-    where fewer than 3 neighbours or a degenerate neighbourhood.  Vectorised over chunks of points."""
+    where fewer than 3 neighbours or a degenerate neighbourhood.  Vectorised over chunks of points, which run on
+    the process's thread budget (graspd.core.parallel; each point's normal depends on its neighbours alone)."""
     pts = np.asarray(points, np.float64)
     out = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (len(pts), 1))
     if len(pts) < 3:
@@ -52,8 +60,9 @@ def pca_normals(points: NDArray[np.floating], radius: float, max_nn: int, chunk:
     tree = cKDTree(pts)
     padded = _padded(pts)
     k = min(max_nn, len(pts))
-    for start in range(0, len(pts), chunk):
-        dist, idx = tree.query(pts[start:start + chunk], k=k, distance_upper_bound=radius * (1 + 1e-12), workers=-1)
+
+    def normals_of(start: int) -> None:
+        dist, idx = tree.query(pts[start:start + chunk], k=k, distance_upper_bound=radius * (1 + 1e-12))
         idx = idx.reshape(len(idx), k)
         count = np.isfinite(dist.reshape(len(idx), k)).sum(axis=1)
         nb = padded[idx]  # missing neighbours gather the zero row: they add nothing to the sums
@@ -63,6 +72,8 @@ def pca_normals(points: NDArray[np.floating], radius: float, max_nn: int, chunk:
         evals, evecs = np.linalg.eigh(cov)
         ok = (count >= 3) & (evals[:, 2] > 0.0)
         out[start:start + chunk][ok] = evecs[ok, :, 0].astype(np.float32)
+
+    THREADS.map(normals_of, range(0, len(pts), chunk))
     return out
 
 

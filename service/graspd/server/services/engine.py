@@ -22,6 +22,7 @@ from graspd.core.camera import Intrinsics, project_points
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
 from graspd.core.parallel import THREADS
+from graspd.gpd.blas import set_blas_threads
 from graspd.gpd.detector import Detection, DetectionParams
 from graspd.gpd.sanity import check_detection
 from graspd.io.png import encode_png_b64
@@ -76,6 +77,8 @@ class DetectionEngine:
         self.templates = TemplateService(settings)  # method "templates", and what feedback needs
         self.budget = MemoryBudget(settings.detect_memory_mb)  # admission by estimated cost (budget.py)
         self.closed = False
+        # the detections parallelise over THREADS themselves: BLAS threads would only spin beside them
+        set_blas_threads(1)
 
     # ---- admission -------------------------------------------------------------------------
     def retry_after(self) -> float:
