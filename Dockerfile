@@ -7,7 +7,8 @@
 # with TLS and user/password, README "Securing Zenoh").  A non-loopback listener with no token and no
 # authentication in the config refuses to start (GRASPD_ZENOH_ALLOW_ANONYMOUS=true overrides, trusted networks).
 # Two stages: the first builds wheels of the server, the client and every dependency; the second installs them
-# with no compiler, no pip cache and no sources, and holds only the server (no lab: torch, pybullet) and models/.
+# with no compiler, no pip cache and no sources, and holds only the server (no lab: torch, pybullet, open3d) and
+# models/.
 # CI has no Docker engine: tests/server/test_container_install.py (slow) replays the pip steps below.
 FROM python:3.11-slim AS build
 
@@ -26,15 +27,16 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1
 
-# open3d's shared libraries: OpenMP, libusb (RealSense IO), and the GL/EGL/X11 stubs it links against.
+# OpenMP for onnxruntime.  No open3d (nor its GL/EGL/X11 and libusb libraries): graspd reads PCD and PLY files
+# with numpy; open3d is the lab's (bench/results/install-server-after.md: the sizes before and after).
 RUN apt-get update \
-    && apt-get install -y --no-install-recommends libusb-1.0-0 libgomp1 libgl1 libegl1 libx11-6 \
+    && apt-get install -y --no-install-recommends libgomp1 \
     && rm -rf /var/lib/apt/lists/*
 
 RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin graspd
 RUN mkdir -p /var/lib/graspd && chown graspd:graspd /var/lib/graspd
 
-# No lab (graspd-lab: torch, pybullet): the service never imports it (tests/server/test_import_light.py).
+# No lab (graspd-lab: torch, pybullet, open3d): the service never imports it (tests/server/test_import_light.py).
 RUN --mount=type=bind,from=build,source=/wheels,target=/wheels \
     pip install --no-index --find-links /wheels graspd-client "graspd[postgres]"
 WORKDIR /opt/graspd

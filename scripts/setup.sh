@@ -10,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 PY=${PYTHON:-python3}
-SYSTEM_PACKAGES="libusb-1.0-0 libgomp1 postgresql haproxy"   # open3d loads libusb; onnxruntime/torch use OpenMP;
+SYSTEM_PACKAGES="libusb-1.0-0 libgomp1 postgresql haproxy"   # the lab's open3d loads libusb; onnxruntime/torch: OpenMP;
                                                              # postgresql: the library-store tests run a real server;
                                                              # haproxy: tests/fleet run a fleet behind it
 

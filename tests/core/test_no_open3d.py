@@ -1,4 +1,5 @@
-"""open3d without its dash/plotly drawing module until it is used (graspd.core.open3d_import)."""
+"""Detection and cloud files without open3d: preprocessing is numpy and scipy, and graspd.io reads PCD and PLY
+with numpy; open3d belongs to the lab (graspd_lab.open3d_import, tests/lab/test_open3d_import.py)."""
 
 from __future__ import annotations
 
@@ -29,22 +30,3 @@ def test_the_detector_runs_without_open3d() -> None:
         "print(det.num_points > 0, 'open3d' in sys.modules)\n"
     )
     assert out.splitlines() == ["True False"]
-
-
-def test_file_reading_imports_open3d_without_dash_and_drawing_still_works() -> None:
-    out = _run(
-        "import sys\n"
-        "import graspd.io.cloud_files\n"
-        "import open3d as o3d\n"
-        "print('dash' in sys.modules, 'plotly' in sys.modules)\n"
-        "pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]))\n"
-        "fig = o3d.visualization.get_plotly_fig([pc])\n"
-        "print(type(fig).__name__, 'dash' in sys.modules)\n"
-    )
-    assert out.splitlines() == ["False False", "Figure True"]
-
-
-def test_no_stand_in_once_open3d_is_loaded() -> None:
-    out = _run("import open3d\nfrom graspd.core.open3d_import import defer_plotly_drawing\n"
-               "print(defer_plotly_drawing())")
-    assert out == "False"

@@ -1,9 +1,10 @@
-"""Import open3d without its plotly drawing module until that is used.
+"""Import open3d without its plotly drawing module until that is used (the lab's modules import open3d; the
+server does not: graspd reads cloud files with numpy).
 
 `import open3d` imports open3d.visualization, whose draw_plotly module imports dash and plotly at once:
-about half a second of every process that only needs open3d's geometry (normals, planes, file reading),
-over a third of `graspd detect`'s start-up.  defer_plotly_drawing() puts a stand-in for that module in
-sys.modules before open3d is imported; its three functions load the real module on first call, so
+about half a second of every process that only needs open3d's geometry (meshes, raycasting, file reading).
+defer_plotly_drawing(), which graspd_lab/__init__.py calls before any lab module imports open3d, puts a
+stand-in for that module in sys.modules; its three functions load the real module on first call, so
 open3d.visualization.draw_plotly(...) and friends keep working."""
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ def _forward(function: str) -> Any:
         return getattr(_real_module(), function)(*args, **kwargs)
 
     call.__name__ = call.__qualname__ = function
-    call.__doc__ = f"open3d.visualization.{function}, loaded on first call (graspd.core.open3d_import)."
+    call.__doc__ = f"open3d.visualization.{function}, loaded on first call (graspd_lab.open3d_import)."
     return call
 
 
@@ -61,7 +62,7 @@ def defer_plotly_drawing() -> bool:
         return False
     if not (Path(spec.origin).parent / "visualization" / "draw_plotly.py").is_file():
         return False
-    stand_in = ModuleType(_NAME, "open3d's draw_plotly, loaded on first use (graspd.core.open3d_import)")
+    stand_in = ModuleType(_NAME, "open3d's draw_plotly, loaded on first use (graspd_lab.open3d_import)")
     for function in _FUNCTIONS:
         setattr(stand_in, function, _forward(function))
     stand_in.__getattr__ = _other_attribute  # type: ignore[method-assign]
