@@ -158,7 +158,7 @@ class _Obstacles:
         else:
             index = np.flatnonzero(mask)
             pts = scene.points[index]
-            tree = cKDTree(pts)
+            tree = cKDTree(pts, balanced_tree=False)  # counts, and pairs sorted after: the tree's shape is moot
         scale = max(float(np.abs(pts).max()), 1.0) if len(pts) else 1.0
         return _Obstacles(index, pts, pts.astype(np.float64), scale, tree)
 

@@ -19,6 +19,8 @@ from graspd.core.cloud import CloudError, ViewpointCloud
 from graspd.core.hand import HandGeometry
 
 MAX_GRID_CELLS = 48_000_000
+#: Shadow samples (surface points x steps) placed together when marking the unobserved volume.
+SHADOW_BLOCK = 1 << 19
 
 
 @dataclass(frozen=True)
@@ -111,14 +113,17 @@ def unobserved_grid(points: NDArray[np.float32], viewpoints: NDArray[np.float32]
     surface = pts[first]
     steps = np.arange(1, int(np.ceil(length / v)) + 1) * v
     shadowed = np.ones(int(np.prod(shape)), bool)
+    top = np.array(shape) - 1
+    per = max(1, SHADOW_BLOCK // max(1, len(surface)))  # steps marked together (bounded temporaries)
     for cam in viewpoints.astype(np.float64):
         ray = surface - cam
         ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-9)
         mine = np.zeros(int(np.prod(shape)), bool)
-        for step in steps:
-            g = np.floor((surface + ray * step - lo) / v).astype(np.int64)
-            np.clip(g, 0, np.array(shape) - 1, out=g)
-            mine[(g[:, 0] * shape[1] + g[:, 1]) * shape[2] + g[:, 2]] = True
+        for a in range(0, len(steps), per):
+            # the same positions as one step at a time: surface + ray * step, each step in turn
+            g = np.floor((surface[None] + ray[None] * steps[a : a + per, None, None] - lo) / v).astype(np.int64)
+            np.clip(g, 0, top, out=g)
+            mine[((g[..., 0] * shape[1] + g[..., 1]) * shape[2] + g[..., 2]).reshape(-1)] = True
         shadowed &= mine
     cells = (shadowed & ~occupied).reshape(shape)
     # The box reaches `length` past every point, so border cells are (at most) the shadows' rounding
