@@ -8,6 +8,9 @@ over a fixed number of requests.  Writes what it prints, with the command and th
 
   PYTHONPATH=service:client .venv/bin/python bench/load.py                  # spawns a server
   PYTHONPATH=service:client .venv/bin/python bench/load.py --url http://host:8000 --zenoh tcp/host:7447 --pid N
+  # issue 26: 16 concurrent 66k-point requests with 300 samples over HTTP (req/s, errors, peak server RSS)
+  PYTHONPATH=service:client .venv/bin/python bench/load.py --transports http --points 66000 --num-samples 300 \
+      --concurrency 16 --duration 30 --overhead-pairs 0 --tag c16-66k-300
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ class Phase:
     wall: float = 0.0
     rss_before: float = 0.0
     rss_after: float = 0.0
+    rss_peak: float = 0.0  # the largest server RSS sampled during the phase (MB)
 
     def record_error(self, text: str) -> None:
         self.errors += 1
@@ -171,13 +175,26 @@ def run_phase(transport: str, concurrency: int, duration: float, payload: bytes,
     else:
         threads = [threading.Thread(target=zenoh_worker, args=(session, key, payload, phase, stop_at, lock, budget))
                    for _ in range(concurrency)]
+    done = threading.Event()
+
+    def sample_rss() -> None:  # the server's peak RSS during the phase, every 0.1 s
+        while not done.wait(0.1):
+            phase.rss_peak = max(phase.rss_peak, rss_mb(pid))
+
+    sampler = threading.Thread(target=sample_rss, daemon=True) if pid is not None else None
+    if sampler is not None:
+        sampler.start()
     t0 = time.perf_counter()
     for t in threads:
         t.start()
     for t in threads:
         t.join()
     phase.wall = time.perf_counter() - t0
+    done.set()
+    if sampler is not None:
+        sampler.join()
     phase.rss_after = rss_mb(pid)
+    phase.rss_peak = max(phase.rss_peak, phase.rss_before, phase.rss_after)
     return phase
 
 
@@ -187,13 +204,13 @@ def pct(values: list[float], q: float) -> float:
 
 def print_phases(phases: list[Phase]) -> None:
     print(f"{'transport':9} {'conc':>4} {'ok':>6} {'503':>5} {'err':>4} {'err%':>6} {'p50 ms':>8} {'p95 ms':>8} "
-          f"{'p99 ms':>8} {'req/s':>7} {'RSS MB before->after':>22}")
+          f"{'p99 ms':>8} {'req/s':>7} {'RSS MB before->after':>22} {'peak MB':>8}")
     for p in phases:
         n = len(p.latencies) + p.busy + p.errors
         print(f"{p.transport:9} {p.concurrency:>4} {len(p.latencies):>6} {p.busy:>5} {p.errors:>4} "
               f"{100 * p.errors / max(n, 1):>6.2f} {pct(p.latencies, 50):>8.1f} {pct(p.latencies, 95):>8.1f} "
               f"{pct(p.latencies, 99):>8.1f} {len(p.latencies) / p.wall:>7.2f} "
-              f"{p.rss_before:>10.1f} -> {p.rss_after:<9.1f}")
+              f"{p.rss_before:>10.1f} -> {p.rss_after:<9.1f} {p.rss_peak:>8.1f}")
         for e in p.error_samples:
             print(f"    error: {e}")
 
@@ -242,6 +259,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="out/load", help="server log")
     ap.add_argument("--results", default=str(ROOT / "bench" / "results"),
                     help="where load.md (this output, the command, the machine load) and load_latency.png go")
+    ap.add_argument("--tag", help="name the results load-TAG.md and load-TAG_latency.png (default load.md)")
     args = ap.parse_args(argv)
 
     out = Path(args.out)
@@ -256,7 +274,8 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout = report.stream
         command = " ".join(["python", "bench/load.py", *(sys.argv[1:] if argv is None else argv)])
         load = " ".join(f"{x:.2f}" for x in os.getloadavg())
-        (results / "load.md").write_text(
+        name = f"load-{args.tag}" if args.tag else "load"
+        (results / f"{name}.md").write_text(
             f"# bench/load.py\n\n`{command}`, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
             f"{os.cpu_count()} cores, load average {load} at the end\n\n```\n{report.text()}```\n")
 
@@ -277,6 +296,35 @@ class Tee:
 
     def text(self) -> str:
         return "".join(self.parts)
+
+
+def print_overhead(args: argparse.Namespace, transports: list[str], detector: Any, vc: Any, detect_params: Any,
+                   payload: bytes, url: str, session: Any, key: str) -> None:
+    """Transport overhead: pairs of an in-process detection of the same request, then one round trip."""
+    print(f"\n== transport overhead: {args.overhead_pairs} pairs per transport, each an in-process detection of "
+          f"the same cloud in this process then one round trip (target p50 <= 30 ms) ==")
+    print("  RTT-inproc: minus this process's detection (another process: detection speed differs too); "
+          "RTT-server detect: minus the server's own detection of that request (transport and service only)")
+    print(f"{'transport':9} {'RTT p50':>9} {'in-proc p50':>12} {'RTT-inproc p50':>15} {'paired p50':>11} "
+          f"{'RTT-server detect p50':>22}")
+    for transport in transports:
+        rtts, inprocs, server = [], [], []
+        for _ in range(args.overhead_pairs):
+            t0 = time.perf_counter()
+            detector.detect(vc, detect_params)
+            inprocs.append(time.perf_counter() - t0)
+            time.sleep(args.settle)  # let this process's compute threads go idle before the round trip
+            one = run_phase(transport, 1, 1e9, payload, url, session, key, None, max_requests=1)
+            if one.latencies:
+                rtts.append(one.latencies[0])
+                server.append(one.server_detect[0])
+            else:
+                rtts.append(float("nan"))
+                server.append(float("nan"))
+        paired = [r - i for r, i in zip(rtts, inprocs, strict=True)]
+        own = [r - d for r, d in zip(rtts, server, strict=True)]
+        print(f"{transport:9} {pct(rtts, 50):>9.1f} {pct(inprocs, 50):>12.1f} "
+              f"{pct(rtts, 50) - pct(inprocs, 50):>15.1f} {pct(paired, 50):>11.1f} {pct(own, 50):>22.1f}")
 
 
 def run(args: argparse.Namespace, out: Path, results: Path) -> int:
@@ -347,33 +395,11 @@ def run(args: argparse.Namespace, out: Path, results: Path) -> int:
             phases.append(soak)
         print("\n== load ==")
         print_phases(phases)
-        plot(phases, results / "load_latency.png")
+        latency_png = results / (f"load-{args.tag}_latency.png" if args.tag else "load_latency.png")
+        plot(phases, latency_png)
 
-        print(f"\n== transport overhead: {args.overhead_pairs} pairs per transport, each an in-process detection of "
-              f"the same cloud in this process then one round trip (target p50 <= 30 ms) ==")
-        print("  RTT-inproc: minus this process's detection (another process: detection speed differs too); "
-              "RTT-server detect: minus the server's own detection of that request (transport and service only)")
-        print(f"{'transport':9} {'RTT p50':>9} {'in-proc p50':>12} {'RTT-inproc p50':>15} {'paired p50':>11} "
-              f"{'RTT-server detect p50':>22}")
-        for transport in transports:
-            rtts, inprocs, server = [], [], []
-            for _ in range(args.overhead_pairs):
-                t0 = time.perf_counter()
-                detector.detect(vc, detect_params)
-                inprocs.append(time.perf_counter() - t0)
-                time.sleep(args.settle)  # let this process's compute threads go idle before the round trip
-                one = run_phase(transport, 1, 1e9, payload, url, session, key, None, max_requests=1)
-                if one.latencies:
-                    rtts.append(one.latencies[0])
-                    server.append(one.server_detect[0])
-                else:
-                    rtts.append(float("nan"))
-                    server.append(float("nan"))
-            paired = [r - i for r, i in zip(rtts, inprocs, strict=True)]
-            own = [r - d for r, d in zip(rtts, server, strict=True)]
-            print(f"{transport:9} {pct(rtts, 50):>9.1f} {pct(inprocs, 50):>12.1f} "
-                  f"{pct(rtts, 50) - pct(inprocs, 50):>15.1f} {pct(paired, 50):>11.1f} {pct(own, 50):>22.1f}")
-
+        if args.overhead_pairs:
+            print_overhead(args, transports, detector, vc, detect_params, payload, url, session, key)
         if args.rss_requests:
             top = max(int(x) for x in args.concurrency.split(","))
             light = json.dumps({**body, "num_samples": args.rss_num_samples}).encode()
@@ -390,9 +416,10 @@ def run(args: argparse.Namespace, out: Path, results: Path) -> int:
         errors = sum(p.errors for p in phases)
         total = sum(len(p.latencies) + p.busy + p.errors for p in phases)
         print(f"server RSS over the whole run ({total} requests after warm-up): {rss_start:.1f} -> "
-              f"{rss_mb(pid):.1f} MB")
+              f"{rss_mb(pid):.1f} MB, peak {max((p.rss_peak for p in phases), default=float('nan')):.1f} MB "
+              "(sampled every 0.1 s)")
         print(f"\ntotal errors {errors}; 503s {sum(p.busy for p in phases)}; "
-              f"latency CDF: {results / 'load_latency.png'}")
+              f"latency CDF: {latency_png}")
         if session is not None:
             session.close()
         return 0 if errors == 0 else 1

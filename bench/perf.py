@@ -11,8 +11,16 @@ the warm-up, the first request against the warm p50, and 10k / 66k / 300k-point 
 a GPD C++ detect_grasps binary runs on the same cloud and samples and the ratio is printed, otherwise the
 issue's reference figures (12.8 s wall, ~770 candidates) stand.
 
-    PYTHONPATH=service:client python bench/perf.py [--quick] [--repeats 3] [--service-only | --no-service]
+Issue 26 adds: --scaling, the whole detection (the service's default model and cascade) against cloud size
+(10k, 66k, 300k, 1M points, 500 samples) and samples (100 to 2,000 at 66k points), wall and CPU seconds with
+straight-line fits (bench/results/perf-scaling.md, .png); --profile TAG, warm table_mug requests (500 samples)
+through the service's engine in a child process sampled by py-spy (bench/results/profile-TAG.txt); and a GPU row
+when onnxruntime offers a GPU provider ("no GPU here" otherwise).
+
+    PYTHONPATH=service:client:lab python bench/perf.py [--quick] [--repeats 3] [--service-only | --no-service]
         [--reference-gpd BIN --reference-gpd-config CFG]
+    PYTHONPATH=service:client:lab python bench/perf.py --scaling [--repeats 3]
+    PYTHONPATH=service:client:lab python bench/perf.py --profile after [--profile-requests 10]
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ import json
 import os
 import re
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -240,6 +249,232 @@ def reference_gpd(binary: Path, config: Path, emit, graspd_p50: float | None) ->
          f"{cands} candidates" + (f"; graspd warm request is {wall / graspd_p50:.1f}x faster" if graspd_p50 else ""))
 
 
+
+SCALING_POINTS = (10_000, 66_000, 300_000, 1_000_000)
+SCALING_SAMPLES = (100, 250, 500, 1000, 2000)
+
+
+def service_detector() -> GraspDetector:
+    """The detector a request naming no model gets: the default model with the cascade's first pass (as the
+    service loads them, one intra-op thread each), BLAS single-threaded as in the service's engine."""
+    from graspd.gpd.blas import set_blas_threads
+    from graspd.gpd.classifier import DEFAULT_CASCADE_MODEL, default_models_dir
+    from graspd.server.services.registry import ModelRegistry
+
+    set_blas_threads(1)
+    registry = ModelRegistry.load(default_models_dir(), cascade=DEFAULT_CASCADE_MODEL)
+    return registry.detector(registry.default)
+
+
+def timed_detection(detector: GraspDetector, cloud: ViewpointCloud, params: DetectionParams, repeats: int
+                    ) -> dict[str, float]:
+    """Median wall and CPU seconds (this process, all threads) of detector.detect over `repeats` runs after one
+    unmeasured run, with the stage timings of the median run and the candidates."""
+    detector.detect(cloud, params)
+    runs = []
+    for _ in range(repeats):
+        t, c = time.perf_counter(), time.process_time()
+        det = detector.detect(cloud, params)
+        runs.append((time.perf_counter() - t, time.process_time() - c, det))
+    runs.sort(key=lambda r: r[0])
+    wall, _, det = runs[len(runs) // 2]
+    cpu = statistics.median(r[1] for r in runs)
+    return {"wall": wall, "cpu": cpu, "candidates": det.num_candidates, "voxelized": det.num_points,
+            **{k: v for k, v in det.timings.items() if k != "total"}}
+
+
+def linear_fit(x: list[float], y: list[float]) -> tuple[float, float, float]:
+    """Least-squares y = a + b x: (a, b, R^2)."""
+    import numpy as np
+
+    b, a = np.polyfit(np.asarray(x, float), np.asarray(y, float), 1)
+    pred = a + b * np.asarray(x, float)
+    ss = float(np.sum((np.asarray(y) - np.mean(y)) ** 2)) or 1.0
+    return float(a), float(b), 1.0 - float(np.sum((np.asarray(y) - pred) ** 2)) / ss
+
+
+def scaling(repeats: int, emit) -> None:  # noqa: ANN001 - emit prints and records a line
+    """Whole detections against cloud size and samples; writes perf-scaling.md and perf-scaling.png."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    detector = service_detector()
+    huge = cluttered_tabletop(num_objects=8, seed=7, resolution_scale=2.0, table_size=(0.6, 0.6))
+    emit(f"Rendered cluttered tabletop: {len(huge)} points from two cameras (1280x960 each), subsampled; model "
+         f"{getattr(detector.classifier, 'name', None)} with the cascade's first pass "
+         f"{getattr(detector.prefilter, 'name', None)}; medians of {repeats} runs after one unmeasured; CPU: this "
+         "process's CPU seconds (all threads).\n")
+    stages = ["preprocess", "environment", "scene", "sample", "prefilter", "encode", "score", "select"]
+    cols = ["points", "voxelized", "candidates", "wall", "cpu", *stages]
+    point_rows = []
+    for n in track([n for n in SCALING_POINTS if n <= len(huge)], "cloud sizes", "size"):
+        row = timed_detection(detector, subsample(huge, n), DetectionParams(num_samples=500), repeats)
+        point_rows.append({"points": n, **row})
+    emit("## Whole detection against cloud size (500 samples)\n")
+    emit(table(point_rows, cols))
+    a, b, r2 = linear_fit([r["points"] for r in point_rows], [r["cpu"] for r in point_rows])
+    emit(f"\nCPU s = {a:.3f} + {b * 1e6:.3f} x (points / 1M), R^2 {r2:.3f}")
+    a, b, r2w = linear_fit([r["points"] for r in point_rows], [r["wall"] for r in point_rows])
+    emit(f"wall s = {a:.3f} + {b * 1e6:.3f} x (points / 1M), R^2 {r2w:.3f}\n")
+    c66 = subsample(huge, 66_000)
+    sample_rows = []
+    for k in track(list(SCALING_SAMPLES), "sample counts", "count"):
+        row = timed_detection(detector, c66, DetectionParams(num_samples=k), repeats)
+        sample_rows.append({"samples": k, **row})
+    emit("## Whole detection against samples (66k points)\n")
+    emit(table(sample_rows, ["samples", *cols[2:]]))
+    a, b, r2 = linear_fit([r["samples"] for r in sample_rows], [r["cpu"] for r in sample_rows])
+    emit(f"\nCPU s = {a:.3f} + {b * 1000:.3f} x (samples / 1000), R^2 {r2:.3f}")
+    a, b, r2w = linear_fit([r["samples"] for r in sample_rows], [r["wall"] for r in sample_rows])
+    emit(f"wall s = {a:.3f} + {b * 1000:.3f} x (samples / 1000), R^2 {r2w:.3f}\n")
+
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2), dpi=110)
+    for axis, rows, key, label in ((ax[0], point_rows, "points", "cloud size (points)"),
+                                   (ax[1], sample_rows, "samples", "samples (66k points)")):
+        x = [r[key] for r in rows]
+        for what, style in (("wall", "o-"), ("cpu", "s--")):
+            y = [r[what] for r in rows]
+            fa, fb, fr2 = linear_fit(x, y)
+            line = axis.plot(x, y, style, label=f"{what} (fit R^2 {fr2:.3f})")[0]
+            axis.plot([min(x), max(x)], [fa + fb * min(x), fa + fb * max(x)], ":", color=line.get_color())
+        for stage in ("preprocess", "sample"):
+            axis.plot(x, [r.get(stage, 0.0) for r in rows], ".-", alpha=0.6, label=f"{stage} (wall)")
+        axis.set_xlabel(label)
+        axis.set_ylabel("s")
+        axis.legend(fontsize=8)
+    ax[0].set_title("whole detection vs cloud size (500 samples)")
+    ax[1].set_title("whole detection vs samples")
+    fig.tight_layout()
+    fig.savefig(RESULTS / "perf-scaling.png")
+
+
+def gpu_row(emit) -> None:  # noqa: ANN001
+    """Scoring 600 images with the default model on the GPU provider and on the CPU, when onnxruntime offers a
+    GPU; else says there is none."""
+    import numpy as np
+    import onnxruntime as ort
+
+    from graspd.gpd.classifier import CPU_PROVIDER, PROVIDER_ENV, choose_providers, default_model_name, load_model
+
+    providers = choose_providers()
+    if providers[0] == CPU_PROVIDER:
+        emit(f"\nGPU: no GPU here (onnxruntime {ort.__version__} offers {ort.get_available_providers()}); the "
+             "classifier runs on the CPU.")
+        return
+    gpu = load_model(default_model_name())
+    os.environ[PROVIDER_ENV] = "cpu"
+    try:
+        cpu = load_model(default_model_name(), threads=0)
+    finally:
+        del os.environ[PROVIDER_ENV]
+    shape = (600, gpu.channels, gpu.image_size, gpu.image_size)
+    images = ((np.random.default_rng(0).random(shape) < 0.1) * 200).astype(np.uint8)
+    t_gpu, s_gpu = _median_time(lambda: gpu.score(images), 5)
+    t_cpu, s_cpu = _median_time(lambda: cpu.score(images), 5)
+    diff = float(np.max(np.abs(np.asarray(s_gpu) - np.asarray(s_cpu))))
+    emit(f"\nGPU ({gpu.provider}): {gpu.name} scores 600 images in {t_gpu * 1000:.1f} ms, against "
+         f"{t_cpu * 1000:.1f} ms on the CPU (all cores); largest score difference {diff:.2e}.")
+
+
+def profile(tag: str, requests: int) -> None:
+    """Warm table_mug requests (500 samples) through the service's engine in a child process, sampled by py-spy
+    (all threads, idle excluded); the top functions by own and by inclusive time go to profile-TAG.txt."""
+    spy = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
+    if not Path(spy).is_file():
+        raise SystemExit("--profile needs py-spy (pip install py-spy into the virtual environment)")
+    with tempfile.TemporaryDirectory() as tmp:
+        flag, raw = Path(tmp) / "ready", Path(tmp) / "raw.txt"
+        child = subprocess.Popen([sys.executable, __file__, "--profile-child", str(flag),
+                                  "--profile-requests", str(requests)], stdout=subprocess.PIPE, text=True)
+        while not flag.exists():
+            if child.poll() is not None:
+                raise SystemExit("the profiled process ended before its warm requests")
+            time.sleep(0.1)
+        subprocess.run([spy, "record", "-p", str(child.pid), "-o", str(raw), "-f", "raw", "-r", "250", "--threads",
+                        "--nonblocking"], capture_output=True, check=False)
+        out, _ = child.communicate(timeout=600)
+        summary = spy_summary(raw.read_text())
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    text = (f"# Profile of warm table_mug requests, 500 samples, through DetectionEngine.run_sync in-process\n"
+            f"# {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit}, load average "
+            f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} at the end\n"
+            f"# command: PYTHONPATH=service:client:lab python bench/perf.py --profile {tag} --profile-requests "
+            f"{requests}  (py-spy record -r 250 --threads)\n{out}\n{summary}")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"profile-{tag}.txt").write_text(text)
+    print(text)
+
+
+def spy_summary(raw: str, top: int = 30) -> str:
+    """py-spy's raw stacks summed by function: the top by own time and by inclusive time (% of active samples)."""
+    from collections import Counter
+
+    own: Counter[str] = Counter()
+    incl: Counter[str] = Counter()
+    total = 0
+    for line in raw.splitlines():
+        if not line.strip():
+            continue
+        stack, count = line.rsplit(" ", 1)
+        frames = [f for f in stack.split(";") if not f.startswith(("thread (", "process "))]
+        if not frames:
+            continue
+        names = [re.sub(r"\((?:.*/(?:site-packages|service)/)?(.*?):\d+\)$", r"(\1)", f) for f in frames]
+        total += int(count)
+        own[names[-1]] += int(count)
+        for name in set(names):
+            incl[name] += int(count)
+    lines = [f"py-spy samples (all threads, idle excluded): {total}", "", f"Top {top} by own time:"]
+    lines += [f"  {100 * v / max(total, 1):5.1f}%  {k}" for k, v in own.most_common(top)]
+    lines += ["", f"Top {top + 15} inclusive:"]
+    lines += [f"  {100 * v / max(total, 1):5.1f}%  {k}" for k, v in incl.most_common(top + 15)]
+    return "\n".join(lines) + "\n"
+
+
+def profile_child(flag: Path, requests: int) -> None:
+    """The profiled process: the service's engine and registry (warm-up included), three unmeasured requests,
+    then `requests` measured ones once py-spy is attached; prints wall/CPU seconds and the stage medians."""
+    from graspd.server.metrics import Metrics
+    from graspd.server.requests import parse_request
+    from graspd.server.services.engine import DetectionEngine
+    from graspd.server.services.registry import ModelRegistry
+    from graspd.server.services.warmup import warm_up
+    from graspd.server.settings import Settings
+
+    mug = read_cloud(SHARED_MUG)
+    body = request_body(mug, 500)
+    settings = Settings()
+    registry = ModelRegistry.load(settings.resolved_models_dir(), None, settings.model_threads,
+                                  cascade=settings.cascade_model or None)
+    engine = DetectionEngine(settings, registry, Metrics())
+    warm_up(registry)
+
+    def one() -> tuple[dict[str, float], bytes]:
+        timings: dict[str, float] = {}
+        return timings, engine.run_sync(parse_request(body), timings)
+
+    for _ in range(3):
+        one()
+    flag.write_text(str(os.getpid()))
+    time.sleep(1.5)  # py-spy attaches
+    walls, cpus, stages = [], [], []
+    for _ in range(requests):
+        t, c = time.perf_counter(), time.process_time()
+        timings, out = one()
+        walls.append(time.perf_counter() - t)
+        cpus.append(time.process_time() - c)
+        stages.append(timings)
+    res = json.loads(out)
+    print(f"{requests} warm requests: median wall {statistics.median(walls):.3f} s, CPU "
+          f"{statistics.median(cpus):.3f} s (process, all threads); {res['num_candidates']} candidates, "
+          f"{len(res['grasps'])} grasps, model {res.get('model')}")
+    keys = [k for k in stages[0] if k != "queue"]
+    print("median stage s:", {k: round(statistics.median(x.get(k, 0.0) for x in stages), 4) for k in keys})
+    engine.close()
+
+
 def _fmt(v: float) -> str:
     return f"{v:.0f}" if v >= 100 else f"{v:.3f}"
 
@@ -258,7 +493,19 @@ def main() -> None:
     ap.add_argument("--no-service", action="store_true", help="skip the request latencies through the service")
     ap.add_argument("--reference-gpd", type=Path, help="a GPD C++ detect_grasps binary to run on table_mug.pcd")
     ap.add_argument("--reference-gpd-config", type=Path, help="its config file (num_samples is set to 500)")
+    ap.add_argument("--scaling", action="store_true", help="only the whole-detection scaling with points and samples "
+                    "(perf-scaling.md, .png)")
+    ap.add_argument("--profile", metavar="TAG", help="only the py-spy profile of warm table_mug requests "
+                    "(profile-TAG.txt)")
+    ap.add_argument("--profile-requests", type=int, default=10, help="measured requests of --profile")
+    ap.add_argument("--profile-child", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.profile_child is not None:
+        profile_child(args.profile_child, args.profile_requests)
+        return
+    if args.profile:
+        profile(args.profile, args.profile_requests)
+        return
     if args.reference_gpd is not None and args.reference_gpd_config is None:
         ap.error("--reference-gpd needs --reference-gpd-config (GPD's detect_grasps reads its settings from it)")
     repeats = 1 if args.quick else args.repeats
@@ -271,15 +518,25 @@ def main() -> None:
         out.append(text)
 
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    emit(f"# graspd speed (bench/perf.py, commit {commit}, {time.strftime('%Y-%m-%d')}, 2-core CPU)\n")
+    emit(f"# graspd speed (bench/perf.py, commit {commit}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+         f"{os.cpu_count()}-core CPU)\n")
+    emit(f"Command: `PYTHONPATH=service:client:lab python bench/perf.py {' '.join(sys.argv[1:])}`\n")
     emit(f"Machine load at the start: {' '.join(f'{x:.2f}' for x in os.getloadavg())} ({os.cpu_count()} cores); "
          "compare ratios and medians when other work shares the machine.\n")
+    if args.scaling:
+        scaling(repeats, emit)
+        emit(f"\nMachine load at the end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        (RESULTS / "perf-scaling.md").write_text("\n".join(out) + "\n")
+        print(f"wrote {RESULTS / 'perf-scaling.md'} and {RESULTS / 'perf-scaling.png'}")
+        return
     big = cluttered_tabletop(num_objects=8, seed=7, resolution_scale=1.5, table_size=(0.6, 0.6))
     emit(f"Rendered cluttered tabletop: {len(big)} points from two cameras 53 deg apart (960x720 each).\n")
     if not args.no_service:
         emit("## Request latency through the service (HTTP, 500 samples, default model)\n")
         mug_cloud = read_cloud(SHARED_MUG) if SHARED_MUG.exists() else None
         p50 = service_latency(mug_cloud, big, repeats, emit)
+        gpu_row(emit)
         if args.reference_gpd is not None:
             reference_gpd(args.reference_gpd, args.reference_gpd_config, emit, p50)
         else:
