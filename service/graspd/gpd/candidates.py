@@ -148,6 +148,7 @@ class _Obstacles:
     index: NDArray[np.int64] | None
     points: NDArray[np.float32]
     points64: NDArray[np.float64]
+    columns: NDArray[np.float32]  # (3, N): x, y and z rows, contiguous
     scale: float
     tree: cKDTree
 
@@ -160,7 +161,7 @@ class _Obstacles:
             pts = scene.points[index]
             tree = cKDTree(pts, balanced_tree=False)  # counts, and pairs sorted after: the tree's shape is moot
         scale = max(float(np.abs(pts).max()), 1.0) if len(pts) else 1.0
-        return _Obstacles(index, pts, pts.astype(np.float64), scale, tree)
+        return _Obstacles(index, pts, pts.astype(np.float64), np.ascontiguousarray(pts.T), scale, tree)
 
 
 #: The dense pair test (every obstacle point against every sample, by matrix products) runs when it tests at
@@ -187,7 +188,7 @@ def slab_pairs(obstacles: _Obstacles, samples: NDArray[np.float32], axes: NDArra
         sid, idx = ball_pairs(obstacles.tree, samples, reach)
         order = np.argsort(sid * n_p + idx)
         return sid[order], idx[order]
-    pts = obstacles.points
+    pts, cols = obstacles.points, obstacles.columns
     # float32 products err by a few ulp of the coordinates: a margin well above that keeps every slab pair
     scale = max(obstacles.scale, float(np.abs(samples).max()))
     margin = np.float32(half_height + DENSE_EPS * scale)
@@ -199,9 +200,9 @@ def slab_pairs(obstacles: _Obstacles, samples: NDArray[np.float32], axes: NDArra
         ax = axes[a : a + rows]
         # (rows, N): height of each point along each sample's axis; elementwise, not a BLAS product, whose
         # threads would spin beside the process's own (graspd.core.parallel)
-        z = ax[:, 0:1] * pts[None, :, 0] - offsets[a : a + rows, None]
-        z += ax[:, 1:2] * pts[None, :, 1]
-        z += ax[:, 2:3] * pts[None, :, 2]
+        z = ax[:, 0:1] * cols[0] - offsets[a : a + rows, None]
+        z += ax[:, 1:2] * cols[1]
+        z += ax[:, 2:3] * cols[2]
         np.abs(z, out=z)
         sid, idx = np.nonzero(z <= margin)
         d = obstacles.points64[idx] - samples[a : a + rows][sid].astype(np.float64)
@@ -269,7 +270,8 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     y_phi = -sin * local_x[None, :] + cos * local_y[None, :]
     bins = np.floor((y_phi + y_max) / bin_w).astype(np.int64)
     inside = (bins >= 0) & (bins < n_bins)
-    keys = (sid[None, :] * n_phi + np.arange(n_phi)[:, None]) * n_bins + bins
+    hand_key = sid[None, :] * n_phi + np.arange(n_phi)[:, None]  # (Phi, T): flat (sample, orientation) ids
+    keys = hand_key * n_bins + bins
     flat_min = np.full(n_s * n_phi * n_bins, np.inf, np.float32)
     np.minimum.at(flat_min, keys[inside], x_phi[inside])
     depth_min = flat_min.reshape(n_s, n_phi, n_bins)
@@ -309,15 +311,16 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     shift[si, pi] = t_star - hd
     across = np.zeros((n_s, n_phi))  # hand centre along the rotated binormal (m)
     across[si, pi] = s_grid[bj]
-    hx_all = x_phi - shift.T[:, sid]  # (Phi, T) float64, as (x - (t* - hd)) per hand
-    hy_all = y_phi - across.T[:, sid]
+    cand_all = cand_of.reshape(-1)[hand_key]  # (Phi, T): the hand of each (orientation, point) pair, or -1
+    flat = np.flatnonzero(cand_all >= 0)  # in (orientation, point) order
+    cand = cand_all.reshape(-1)[flat]
+    key = hand_key.reshape(-1)[flat]
+    hx = x_phi.reshape(-1)[flat] - shift.reshape(-1)[key]  # float64, as (x - (t* - hd)) per hand
+    hy = y_phi.reshape(-1)[flat] - across.reshape(-1)[key]
     half_w = hand.closing_half_width
-    inside_c = (cand_of.T[:, sid] >= 0) & (hx_all >= 0.0) & (hx_all <= hd) & (np.abs(hy_all) <= half_w)
-    ph, elem = np.nonzero(inside_c)
-    cand = cand_of[sid[elem], ph]
-    order = np.argsort(cand, kind="stable")  # by hand, each hand's points in slab order
-    ph, elem, cand = ph[order], elem[order], cand[order]
-    hx, hy = hx_all[ph, elem], hy_all[ph, elem]
+    order = np.flatnonzero((hx >= 0.0) & (hx <= hd) & (np.abs(hy) <= half_w))
+    order = order[np.argsort(cand[order], kind="stable")]  # by hand, each hand's points in slab order
+    elem, cand, hx, hy = flat[order] % len(sid), cand[order], hx[order], hy[order]
     ymin = np.full(m, np.inf)
     ymax = np.full(m, -np.inf)
     np.minimum.at(ymin, cand, hy)
