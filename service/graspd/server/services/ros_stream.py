@@ -197,7 +197,7 @@ def decode_input(payload: bytes, name: str, options: StreamOptions) -> CloudMess
     if len(pts) == 0:
         raise Problem(422, no_finite_point(msg.received) if msg.received else
                       "empty cloud (0 points); send at least one point", _DATA_FIELD[name])
-    if float(np.abs(pts).max()) > MAX_COORDINATE:
+    if max(float(pts.max()), -float(pts.min())) > MAX_COORDINATE:  # no |pts| temporary
         raise Problem(422, f"coordinates beyond +-{MAX_COORDINATE:g} m; send metres in a local frame",
                       _DATA_FIELD[name])
     return in_robot_frame(msg, options)
