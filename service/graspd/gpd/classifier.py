@@ -109,6 +109,9 @@ def read_card(path: str | Path) -> dict[str, Any]:
     return card
 
 
+#: Images per onnxruntime run by default: small batches keep a network's activations in the CPU's caches (32
+#: images cost ~28% less CPU per image than 600 for the shipped networks), and scores do not depend on it.
+RUN_BATCH = 32
 #: Environment variable naming the execution provider to use ("cpu" forces the CPU where a GPU is offered).
 PROVIDER_ENV = "GRASPD_ORT_PROVIDER"
 #: The GPU execution providers used when onnxruntime offers them, in order of preference.
@@ -139,7 +142,7 @@ class OnnxGraspClassifier:
     """
 
     def __init__(self, onnx_path: str | Path, card: dict[str, Any] | None = None, threads: int = 2,
-                 batch_size: int = 1024) -> None:
+                 batch_size: int = RUN_BATCH) -> None:
         import onnxruntime as ort  # noqa: PLC0415
 
         self.path = Path(onnx_path)
@@ -202,7 +205,7 @@ class OnnxGraspClassifier:
 
 
 def load_model(path_or_name: str | Path, models_dir: str | Path | None = None, threads: int = 2,
-               batch_size: int = 1024) -> OnnxGraspClassifier:
+               batch_size: int = RUN_BATCH) -> OnnxGraspClassifier:
     """A model by name (models_dir/<name>.onnx + .json) or by the path of its .onnx file.
 
     ModelError names the unknown model and lists the known ones.
@@ -223,7 +226,7 @@ def load_model(path_or_name: str | Path, models_dir: str | Path | None = None, t
 
 
 def load_models(models_dir: str | Path | None = None, threads: int = 2,
-                batch_size: int = 1024) -> dict[str, OnnxGraspClassifier]:
+                batch_size: int = RUN_BATCH) -> dict[str, OnnxGraspClassifier]:
     """Every model in a folder, by name."""
     folder = Path(models_dir) if models_dir is not None else default_models_dir()
     return {name: load_model(name, folder, threads=threads, batch_size=batch_size)
@@ -249,7 +252,7 @@ def model_candidates(models_dir: str | Path | None = None) -> list[str]:
     return sorted(names)
 
 
-def load_models_checked(models_dir: str | Path | None = None, threads: int = 2, batch_size: int = 1024
+def load_models_checked(models_dir: str | Path | None = None, threads: int = 2, batch_size: int = RUN_BATCH
                         ) -> tuple[dict[str, OnnxGraspClassifier], dict[str, str]]:
     """Every model in a folder, each loaded on its own: (the models that load, {name: why} for the rest).
 
