@@ -47,6 +47,7 @@ from graspd.server.schemas import DetectRequest
 from graspd.server.services.engine import DetectionEngine
 from graspd.server.services.ros_stream import (
     Captured,
+    LatestFrame,
     StreamOptions,
     decode_input,
     parse_options,
@@ -155,10 +156,8 @@ class Ros2Node:
         self.readers: list[RawReader] = []
         self.writers: dict[str, RawWriter] = {}
         self._discovery: RawWriter | None = None
-        self._latest: tuple[bytes, str] | None = None
+        self._frames = LatestFrame()
         self._last_cloud: tuple[bytes, str, float] | None = None  # for plan_grasps: payload, input, arrival
-        self._wake = threading.Condition()
-        self._stop = False
         self._thread: threading.Thread | None = None
 
     # ---- lifecycle -------------------------------------------------------------------------------------------
@@ -199,9 +198,7 @@ class Ros2Node:
 
     def close(self) -> None:
         """Stop the stream thread (after the frame in progress) and delete the participant."""
-        with self._wake:
-            self._stop = True
-            self._wake.notify_all()
+        self._frames.close()
         if self._thread is not None:
             self._thread.join(timeout=self.settings.deadline_s)
         if self.participant is not None:
@@ -215,7 +212,7 @@ class Ros2Node:
 
     @property
     def ready(self) -> bool:
-        return self.participant is not None and not self._stop
+        return self.participant is not None and not self._frames.closed
 
     # ---- errors ----------------------------------------------------------------------------------------------
     def _string(self, text: str) -> bytes:
@@ -254,24 +251,15 @@ class Ros2Node:
                 self.metrics.requests.labels("ros2-stream", "too_large").inc()
                 self.publish_error(problem, self.names[entry])
                 return
-            with self._wake:
-                if self._latest is not None:
-                    self.metrics.stream_dropped.inc()
-                self._latest = (data, entry)
-                self._last_cloud = (data, entry, time.monotonic())
-                self._wake.notify()
+            self._last_cloud = (data, entry, time.monotonic())
+            if self._frames.put(data, entry):
+                self.metrics.stream_dropped.inc()
         except Exception:  # never let an exception into Cyclone's thread
             log.exception("ros2 cloud refused")
 
     def _stream_loop(self) -> None:
-        while True:
-            with self._wake:
-                while self._latest is None and not self._stop:
-                    self._wake.wait()
-                if self._stop or self._latest is None:
-                    return
-                data, entry = self._latest
-                self._latest = None
+        while (frame := self._frames.take()) is not None:
+            data, entry = frame
             contextvars.Context().run(self._stream_frame, data, entry)
 
     def decode(self, data: bytes, entry: str) -> CloudMessage:

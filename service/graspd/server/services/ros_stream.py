@@ -14,6 +14,7 @@ messages to requests is here.
 from __future__ import annotations
 
 import json
+import threading
 from collections.abc import Callable, Collection, Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -70,6 +71,42 @@ _DECODERS: dict[str, Callable[[bytes], CloudMessage]] = {
 #: Where each input message keeps its point data (the field an empty or out-of-range cloud is reported under).
 _DATA_FIELD = {"pointcloud2": "data", "cloud_sources": "cloud.data", "cloud_indexed": "cloud_sources.cloud.data",
                "cloud_samples": "cloud_sources.cloud.data"}
+
+
+class LatestFrame:
+    """The one-slot mailbox of a streamed transport (Zenoh, the ROS 2 node): a cloud not yet taken is replaced
+    by a newer one (a robot wants grasps for the scene as it is now), and the stream thread takes them one at a
+    time.  Thread-safe; put() comes from the transport's listener thread."""
+
+    def __init__(self) -> None:
+        self._item: tuple[bytes, str] | None = None
+        self._wake = threading.Condition()
+        self.closed = False
+
+    def put(self, payload: bytes, name: str) -> bool:
+        """Make (payload, input name) the newest frame; True when it replaced one never taken (a dropped frame)."""
+        with self._wake:
+            dropped = self._item is not None
+            self._item = (payload, name)
+            self._wake.notify()
+        return dropped
+
+    def take(self) -> tuple[bytes, str] | None:
+        """Wait for the next frame; None once closed (a frame put before close() is not taken)."""
+        with self._wake:
+            while self._item is None and not self.closed:
+                self._wake.wait()
+            if self.closed:
+                return None
+            item, self._item = self._item, None
+            return item
+
+    def close(self) -> None:
+        """Wake the stream thread to stop, after the frame in progress."""
+        with self._wake:
+            self.closed = True
+            self._wake.notify_all()
+
 
 
 def resolve_keys(prefix: str, given: Mapping[str, str], defaults: Mapping[str, str], setting: str) -> dict[str, str]:

@@ -44,6 +44,7 @@ from graspd.server.services.ros_stream import (
     INPUT_TYPES,
     MAX_CONFIG_BYTES,
     Captured,
+    LatestFrame,
     StreamOptions,
     decode_input,
     parse_options,
@@ -243,9 +244,7 @@ class ZenohNode:
         self.session: Any = None
         self._declared: list[Any] = []
         self._publishers: dict[str, Any] = {}
-        self._latest: tuple[bytes, str] | None = None
-        self._wake = threading.Condition()
-        self._stop = False
+        self._frames = LatestFrame()
         self._stream_thread: threading.Thread | None = None
         self._templates_pool = ThreadPoolExecutor(1, thread_name_prefix="graspd-zenoh-templates")
         token = settings.token
@@ -276,7 +275,7 @@ class ZenohNode:
 
     @property
     def ready(self) -> bool:
-        return self.session is not None and not self._stop
+        return self.session is not None and not self._frames.closed
 
     @property
     def detect_key(self) -> str:
@@ -329,9 +328,7 @@ class ZenohNode:
                                          "token": self._expected is not None})
 
     def close(self) -> None:
-        with self._wake:
-            self._stop = True
-            self._wake.notify_all()
+        self._frames.close()
         if self._stream_thread is not None:
             self._stream_thread.join(timeout=self.settings.deadline_s)
         for d in self._declared:
@@ -563,11 +560,8 @@ class ZenohNode:
         except Exception:
             log.exception("zenoh stream sample refused")
             return
-        with self._wake:
-            if self._latest is not None:
-                self.metrics.stream_dropped.inc()
-            self._latest = (payload, name)
-            self._wake.notify()
+        if self._frames.put(payload, name):
+            self.metrics.stream_dropped.inc()
 
     def _refuse_stream(self, what: str = "stream cloud") -> None:
         self.metrics.requests.labels("zenoh-stream", "unauthorized").inc()
@@ -579,14 +573,8 @@ class ZenohNode:
                         extra={"transport": "zenoh", "outcome": "unauthorized", "dropped": self._refused_stream})
 
     def _stream_loop(self) -> None:
-        while True:
-            with self._wake:
-                while self._latest is None and not self._stop:
-                    self._wake.wait()
-                if self._stop or self._latest is None:
-                    return
-                payload, name = self._latest
-                self._latest = None
+        while (frame := self._frames.take()) is not None:
+            payload, name = frame
             contextvars.Context().run(self._stream_frame, payload, name)
 
     def _stream_frame(self, payload: bytes, name: str = "pointcloud2") -> None:
