@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graspd.core.hand import HandGeometry
+from graspd.core.parallel import THREADS
 from graspd.gpd.scene import VoxelGrid
 
 F64 = NDArray[np.float64]
@@ -46,16 +47,20 @@ def hand_samples(hand: HandGeometry, approach_distance: float, margin: float = U
 
 
 def unknown_share(grid: VoxelGrid, positions: F64, rotations: F64, hand: HandGeometry, approach_distance: float,
-                  margin: float = UNKNOWN_MARGIN, chunk: int = 4096) -> F64:
+                  margin: float = UNKNOWN_MARGIN, chunk: int = 1024) -> F64:
     """The share (M,) in [0, 1] of each hand's samples (hand_samples) that lie in the unobserved volume, for
-    hands at positions (M,3) with rotations (M,3,3) (grasp convention, cloud frame)."""
+    hands at positions (M,3) with rotations (M,3,3) (grasp convention, cloud frame).  Chunks of hands run on the
+    process's thread budget (graspd.core.parallel; each hand's share depends on that hand alone)."""
     m = len(positions)
     out = np.zeros(m)
     if m == 0 or not grid.cells.any():
         return out
     local = hand_samples(hand, approach_distance, margin).astype(np.float32)
-    for a in range(0, m, chunk):
+
+    def share(a: int) -> None:
         rot = rotations[a : a + chunk].astype(np.float32)
         world = positions[a : a + chunk, None, :].astype(np.float32) + np.einsum("mij,pj->mpi", rot, local)
         out[a : a + chunk] = grid.contains(world).mean(axis=1)
+
+    THREADS.map(share, range(0, m, chunk))
     return out
