@@ -102,11 +102,13 @@ def main(argv: list[str] | None = None) -> int:
     image: float | None = None
     if apt is not None:
         image = args.base_mib + site_mb + apt[0] + models_mb
-        lines += [f"- Dockerfile apt packages: `{' '.join(apt_packages)}`: {len(apt[1])} Debian packages beyond "
-                  f"debian:bookworm-slim, {apt[0]:.0f} MiB installed (apt-cache Installed-Size)",
-                  f"- **image estimate: {image:.0f} MiB** = python:3.11-slim {args.base_mib:.0f} MiB (assumed) + "
-                  f"site-packages {site_mb:.0f} + apt {apt[0]:.0f} + models/ {models_mb:.0f}. An estimate, not a "
-                  "built image (no Docker engine here): layers and file-system overhead are not counted"]
+        lines += [f"- Dockerfile apt packages: `{' '.join(apt_packages)}`: with their dependencies {len(apt[1])} "
+                  f"Debian package(s) beyond debian:bookworm-slim, {apt[0]:.1f} MiB installed (apt-cache "
+                  "Installed-Size)",
+                  f"- **image estimate: {image:.0f} MiB** = python:3.11-slim {args.base_mib:.0f} MiB (assumed, not "
+                  f"measured) + site-packages {site_mb:.0f} + apt {apt[0]:.1f} + models/ {models_mb:.0f}. An "
+                  "estimate, not a built image (no Docker engine here): layers, file-system overhead and the pip "
+                  "the base image already has are not told apart"]
     lines += ["", "| package | MiB |", "|---|---:|"]
     lines += [f"| {name} | {mb:.0f} |" for name, mb in packages[:args.top]]
     text = "\n".join(lines) + "\n"

@@ -70,8 +70,10 @@ def test_dockerfile_install_steps_in_fresh_venv(tmp_path: Path) -> None:
     required = [line.split(":", 1)[1].strip().lower() for line in meta.splitlines()
                 if line.startswith("Requires-Dist:") and "extra ==" not in line]
     assert required and not [r for r in required if r.startswith(("open3d", "torch", "pybullet"))], required
-    subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-index", "--find-links", str(wheels),
-                    *([] if full else ["--no-deps"]), *pip_steps[1]], cwd=build, check=True, timeout=1800)
+    # --ignore-installed: the .pth shows pip the project's editable graspd, which it would keep instead
+    local = [] if full else ["--no-deps", "--ignore-installed"]
+    subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-index", "--find-links", str(wheels), *local,
+                    *pip_steps[1]], cwd=build, check=True, timeout=1800)
     port = 18000 + os.getpid() % 1000
     env = {**docker_env, "GRASPD_MODELS_DIR": str(build / "models"), "GRASPD_HOST": "127.0.0.1",
            "GRASPD_PORT": str(port), "GRASPD_ZENOH_ENABLED": "false", "PATH": f"{env_dir / 'bin'}:/usr/bin:/bin",
