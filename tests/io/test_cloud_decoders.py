@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from graspd.core.cloud import CloudError
+from graspd.io import text_numbers
 from graspd.io.cloud_files import parse_pcd, parse_ply, read_input
 from graspd.io.lzf import LzfError, lzf_decompress
-from graspd.io.text_numbers import line_starts, read_numbers
+from graspd.io.text_numbers import line_start, read_numbers
 
 RNG = np.random.default_rng(7)
 PTS = (RNG.normal(size=(300, 3)) * 10.0 ** RNG.integers(-3, 2, (300, 1))).astype(np.float32)
@@ -27,7 +28,23 @@ def test_read_numbers_counts_each_line_and_skips_blank_ones() -> None:
     assert np.array_equal(table.values, [1, 2, 3, 4, 5, -np.inf, np.nan, 1e5], equal_nan=True)
     for empty in (b"", b" ", b"\n \n"):  # np.fromstring alone reads " " as [-1.0]
         assert read_numbers(empty).values.size == 0 and read_numbers(empty).per_line.size == 0
-    assert line_starts(b"a\nbc\n").tolist() == [0, 2, 5]
+    assert [line_start(b"a\nbc\n", k) for k in range(4)] == [0, 2, 5, 5]
+
+
+def test_reading_in_pieces_cut_at_newlines_gives_the_same_numbers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The text is read CHUNK bytes at a time: any piece size, lines longer than a piece included, gives the
+    numbers and the per-line counts of one read."""
+    text = b"\n1 2 3\n\n  4 5 6 7 8 9 10 11 12 13 14 15\n16\n\n17 18\n" * 3 + b"19 20"
+    whole = read_numbers(text)
+    starts = [line_start(text, k) for k in range(text.count(b"\n") + 2)]
+    for chunk in (1, 2, 3, 5, 8, 13, 40, 1000):
+        monkeypatch.setattr(text_numbers, "CHUNK", chunk)
+        piecewise = read_numbers(text)
+        assert np.array_equal(piecewise.values, whole.values) and np.array_equal(piecewise.per_line,
+                                                                                 whole.per_line), chunk
+        assert [line_start(text, k) for k in range(len(starts))] == starts, chunk
+    with pytest.raises(ValueError):
+        read_numbers(text + b"\n1 x 2")
 
 
 @pytest.mark.parametrize("text", [b"1 2 a", b"1,2 3", b"1-2 3", b"1 2\x003", b"1\x012", b"0x10", b"1 2 3\xc2\xa04"])
@@ -106,7 +123,7 @@ XYZ = [("x", "<f4", 1), ("y", "<f4", 1), ("z", "<f4", 1)]
 BAD_ASCII = [
     ("uneven rows of the right total", b"1 2 3 4\n5 6\n", "unreadable"),
     ("a word", b"1 2 3\n4 five 6\n", "unreadable"),
-    ("comma separated", b"1,2,3\n4,5,6\n", "unreadable"),
+    ("comma separated", b"1,2,3\n4,5,6\n", "the data holds 2 rows of 1"),  # the shape is checked first
     ("rows of 4", b"1 2 3 4\n5 6 7 8\n", "2 points of 3 values; the data holds 2 rows of 4"),
     ("3 rows", b"1 2 3\n4 5 6\n7 8 9\n", "the data holds 3 rows of 3"),
     ("no rows", b"\n \n", "the data holds 0 rows"),

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from graspd.core.cloud import CloudError
 from graspd.core.limits import MAX_POINTS
 from graspd.io.lzf import LzfError, lzf_decompress
-from graspd.io.text_numbers import read_numbers
+from graspd.io.text_numbers import line_counts, parse_numbers
 
 #: The most points a PCD or PLY file may declare.
 MAX_FILE_POINTS = MAX_POINTS
@@ -155,19 +155,20 @@ def _check_sizes(body: memoryview, head: PcdHeader) -> None:
 def _ascii_xyz(body: memoryview, head: PcdHeader) -> NDArray[np.float32]:
     """x, y, z of ASCII data: every row must hold values_per_point numbers (blank lines skipped), POINTS rows."""
     n, width = head.points, head.values_per_point
-    try:  # parsed as float32: numpy rounds strtod's float64 once more, as a float64 parse then a cast would
-        table = read_numbers(body, np.float32)
-    except ValueError as exc:
-        raise CloudError("cloud.points", f"pcd ascii data unreadable ({exc})") from None
-    rows = table.per_line
+    text = bytes(body)
+    rows = line_counts(text)  # the table's shape first: a file of the wrong one is refused before parsing
     if rows.size and (rows != rows[0]).any():
         raise CloudError("cloud.points", f"pcd ascii data unreadable (its rows hold {rows.min()} to {rows.max()} "
                          "values)")
     if rows.size != n or (n and rows[0] != width):
         raise CloudError("cloud.points", f"pcd header declares {n} points of {width} values; the data holds "
                          f"{rows.size} rows of {rows[0] if rows.size else 0}")
+    try:  # parsed as float32: numpy rounds strtod's float64 once more, as a float64 parse then a cast would
+        values = parse_numbers(text, n * width, np.float32)
+    except ValueError as exc:
+        raise CloudError("cloud.points", f"pcd ascii data unreadable ({exc})") from None
     columns = [sum(head.counts[:i]) for i in head.xyz()]  # where each coordinate sits in a row
-    return table.values.reshape(n, width)[:, columns].astype(np.float32, copy=False)
+    return values.reshape(n, width)[:, columns].astype(np.float32, copy=False)
 
 
 def _binary_xyz(body: memoryview, head: PcdHeader) -> NDArray[np.float32]:

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from graspd.core.cloud import CloudError
 from graspd.core.limits import MAX_POINTS
-from graspd.io.text_numbers import line_starts, read_numbers
+from graspd.io.text_numbers import line_counts, line_start, parse_numbers
 
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
               "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
@@ -123,21 +123,25 @@ def _ascii_vertex_rows(body: memoryview, head: PlyHeader) -> tuple[NDArray[np.fl
     where each row starts among them; CloudError when the file holds fewer lines or values than declared."""
     element = head.elements[head.vertex]
     count, width = element.count, len(element.properties)
-    starts = line_starts(body)  # len(starts) is the number of lines as bytes.split(b"\n") makes them
+    text = bytes(body)
+    lines = text.count(b"\n") + 1  # as many as text.split(b"\n") makes
     total = sum(e.count for e in head.elements)
     first = sum(e.count for e in head.elements[: head.vertex])
     fewer = CloudError("cloud.points", f"the PLY header declares {count} vertices of {width} values; "
                        f"the file holds fewer")
-    if len(starts) < total or len(starts) < first + count:
+    if lines < total or lines < first + count:
         raise fewer
-    stop = starts[first + count] - 1 if first + count < len(starts) else len(body)  # the last vertex row's end
+    begin = line_start(text, first)
+    stop = line_start(text, first + count) - 1 if first + count < lines else len(text)  # the last vertex row's end
+    rows = text[begin:stop]
+    per_line = line_counts(rows)
+    if per_line.size < count or (per_line < width).any():  # a blank or a short row
+        raise fewer
     try:
-        table = read_numbers(body[starts[first]:stop], np.float64)
+        values = parse_numbers(rows, int(per_line.sum()), np.float64)
     except ValueError as exc:
         raise CloudError("cloud.points", f"the PLY vertex rows are unreadable ({exc})") from None
-    if table.per_line.size < count or (table.per_line < width).any():  # a blank or a short row
-        raise fewer
-    return table.values, table.row_starts()
+    return values, np.cumsum(per_line) - per_line
 
 
 def _ascii_xyz(body: memoryview, head: PlyHeader) -> NDArray[np.float32]:
