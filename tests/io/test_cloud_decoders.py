@@ -278,3 +278,12 @@ def test_decoders_equal_open3d(real_data: Path, tmp_path: Path) -> None:
         path = tmp_path / f"mesh-{ascii_}.ply"
         assert o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=ascii_)
         assert np.array_equal(parse_ply(path.read_bytes()), _open3d_ply(o3d, path))
+
+
+def test_ply_headers_the_readers_cannot_follow_are_refused() -> None:
+    """x as a list, and a list counted by a float (its rows could not be walked), are refused from the header."""
+    for props, why in ((["list uchar float x", "float y", "float z"], "is a list"),
+                       (["float x", "float y", "float z", "list float int idx"], "not understood")):
+        with pytest.raises(CloudError, match=why) as err:
+            parse_ply(ply("binary_little_endian", [("vertex", 1, props)], bytes(64)))
+        assert err.value.field == "cloud.points"

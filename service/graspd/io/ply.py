@@ -82,8 +82,9 @@ def check_ply_header(data: bytes) -> PlyHeader:
             elements.append(PlyElement(parts[1], int(parts[2]), []))
         elif parts[:1] == ["property"] and elements:
             prop = parts[1:]
-            known = (len(prop) == 2 and prop[0] in _PLY_SIZES) or (
-                len(prop) == 4 and prop[0] == "list" and prop[1] in _PLY_SIZES and prop[2] in _PLY_SIZES)
+            known = (len(prop) == 2 and prop[0] in _PLY_SIZES) or (  # a list's count is an integer type
+                len(prop) == 4 and prop[0] == "list" and _PLY_KINDS.get(prop[1]) in ("i", "u")
+                and prop[2] in _PLY_SIZES)
             if not known:
                 raise CloudError("cloud.points", f"PLY property line {line.strip()!r} is not understood")
             elements[-1].properties.append(prop)
@@ -101,6 +102,9 @@ def check_ply_header(data: bytes) -> PlyHeader:
     names = [p[-1] for p in props]
     if not {"x", "y", "z"} <= set(names):
         raise CloudError("cloud.points", f"the PLY vertex element lacks x, y or z (has {names})")
+    for a in "xyz":
+        if props[names.index(a)][0] == "list":
+            raise CloudError("cloud.points", f"the PLY vertex property {a} is a list, not a number")
     if fmt != "ascii":  # binary: every element row takes at least its fixed-size properties plus each list's count
         least = sum(e.least_bytes() for e in elements)
         if len(body) < least:
@@ -148,7 +152,6 @@ def _ascii_xyz(body: memoryview, head: PlyHeader) -> NDArray[np.float32]:
     """x, y, z of ASCII vertex rows, property by property over all rows at once: a list property's row holds its
     count then that many items, so the columns after it sit at a per-row position."""
     values, position = _ascii_vertex_rows(body, head)
-    position = position.copy()
     ends = np.append(position[1:], values.size)  # one past each row's last value
     props = head.elements[head.vertex].properties
     names = [p[-1] for p in props]
@@ -195,11 +198,12 @@ def _binary_layout(body: memoryview, offset: int, element: PlyElement, endian: s
     return np.dtype(fields) if pos <= len(body) else None  # type: ignore[arg-type]
 
 
-def _walk_rows(body: memoryview, offset: int, element: PlyElement, endian: str) -> tuple[dict[int, NDArray[
-        np.number]], int]:
+def _walk_rows(body: memoryview, offset: int, element: PlyElement, endian: str, wanted: frozenset[int]
+               ) -> tuple[dict[int, NDArray[np.number]], int]:
     """Rows whose lists vary in length: each row's start depends on every row before it, so Python walks the
     lists' counts row by row (about 0.3 us a row), then numpy gathers the fixed-size properties of all rows at
-    their offsets.  Rare: point clouds' vertices have no lists, and a mesh's faces follow its vertices."""
+    their offsets (the wanted ones).  Rare: point clouds' vertices have no lists, and a mesh's faces follow its
+    vertices."""
     n, props = element.count, element.properties
     fewer = CloudError("cloud.points", f"the PLY header declares {n} {element.name} rows; the file holds fewer")
     segments = []  # per list: fixed bytes before it, its count's reader and size, its items' size
@@ -238,15 +242,19 @@ def _walk_rows(body: memoryview, offset: int, element: PlyElement, endian: str) 
             k += 1
             continue
         dtype = _dtype(endian, prop[0])
-        columns[i] = raw[at[:, None] + np.arange(dtype.itemsize)].copy().view(dtype).ravel()
+        if i in wanted:
+            column = np.empty((n, dtype.itemsize), np.uint8)
+            for b in range(dtype.itemsize):  # byte by byte: temporaries of n, not n x itemsize, indices
+                column[:, b] = raw[at + b]
+            columns[i] = column.view(dtype).ravel()
         at += dtype.itemsize
     return columns, pos
 
 
-def _binary_rows(body: memoryview, offset: int, element: PlyElement, endian: str) -> tuple[dict[int, NDArray[
-        np.number]], int]:
-    """The fixed-size properties of a binary element's rows, by property index, and the byte where the next
-    element starts: one numpy record read when every row's lists are as long as the first row's (checked:
+def _binary_rows(body: memoryview, offset: int, element: PlyElement, endian: str,
+                 wanted: frozenset[int] = frozenset()) -> tuple[dict[int, NDArray[np.number]], int]:
+    """The wanted fixed-size properties of a binary element's rows, by property index, and the byte where the
+    next element starts: one numpy record read when every row's lists are as long as the first row's (checked:
     then each row's counts sit where the record puts them), else _walk_rows."""
     n = element.count
     layout = _binary_layout(body, offset, element, endian)
@@ -256,11 +264,10 @@ def _binary_rows(body: memoryview, offset: int, element: PlyElement, endian: str
     if offset + n * layout.itemsize <= len(body):
         rows = np.frombuffer(body, layout, n, offset)
         if all((rows[f"p{i}"] == layout[f"p{i}_items"].shape[0]).all() for i in lists):
-            return {i: rows[f"p{i}"] for i, p in enumerate(element.properties) if p[0] != "list"}, \
-                offset + n * layout.itemsize
+            return {i: rows[f"p{i}"] for i in wanted}, offset + n * layout.itemsize
     if not lists:
         raise CloudError("cloud.points", f"the PLY header declares {n} {element.name} rows; the file holds fewer")
-    return _walk_rows(body, offset, element, endian)
+    return _walk_rows(body, offset, element, endian, wanted)
 
 
 def _binary_xyz(body: memoryview, head: PlyHeader) -> NDArray[np.float32]:
@@ -269,12 +276,10 @@ def _binary_xyz(body: memoryview, head: PlyHeader) -> NDArray[np.float32]:
     for element in head.elements[: head.vertex]:
         _, offset = _binary_rows(body, offset, element, head.endian())
     element = head.elements[head.vertex]
-    columns, _ = _binary_rows(body, offset, element, head.endian())
     names = [p[-1] for p in element.properties]
+    columns, _ = _binary_rows(body, offset, element, head.endian(), frozenset(names.index(a) for a in "xyz"))
     out = np.empty((element.count, 3), np.float32)
     for k, a in enumerate("xyz"):
-        if names.index(a) not in columns:
-            raise CloudError("cloud.points", f"the PLY vertex property {a} is a list, not a number")
         out[:, k] = columns[names.index(a)]
     return out
 
