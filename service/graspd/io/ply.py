@@ -141,8 +141,10 @@ def _ascii_vertex_rows(body: memoryview, head: PlyHeader) -> tuple[NDArray[np.fl
     per_line = line_counts(rows)
     if per_line.size < count or (per_line < width).any():  # a blank or a short row
         raise fewer
+    # float32 unless a list's counts must be read exactly (x y z come out the same: numpy rounds strtod's float64)
+    dtype = np.float64 if any(p[0] == "list" for p in element.properties) else np.float32
     try:
-        values = parse_numbers(rows, int(per_line.sum()), np.float64)
+        values = parse_numbers(rows, int(per_line.sum()), dtype)
     except ValueError as exc:
         raise CloudError("cloud.points", f"the PLY vertex rows are unreadable ({exc})") from None
     return values, np.cumsum(per_line) - per_line
