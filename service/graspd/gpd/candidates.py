@@ -188,7 +188,7 @@ def slab_pairs(obstacles: _Obstacles, samples: NDArray[np.float32], axes: NDArra
         sid, idx = ball_pairs(obstacles.tree, samples, reach)
         order = np.argsort(sid * n_p + idx)
         return sid[order], idx[order]
-    pts, cols = obstacles.points, obstacles.columns
+    cols = obstacles.columns
     # float32 products err by a few ulp of the coordinates: a margin well above that keeps every slab pair
     scale = max(obstacles.scale, float(np.abs(samples).max()))
     margin = np.float32(half_height + DENSE_EPS * scale)
@@ -269,11 +269,13 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     x_phi = cos * local_x[None, :] + sin * local_y[None, :]  # (Phi, T) depth along the rotated approach
     y_phi = -sin * local_x[None, :] + cos * local_y[None, :]
     bins = np.floor((y_phi + y_max) / bin_w).astype(np.int64)
-    inside = (bins >= 0) & (bins < n_bins)
+    # a point at least hand_depth ahead stops no finger short of hand_depth, the most a fingertip reaches (below):
+    # leaving it out changes no fingertip depth
+    inside = np.flatnonzero((bins >= 0) & (bins < n_bins) & (x_phi < hd))
     hand_key = sid[None, :] * n_phi + np.arange(n_phi)[:, None]  # (Phi, T): flat (sample, orientation) ids
-    keys = hand_key * n_bins + bins
+    keys = hand_key.reshape(-1)[inside] * n_bins + bins.reshape(-1)[inside]
     flat_min = np.full(n_s * n_phi * n_bins, np.inf, np.float32)
-    np.minimum.at(flat_min, keys[inside], x_phi[inside])
+    np.minimum.at(flat_min, keys, x_phi.reshape(-1)[inside])
     depth_min = flat_min.reshape(n_s, n_phi, n_bins)
 
     def bin_range(lo: float, hi: float) -> slice:
