@@ -4,6 +4,7 @@ warm-up taking the path of a real request (issue 26): the model cascade, full ba
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -11,8 +12,12 @@ import pytest
 
 from graspd.gpd import classifier
 from graspd.gpd.classifier import CPU_PROVIDER, choose_providers, load_model
+from graspd.server.metrics import Metrics
+from graspd.server.services import warmup
+from graspd.server.services.engine import DetectionEngine
 from graspd.server.services.registry import ModelRegistry
 from graspd.server.services.warmup import WARMUP_SAMPLES, warm_detection, warmup_body
+from graspd.server.settings import Settings
 
 SHIPPED = Path(__file__).resolve().parents[2] / "models"
 
@@ -46,3 +51,21 @@ def test_the_warm_up_runs_the_cascade_a_full_batch_and_the_response() -> None:
     assert "prefilter" in det.timings and det.timings["prefilter"] > 0.0  # both stages of the cascade ran
     assert det.num_candidates > 0 and len(det.grasps) > 0
     assert json.loads(body)["num_candidates"] == det.num_candidates
+
+
+def test_the_engine_warms_each_detect_worker_once(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    threads: list[str] = []
+    def record(registry: ModelRegistry) -> None:
+        threads.append(threading.current_thread().name)
+
+    monkeypatch.setattr(warmup, "warm_detection", record)
+    registry = ModelRegistry.load(SHIPPED, cascade="scene3")
+    engine = DetectionEngine(Settings(warmup=True, detect_workers=2, data_dir=tmp_path), registry, Metrics())
+    try:
+        assert len(threads) == 2 and len(set(threads)) == 2  # one warm-up on each worker thread
+        assert all(name.startswith("graspd-detect") for name in threads)
+    finally:
+        engine.close()
+    cold = DetectionEngine(Settings(warmup=False, detect_workers=2, data_dir=tmp_path), registry, Metrics())
+    cold.close()
+    assert len(threads) == 2  # GRASPD_WARMUP=false: none
