@@ -84,10 +84,11 @@ def hidden_share(points: NDArray[np.floating], viewpoints: NDArray[np.floating],
 
 
 def viewpoint_warning(points: NDArray[np.floating], viewpoints: NDArray[np.floating],
-                      limit: float = HIDDEN_SHARE_LIMIT) -> DetectionWarning | None:
+                      limit: float = HIDDEN_SHARE_LIMIT, share: float | None = None) -> DetectionWarning | None:
     """viewpoint_flipped when more than `limit` of the points could not have been seen from the viewpoints
-    (hidden_share); the points are those the detection used (after the workspace crop)."""
-    share = hidden_share(points, viewpoints)
+    (hidden_share, unless `share` gives it); the points are those the detection used (after the workspace
+    crop)."""
+    share = hidden_share(points, viewpoints) if share is None else share
     if share <= limit:
         return None
     vps = "; ".join(", ".join(f"{c:.3g}" for c in v) for v in np.asarray(viewpoints, float).reshape(-1, 3))
@@ -157,12 +158,14 @@ def in_workspace(points: NDArray[np.floating], workspace: Sequence[float] | None
 
 
 def check_detection(det: Detection, points: NDArray[np.floating], viewpoints: NDArray[np.floating],
-                    workspace: Sequence[float] | None, model_fits_hand: bool | None) -> list[DetectionWarning]:
+                    workspace: Sequence[float] | None, model_fits_hand: bool | None,
+                    hidden: float | None = None) -> list[DetectionWarning]:
     """The request-level warnings of a GPD detection, in this order: viewpoint_flipped, few_points,
     model_hand_mismatch, no_candidates.  points, viewpoints and workspace: the cloud and crop the detector was
-    given, in its frame (m); model_fits_hand: whether the model was made for the hand (None: not known)."""
+    given, in its frame (m); model_fits_hand: whether the model was made for the hand (None: not known); hidden:
+    hidden_share of those points if already known (the service computes it beside the detection)."""
     found = [
-        viewpoint_warning(in_workspace(np.asarray(points), workspace), viewpoints),
+        viewpoint_warning(in_workspace(np.asarray(points), workspace), viewpoints, share=hidden),
         few_points_warning(det.num_points, workspace is not None),
         model_hand_warning(det.model, model_fits_hand, det.hand.to_dict()),
         no_candidates_warning(det.num_points, det.num_candidates, len(det.grasps),

@@ -24,7 +24,7 @@ from graspd.core.hand import HandGeometry
 from graspd.core.parallel import THREADS
 from graspd.gpd.blas import set_blas_threads
 from graspd.gpd.detector import Detection, DetectionParams
-from graspd.gpd.sanity import check_detection
+from graspd.gpd.sanity import check_detection, hidden_share, in_workspace
 from graspd.io.png import encode_png_b64
 from graspd.server.logs import current_request
 from graspd.server.metrics import Metrics
@@ -68,6 +68,9 @@ class DetectionEngine:
         self.workers = settings.workers
         self.capacity = self.workers + settings.queue_size
         self.executor = ThreadPoolExecutor(self.workers, thread_name_prefix="graspd-detect")
+        # the request-level visibility check (gpd/sanity.py) needs only the request's cloud: it runs beside the
+        # detection, in the time the detection's serial stages leave a core idle
+        self._checks = ThreadPoolExecutor(self.workers, thread_name_prefix="graspd-check")
         self._lock = threading.Lock()
         self._pending = 0
         self._running = 0
@@ -197,6 +200,8 @@ class DetectionEngine:
                                           hand or HandGeometry())
             det: Detection | TemplateDetection
             ctx = current_request()
+            hidden = None if req.method == "templates" else self._checks.submit(
+                hidden_share, in_workspace(cloud.points, params.workspace), cloud.viewpoints)
             with THREADS.request():  # concurrent requests share the cores (graspd.core.parallel)
                 det = self._detect(req, cloud, params, hand, model)
             input_warnings = given.warnings  # the input's own (non-finite rows dropped), first
@@ -230,7 +235,8 @@ class DetectionEngine:
             self.metrics.points.observe(det.num_points)
             fits = None if isinstance(det, TemplateDetection) else self.registry.fits(det.model, used_hand)
             if isinstance(det, Detection):  # the request-level checks (graspd.gpd.sanity), after the detector's own
-                det = det.warned(*check_detection(det, cloud.points, cloud.viewpoints, params.workspace, fits))
+                det = det.warned(*check_detection(det, cloud.points, cloud.viewpoints, params.workspace, fits,
+                                                  None if hidden is None else hidden.result()))
             timings["total"] = time.perf_counter() - enqueued + before
             self.metrics.observe_timings(timings)
             return DetectResponse.from_detection(det, request_id=request_id, timings=timings, hand=used_hand,
@@ -316,5 +322,6 @@ class DetectionEngine:
         with self._lock:
             self.closed = True
         self.executor.shutdown(wait=wait, cancel_futures=True)
+        self._checks.shutdown(wait=wait, cancel_futures=True)
         self._trimmer.close()
         self.templates.close()
