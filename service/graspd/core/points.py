@@ -16,6 +16,11 @@ from graspd.core.parallel import THREADS
 FloatArray = TypeVar("FloatArray", NDArray[np.float32], NDArray[np.float64])
 
 
+#: Grids of at most this many cells are counted densely by voxel_groups (8 bytes a cell, transiently), larger
+#: ones by sorting the points' cell keys.
+DENSE_VOXEL_CELLS = 1 << 22
+
+
 def voxel_groups(points: NDArray[np.floating], voxel: float) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """The one voxel grid: for points (N,3, m, any frame, N > 0) the index of the occupied voxel of edge voxel
     (m) each falls in, voxels ordered by grid index (x, then y, then z; keyed in the points' dtype), and each
@@ -24,6 +29,13 @@ def voxel_groups(points: NDArray[np.floating], voxel: float) -> tuple[NDArray[np
     grid -= grid.min(axis=0)
     dims = grid.max(axis=0) + 1
     keys = (grid[:, 0] * dims[1] + grid[:, 1]) * dims[2] + grid[:, 2]
+    cells = int(np.prod(dims))
+    if cells <= DENSE_VOXEL_CELLS:  # count into the grid itself: the same voxels, order and counts, no sort
+        dense = np.bincount(keys, minlength=cells)
+        occupied = np.flatnonzero(dense)
+        rank = np.empty(cells, np.intp)
+        rank[occupied] = np.arange(len(occupied))
+        return rank[keys], dense[occupied]
     _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
     return inverse.reshape(-1), counts
 
