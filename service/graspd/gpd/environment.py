@@ -29,6 +29,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
+from graspd.core.parallel import THREADS
 from graspd.core.warning import DetectionWarning
 
 F64 = NDArray[np.float64]
@@ -236,6 +237,21 @@ class Environment:
         }
 
 
+#: RANSAC hypotheses scored together by one task of _inlier_counts.
+HYPOTHESES_PER_TASK = 50
+
+
+def _inlier_counts(points: F64, normals: F64, offsets: F64, distance: float) -> NDArray[np.int64]:
+    """How many of the points (N,3) lie within distance (m) of each plane (K normals, K offsets), in chunks of
+    HYPOTHESES_PER_TASK planes on the process's thread budget (each plane's count depends on that plane alone)."""
+
+    def part(a: int) -> NDArray[np.int64]:
+        b = a + HYPOTHESES_PER_TASK
+        return np.asarray((np.abs(points @ normals[a:b].T + offsets[a:b]) <= distance).sum(axis=0), np.int64)
+
+    return np.concatenate(THREADS.map(part, range(0, len(normals), HYPOTHESES_PER_TASK)))
+
+
 def _ransac_plane(points: F64, params: EnvironmentParams, rng: np.random.Generator,
                   vertical_to: F64 | None = None) -> Plane | None:
     """The plane with most inliers within plane_distance: RANSAC over ransac_iterations point triplets of at
@@ -258,7 +274,7 @@ def _ransac_plane(points: F64, params: EnvironmentParams, rng: np.random.Generat
         if not upright.any():
             return None
         normals, offsets = normals[upright], offsets[upright]
-    counts = (np.abs(sub @ normals.T + offsets) <= params.plane_distance).sum(axis=0)
+    counts = _inlier_counts(sub, normals, offsets, params.plane_distance)
     best = int(np.argmax(counts))
     inliers = sub[np.abs(sub @ normals[best] + offsets[best]) <= params.plane_distance]
     if len(inliers) < 3:
