@@ -299,9 +299,13 @@ class GraspDetector:
         closing-region points: what the classifier scores (and what training data is labelled from)."""
         cands, region = search_hands(prep.scene, h, sampling)
         feasible = feasible_mask(cands, replace(prep.selection, min_score=None))
-        if prep.environment.mode != "none":
-            feasible[feasible] = ~environment_conflicts(cands[feasible], region.subset(feasible),
-                                                        prep.environment, h, p.approach_distance)
+        if prep.environment.mode != "none":  # environment_conflicts of the feasible ones, without copying region
+            env = prep.environment
+            grasps_env = np.zeros(len(cands), bool)  # an environment point between the fingers
+            grasps_env[region.grasp[env.labels[region.index] != Label.OBJECT]] = True
+            feasible &= ~grasps_env
+            feasible[feasible] = ~hand_hits_environment(cands.positions[feasible], cands.rotations[feasible], h, env,
+                                                        p.approach_distance)
         if p.unknown_space == "avoid" and feasible.any():
             share = np.full(len(cands), np.nan)
             share[feasible] = unknown_share(prep.scene.unobserved, cands.positions[feasible],
