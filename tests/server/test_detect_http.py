@@ -91,7 +91,7 @@ def test_options_are_honoured(client: TestClient, krylon: ViewpointCloud, small_
 def test_health_models_metrics(client: TestClient, body: dict[str, Any]) -> None:
     assert client.get("/healthz").json() == {"status": "ok"}
     ready = client.get("/readyz")
-    assert ready.status_code == 200 and ready.json()["scoring"] is False
+    assert ready.status_code == 200 and ready.json()["scoring"] is False and ready.json()["provider"] is None
     assert client.get("/models").json() == {"default": None, "cascade": None, "models": [], "jobs": []}
     client.post("/detect", json=body)
     client.post("/detect", json={"cloud": {"points": [[0, 0]]}})

@@ -20,6 +20,8 @@ def test_scored_detection(scored_client: TestClient, krylon: ViewpointCloud, mod
     assert ready["scoring"] is True and ready["default_model"] == name
     models = scored_client.get("/models").json()
     card = {m["name"]: m for m in models["models"]}[name]["card"]
+    # where the default model runs, the same in /readyz and its card (no GPU in CI: the CPU)
+    assert ready["provider"] == card["runtime"]["provider"] in ("CPUExecutionProvider", "CUDAExecutionProvider")
     assert models["default"] == name and card["name"] == name and "representation" in card
     out = scored_client.post("/detect", json=small_body(krylon, selection=False, max_grasps=1000)).json()
     assert out["scored"] is True and out["model"] == name and out["timings"]["score"] > 0

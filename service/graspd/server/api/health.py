@@ -41,6 +41,8 @@ def readyz(request: Request, state: State) -> Any:
         "models": state.registry.names(),
         "default_model": state.registry.default,
         "scoring": state.registry.default is not None,
+        # where the default model runs: onnxruntime's CUDAExecutionProvider (the gpu extra) or CPUExecutionProvider
+        "provider": getattr(state.registry.classifiers.get(state.registry.default or ""), "provider", None),
         "model_errors": state.registry.errors,  # models that failed to load: name -> why (the others serve)
         "zenoh": state.zenoh is not None and state.zenoh.ready,
         "workers": state.engine.workers,
