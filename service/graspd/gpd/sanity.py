@@ -164,8 +164,10 @@ def check_detection(det: Detection, points: NDArray[np.floating], viewpoints: ND
     model_hand_mismatch, no_candidates.  points, viewpoints and workspace: the cloud and crop the detector was
     given, in its frame (m); model_fits_hand: whether the model was made for the hand (None: not known); hidden:
     hidden_share of those points if already known (the service computes it beside the detection)."""
+    if hidden is None:
+        hidden = hidden_share(in_workspace(np.asarray(points), workspace), viewpoints)
     found = [
-        viewpoint_warning(in_workspace(np.asarray(points), workspace), viewpoints, share=hidden),
+        viewpoint_warning(points, viewpoints, share=hidden),
         few_points_warning(det.num_points, workspace is not None),
         model_hand_warning(det.model, model_fits_hand, det.hand.to_dict()),
         no_candidates_warning(det.num_points, det.num_candidates, len(det.grasps),

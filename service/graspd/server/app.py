@@ -33,7 +33,6 @@ from graspd.server.schemas import DetectRequest
 from graspd.server.services.engine import DetectionEngine
 from graspd.server.services.instance_jobs import InstanceJobs
 from graspd.server.services.registry import ModelRegistry
-from graspd.server.services.warmup import warm_up
 from graspd.server.settings import Settings, available_cores
 from graspd.server.zenoh.node import ZenohNode
 
@@ -144,9 +143,9 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
                                              settings.model_threads, allow_unscored=settings.allow_unscored,
                                              cascade=settings.cascade_model or None)
         THREADS.cores = settings.threads or available_cores()
-        # before the first request can arrive (uvicorn answers nothing, /readyz included, until this returns)
-        warmup_s = await asyncio.to_thread(warm_up, reg) if settings.warmup else None
         mets = Metrics()
+        # warms up each detect worker before the first request can arrive (uvicorn answers nothing, /readyz
+        # included, until this returns)
         engine = DetectionEngine(settings, reg, mets)
         state = ServiceState(settings, reg, mets, engine, InstanceJobs(settings, reg))
         app.state.service = state
@@ -161,7 +160,7 @@ def create_app(settings: Settings | None = None, registry: ModelRegistry | None 
                                         "model_errors": reg.errors, "not_ready": reg.load_error,
                                         "workers": engine.workers, "queue": settings.queue_size,
                                         "zenoh": settings.zenoh_enabled, "ros2": settings.ros2_enabled,
-                                        "warmup_s": warmup_s})
+                                        "warmup_s": engine.warmup_s})
         try:
             yield
         finally:

@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from graspd.core.cloud import CloudError, ViewpointCloud
 from graspd.core.limits import MAX_NUM_SAMPLES, MAX_POINTS
+from graspd.io.inputs import finite_rows
 from graspd.io.ros.types import CLOUD_INDEXED, CLOUD_SAMPLES, CLOUD_SOURCES, POINTCLOUD2, Header
 
 #: Most camera positions (view_points) a CloudSources may carry.
@@ -222,16 +223,12 @@ def _read_cloud_sources(r: _Reader, prefix: str) -> tuple[_RawCloud, NDArray[np.
 def _finite_rows(raw: _RawCloud) -> NDArray[np.bool_] | None:
     """Rows to keep: finite point and normal (graspd.io.inputs.finite_rows' rule, the one of every entrance);
     None when every row is (the usual case, found by a min and a max over all values: NaN and inf carry through
-    both), else the mask, one column at a time (np.isfinite(...).all(axis=1) takes ~4 ms at 300k points)."""
+    both; no mask, and no copy of the cloud later), else the mask."""
     arrays = [raw.points] if raw.normals is None else [raw.points, raw.normals]
     with np.errstate(invalid="ignore"):
         if all(len(a) == 0 or (np.isfinite(a.min()) and np.isfinite(a.max())) for a in arrays):
             return None
-    keep = np.isfinite(raw.points[:, 0])
-    for a in arrays:
-        for k in range(3):
-            keep &= np.isfinite(a[:, k])
-    return keep
+    return finite_rows(raw.points, raw.normals)
 
 
 def _dropped(keep: NDArray[np.bool_] | None) -> int:

@@ -82,31 +82,13 @@ class DetectionEngine:
         self.closed = False
         # the detections parallelise over THREADS themselves: BLAS threads would only spin beside them
         set_blas_threads(1)
+        #: seconds the warm-up took (services/warmup.py: the warm-up request once on each detect worker, before
+        #: the first request), None with GRASPD_WARMUP=false
+        self.warmup_s: float | None = None
         if settings.warmup:
-            self.warm_workers()
+            from graspd.server.services.warmup import warm_up  # noqa: PLC0415 - the engine imports no warm-up
 
-    def warm_workers(self, timeout: float = 120.0) -> float:
-        """The warm-up request (services/warmup.py) once on each detect worker, all at once, before the first
-        request: a worker thread's first detection otherwise pays for its own memory (a fresh allocator arena:
-        thousands of page faults) and first uses.  Seconds taken; failures are logged, never raised."""
-        from graspd.server.services.warmup import warm_detection  # noqa: PLC0415 - the engine imports no warm-up
-
-        t = time.perf_counter()
-        gate = threading.Barrier(self.workers)  # each worker thread takes one (none takes two)
-
-        def warm() -> None:
-            gate.wait(timeout)
-            warm_detection(self.registry)
-
-        futures = [self.executor.submit(warm) for _ in range(self.workers)]
-        for fut in futures:
-            try:
-                fut.result(timeout)
-            except Exception as exc:  # anything: a cold worker still serves
-                log.warning("worker warm-up failed", exc_info=True, extra={"error": type(exc).__name__})
-        seconds = time.perf_counter() - t
-        log.info("detect workers warmed up", extra={"workers": self.workers, "seconds": round(seconds, 3)})
-        return seconds
+            self.warmup_s = warm_up(registry, self.executor, self.workers)
 
     # ---- admission -------------------------------------------------------------------------
     def retry_after(self) -> float:

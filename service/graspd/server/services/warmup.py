@@ -9,7 +9,9 @@ serialised."""
 from __future__ import annotations
 
 import logging
+import threading
 import time
+from concurrent.futures import Executor, wait
 from typing import Any
 
 import numpy as np
@@ -85,16 +87,32 @@ def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tu
     return det, body
 
 
-def warm_up(registry: ModelRegistry) -> float:
-    """Run warm_detection(registry); seconds taken.  Errors are logged, never raised: a failed warm-up leaves a
+def warm_up(registry: ModelRegistry, executor: Executor | None = None, workers: int = 1,
+            timeout: float = 120.0) -> float:
+    """Run warm_detection(registry) here, or once on each of the `workers` threads of `executor` (the engine's
+    detect workers, all at once: a worker thread's first detection otherwise pays for its own memory, a fresh
+    allocator arena, and first uses); seconds taken.  Errors are logged, never raised: a failed warm-up leaves a
     working, merely cold, service."""
     t = time.perf_counter()
     try:
-        det, _ = warm_detection(registry)
+        if executor is None:
+            dets = [warm_detection(registry)[0]]
+        else:
+            gate = threading.Barrier(workers)  # each worker thread takes one (none takes two)
+
+            def on_worker() -> Detection:
+                gate.wait(timeout)
+                return warm_detection(registry)[0]
+
+            futures = [executor.submit(on_worker) for _ in range(workers)]
+            wait(futures, timeout)
+            dets = [fut.result(0) for fut in futures]
     except Exception as exc:  # anything: the warm-up must not stop the service
         log.warning("warm-up detection failed", exc_info=True, extra={"error": type(exc).__name__})
         return time.perf_counter() - t
     seconds = time.perf_counter() - t
+    det = dets[0]
     log.info("warm-up detection done", extra={"seconds": round(seconds, 3), "candidates": det.num_candidates,
-                                               "model": det.model, "cascade": "prefilter" in det.timings})
+                                               "model": det.model, "cascade": "prefilter" in det.timings,
+                                               "workers": len(dets)})
     return seconds
