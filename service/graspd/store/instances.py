@@ -25,7 +25,7 @@ class InstanceError(FieldError):
 
 
 def check_name(name: Any) -> str:
-    if not isinstance(name, str) or not NAME_PATTERN.match(name):
+    if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
         raise InstanceError("name", f"must be 1-64 letters, digits, '_' or '-' starting with a letter or digit "
                             f"(a file stem), got {name!r}")
     return name

@@ -57,7 +57,7 @@ def resolve_names(given: Mapping[str, str], namespace: str) -> dict[str, str]:
     for entry, name in {**DEFAULTS, **given}.items():
         if not name:
             continue
-        if not _NAME.match(name) or "__" in name:
+        if not _NAME.fullmatch(name) or "__" in name:
             raise ValueError(f"GRASPD_ROS2_TOPICS.{entry}: {name!r} is not a ROS 2 topic name (tokens of letters, "
                              "digits and _ separated by /, no __)")
         out[entry] = qualify(name, namespace)

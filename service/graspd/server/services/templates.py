@@ -251,7 +251,7 @@ class TemplateService:
 
     def _feedback(self, req: FeedbackRequest) -> dict[str, Any]:
         gid = req.grasp_id
-        gpd = _GPD_ID.match(gid)
+        gpd = _GPD_ID.fullmatch(gid)
         if gpd is None:
             try:
                 parse_grasp_id(gid)  # the template id form; neither form: 422 naming grasp_id
