@@ -3,12 +3,15 @@ box on a table seen by one camera from above and aside (grasp templates, the ser
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 
+from error_text import leaks
 from graspd.core.cloud import ViewpointCloud
 from graspd_lab.world.meshes import pose_from, posed_box, rot_z, table_mesh
 from graspd_lab.world.render import render_cloud
@@ -22,6 +25,25 @@ def real_data() -> Path:
     if not (REAL_DATA / "table_mug.pcd").exists():
         pytest.fail(f"the real clouds are expected in {REAL_DATA} (../shared beside the repository)")
     return REAL_DATA
+
+
+@pytest.fixture(autouse=True)
+def error_bodies_give_nothing_away(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Every 4xx/5xx body an httpx client (the FastAPI test client included) receives in a test is checked for
+    object reprs, tracebacks and machine paths (error_text.LEAKS); the test that provoked one fails."""
+    found: list[str] = []
+    send = httpx.Client.send
+
+    def checked_send(self: httpx.Client, request: httpx.Request, *args: Any, **kwargs: Any) -> httpx.Response:
+        response = send(self, request, *args, **kwargs)
+        if response.status_code >= 400 and not kwargs.get("stream"):
+            found.extend(f"{request.method} {request.url.path} -> {response.status_code}: {leak}"
+                         for leak in leaks(response.text))
+        return response
+
+    monkeypatch.setattr(httpx.Client, "send", checked_send)
+    yield
+    assert not found, f"error bodies give the server's inside away: {found}"
 
 
 CAMERA = np.array([[0.5, 0.1, 0.5]])

@@ -4,6 +4,8 @@ is a 409, a full queue a 503."""
 
 from __future__ import annotations
 
+import json
+import re
 import shutil
 import time
 from collections.abc import Callable
@@ -57,6 +59,7 @@ def test_bad_uploads_are_refused_naming_the_field(make_settings: Callable[..., S
     with TestClient(create_app(settings)) as c:
         cases = [
             (upload(c, box_ply, name="../up"), 422, "name"),
+            (upload(c, box_ply, name="mug\n"), 422, "name"),
             (upload(c, box_ply, name="ok", category="sphere"), 422, "category"),
             (upload(c, box_ply, name="ok", hand="claw"), 422, "hand"),
             (upload(c, box_ply, name="ok", colour="red"), 422, "colour"),
@@ -68,13 +71,37 @@ def test_bad_uploads_are_refused_naming_the_field(make_settings: Callable[..., S
         ]
         for body, status, field in cases:
             assert (body["status"], body["field"]) == (status, field), body
-        assert "metres" in str(cases[6][0]["error"])
+        assert "metres" in str(cases[7][0]["error"])
         not_form = c.post("/models", json={"name": "ok"})
         assert not_form.status_code == 415 and not_form.json()["field"] == "body"
         listing = c.get("/models").json()
         assert listing["jobs"] == [] and [m["name"] for m in listing["models"]] == [models_and_default[1]]
     assert not (models_folder / "ok.onnx").exists()
     assert not list((models_folder / ".work").glob("*/mesh-*")), "refused meshes are not kept"
+    assert not [p for p in (models_folder / ".work").glob("*") if "\n" in p.name], "no job folder for a bad name"
+
+
+def test_the_model_listing_names_no_directory_of_any_machine(make_settings: Callable[..., Settings],
+                                                             models_folder: Path,
+                                                             models_and_default: tuple[Path, str]) -> None:
+    """A card written on a build machine (init_from.path, the command's --models-dir) is listed by file name."""
+    name = models_and_default[1]
+    card_path = models_folder / f"{name}.json"
+    card = json.loads(card_path.read_text())
+    card["init_from"] = {"init_from": "scene15", "path": "/home/builder/runs/models-out/scene15.pt"}
+    card["command"] = "graspd train --models-dir /srv/build/models-out --resume"
+    card_path.write_text(json.dumps(card))
+    with TestClient(create_app(make_settings(models_dir=models_folder))) as c:
+        listing = c.get("/models").text
+    assert "/home/" not in listing and "/srv/" not in listing and str(models_folder) not in listing
+    listed = json.loads(listing)["models"][0]["card"]
+    assert listed["init_from"]["path"] == "scene15.pt" and "--models-dir models-out" in listed["command"]
+
+
+def test_the_shipped_model_cards_name_no_directory_of_any_machine() -> None:
+    for card in (Path(__file__).resolve().parents[2] / "models").glob("*.json"):
+        text = card.read_text()
+        assert not re.search(r"(?<![\w.~/:])/(?:tmp|work|home|root|srv|data)/", text), card.name
 
 
 def test_uploads_need_the_token(make_settings: Callable[..., Settings], models_folder: Path,

@@ -16,7 +16,7 @@ import torch
 from numpy.typing import NDArray
 from torch import nn
 
-from graspd.gpd.classifier import OnnxGraspClassifier
+from graspd.gpd.classifier import OnnxGraspClassifier, card_without_paths
 from graspd_lab.training.network import GraspProbability
 
 INPUT_NAME = "images"
@@ -79,9 +79,10 @@ def save_weights(net: nn.Module, path: str | Path, architecture: str, channels: 
 
 
 def write_card(path: str | Path, card: dict[str, Any]) -> Path:
-    """Write a model card as indented JSON."""
+    """Write a model card as indented JSON, with no directory of this machine in it (card_without_paths): the
+    card ships with the model and is shown by GET /models."""
     path = Path(path)
-    path.write_text(json.dumps(card, indent=2, sort_keys=False) + "\n")
+    path.write_text(json.dumps(card_without_paths(card), indent=2, sort_keys=False) + "\n")
     return path
 
 

@@ -28,8 +28,11 @@ def voxel_groups(points: NDArray[np.floating], voxel: float) -> tuple[NDArray[np
     grid = np.floor(points / voxel).astype(np.int64)
     grid -= grid.min(axis=0)
     dims = grid.max(axis=0) + 1
+    cells = int(dims[0]) * int(dims[1]) * int(dims[2])  # Python ints: a cloud metres wide overflows int64
+    if cells >= 1 << 62:  # no int64 key fits: the rows themselves, in the same x, y, z order
+        _, inverse, counts = np.unique(grid, axis=0, return_inverse=True, return_counts=True)
+        return inverse.reshape(-1), counts
     keys = (grid[:, 0] * dims[1] + grid[:, 1]) * dims[2] + grid[:, 2]
-    cells = int(np.prod(dims))
     if cells <= DENSE_VOXEL_CELLS:  # count into the grid itself: the same voxels, order and counts, no sort
         dense = np.bincount(keys, minlength=cells)
         occupied = np.flatnonzero(dense)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -42,6 +43,22 @@ class GraspClassifier(Protocol):
 
 #: The hand fields a grasp image depends on (its closing region): a model scores images of one hand.
 IMAGE_HAND_FIELDS = ("finger_width", "hand_outer_diameter", "hand_depth", "hand_height")
+
+
+#: An absolute POSIX path in text: a card written on a build machine may name where it was trained.
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.~/:])/(?:[\w.+\-@%]+/)+(?P<name>[\w.+\-@%]*)")
+
+
+def card_without_paths(value: Any) -> Any:
+    """value (a model card, or any part of one) with every absolute path cut to its last part, so that an
+    answer never names a directory of the machine that trained or serves the model."""
+    if isinstance(value, str):
+        return _ABSOLUTE_PATH.sub(lambda m: m["name"] or ".", value)
+    if isinstance(value, dict):
+        return {k: card_without_paths(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [card_without_paths(v) for v in value]
+    return value
 
 
 def card_fits_hand(card: dict[str, Any], hand: dict[str, float]) -> bool:

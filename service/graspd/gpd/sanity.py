@@ -73,6 +73,8 @@ def hidden_share(points: NDArray[np.floating], viewpoints: NDArray[np.floating],
         rel = pts - v
         r = np.linalg.norm(rel, axis=1)
         ok = r > 1e-9
+        if not ok.any():  # every point at this camera: it sees none of them
+            continue
         bins = _cube_bins(rel[ok] / r[ok, None], bin_rad)
         _, inverse = np.unique(bins, return_inverse=True)
         nearest = np.full(inverse.max() + 1, np.inf)

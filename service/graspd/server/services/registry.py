@@ -122,7 +122,7 @@ class ModelRegistry:
             "cascade": self.cascade,
             "models": [
                 {"name": n, "representation": str(getattr(c, "representation", "")), "default": n == self.default,
-                 "card": dict(getattr(c, "card", {}))}
+                 "card": classifier.card_without_paths(dict(getattr(c, "card", {})))}
                 for n, c in sorted(self.classifiers.items())
             ],
         }
