@@ -105,6 +105,18 @@ def test_binary_compressed_pcd_round_trips_with_its_viewpoint(tmp_path: Path) ->
         parse_pcd(fewer + b"DATA binary_compressed\n" + body)
     with pytest.raises(CloudError, match="compressed bytes"):  # truncated
         parse_pcd(data[:-100])
+    trailing, _ = parse_pcd(data + bytes(3901))  # bytes after the block, as older PCL writers leave: ignored
+    assert np.array_equal(trailing, PTS)
+
+
+@pytest.mark.parametrize("name", ["milk_cartoon_all_small_clorox.pcd", "table_scene_mug_stereo_textured.pcd"])
+def test_pcl_captures_load_as_pcl_wrote_them(real_data: Path, name: str) -> None:
+    """Organised 640 x 480 binary_compressed Kinect and stereo captures whose block is followed by ~3.9 kB:
+    PCL's reader and open3d read them; so does graspd, with the same points (NaN pixels kept in order)."""
+    points, _ = parse_pcd((real_data / name).read_bytes())
+    expected = np.asarray(o3d.t.io.read_point_cloud(str(real_data / name)).point.positions.numpy(), np.float32)
+    assert points.shape == (640 * 480, 3)
+    assert np.array_equal(points, expected, equal_nan=True)
 
 
 def test_pcd_with_other_fields_and_types_reads_xyz() -> None:

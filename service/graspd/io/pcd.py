@@ -131,7 +131,8 @@ def check_pcd_header(data: bytes) -> PcdHeader:
 
 def _check_sizes(body: memoryview, head: PcdHeader) -> None:
     """The binary data section holds exactly what the header declares (a reader that trusted it would read past,
-    pad or stop short)."""
+    pad or stop short); a binary_compressed block may be followed by bytes PCL's reader ignores (older PCL
+    writers leave a few kB there)."""
     n = head.points
     if head.kind == "binary":
         if len(body) != n * head.record_size:
@@ -141,7 +142,7 @@ def _check_sizes(body: memoryview, head: PcdHeader) -> None:
         if len(body) < 8:
             raise CloudError("cloud.points", "pcd binary_compressed data lacks its two size words")
         compressed, uncompressed = np.frombuffer(body[:8], "<u4").tolist()
-        if compressed != len(body) - 8:
+        if compressed > len(body) - 8:  # as PCL's reader: the block must fit; bytes after it are ignored
             raise CloudError("cloud.points", f"pcd binary_compressed declares {compressed} compressed bytes; "
                              f"the data holds {len(body) - 8}")
         if uncompressed != n * head.record_size:
@@ -188,7 +189,8 @@ def _compressed_xyz(body: memoryview, head: PcdHeader) -> NDArray[np.float32]:
     field, then the second's, ...)."""
     n = head.points
     try:
-        raw = lzf_decompress(bytes(body[8:]), n * head.record_size)
+        compressed = int(np.frombuffer(body[:4], "<u4")[0])  # older PCL writers leave bytes after the block
+        raw = lzf_decompress(bytes(body[8:8 + compressed]), n * head.record_size)
     except LzfError as exc:
         raise CloudError("cloud.points", f"pcd binary_compressed data unreadable ({exc})") from None
     out = np.empty((n, 3), np.float32)
