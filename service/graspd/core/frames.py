@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graspd.core.errors import FieldError
-from graspd.core.limits import MAX_COORDINATE
+from graspd.core.limits import MAX_COORDINATE, MAX_VIEWPOINTS
 
 PointsFrame = Literal["camera", "robot"]
 #: What `points_frame` may say.
@@ -128,7 +128,7 @@ def _from_position_quaternion(t: F64, q: F64, q_field: str, field: str) -> F64:
     return check_pose(m, field)
 
 
-def pose_matrices(values: Any, field: str = "camera_poses", max_cameras: int = 64) -> F64:
+def pose_matrices(values: Any, field: str = "camera_poses", max_cameras: int = MAX_VIEWPOINTS) -> F64:
     """(K, 4, 4) camera-to-robot transforms from a list of poses (each as pose_matrix takes it), or from one
     (K, 4, 4) array; 1 to max_cameras of them.  FieldError naming field[k] of a bad one."""
     if isinstance(values, np.ndarray) and values.ndim == 3:

@@ -6,98 +6,39 @@ data length and the caps before anything is allocated, so that a small file cann
 
 from __future__ import annotations
 
-import io
 from collections.abc import Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from graspd.core.camera import Intrinsics
 from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.io.camera_source import nearest_camera
 from graspd.io.depth import DEFAULT_DEPTH_SCALE, depth_metres, depth_points, read_depth_png
 from graspd.io.inputs import CloudInput, cloud_input
+from graspd.io.npy import NPY_MAGIC, parse_npy_bytes
+from graspd.io.npz import MAX_NPZ_BYTES, NPZ_ARRAYS, ZIP_MAGIC, parse_npz
 from graspd.io.pcd import MAX_FILE_POINTS, MAX_PCD_EXPANSION, PcdHeader, check_pcd_header, parse_pcd
 from graspd.io.ply import PlyHeader, check_ply, check_ply_header, parse_ply
 
-__all__ = ["CLOUD_SUFFIXES", "MAX_FILE_POINTS", "MAX_NPY_VALUES", "MAX_PCD_EXPANSION", "NPZ_ARRAYS", "PcdHeader",
-           "PlyHeader", "array_cloud", "check_pcd_header", "check_ply", "check_ply_header", "nearest_camera",
-           "parse_npy", "parse_npz", "parse_pcd", "parse_ply", "read_cloud", "read_input", "save_npz"]
+__all__ = ["CLOUD_SUFFIXES", "MAX_FILE_POINTS", "MAX_NPY_VALUES", "MAX_NPZ_BYTES", "MAX_PCD_EXPANSION", "NPY_MAGIC",
+           "NPZ_ARRAYS", "ZIP_MAGIC", "PcdHeader", "PlyHeader", "array_cloud", "check_pcd_header", "check_ply",
+           "check_ply_header", "nearest_camera", "parse_npy", "parse_npz", "parse_pcd", "parse_ply", "read_cloud",
+           "read_input", "save_npz"]
 
 
-# ---- numpy files: .npy (one array) and .npz (named arrays) -------------------------------------------------
+# ---- numpy files: .npy (one array, graspd.io.npy) and .npz (named arrays, graspd.io.npz) -----------------
 
-#: The arrays an .npz cloud may hold (others, such as colours, are ignored and never decompressed).
-NPZ_ARRAYS = ("points", "viewpoints", "camera_source", "normals", "camera_poses")
-NPY_MAGIC = b"\x93NUMPY"
-ZIP_MAGIC = b"PK\x03\x04"
-#: The most values an .npy array or an .npz member may hold: an (N,3) cloud or an (H,W) depth image at the caps.
+#: The most values an .npy array may hold: an (N,3) cloud or an (H,W) depth image at the caps.
 MAX_NPY_VALUES = 3 * MAX_FILE_POINTS
 
 
-def _npy_header(fp: io.BytesIO | IO[bytes], field: str) -> tuple[tuple[int, ...], np.dtype[Any]]:
-    """(shape, dtype) of an .npy stream, checked before any data is read: numbers only (no pickled objects),
-    at most MAX_NPY_VALUES values."""
-    try:
-        version = np.lib.format.read_magic(fp)
-        if version == (1, 0):
-            shape, fortran, dtype = np.lib.format.read_array_header_1_0(fp)
-        else:
-            shape, fortran, dtype = np.lib.format.read_array_header_2_0(fp)
-    except Exception as exc:  # numpy's header parser raises ValueError, SyntaxError, tokenize.TokenError, ...
-        raise CloudError(field, f"npy: unreadable header ({type(exc).__name__}: {exc})") from None
-    if dtype.hasobject or dtype.kind not in "fiu" or dtype.fields is not None:
-        raise CloudError(field, f"npy: numbers expected (float or integer), got dtype {dtype}")
-    if int(np.prod(shape, dtype=np.float64)) > MAX_NPY_VALUES:
-        raise CloudError(field, f"npy: shape {shape} exceeds the limit of {MAX_NPY_VALUES} values")
-    return tuple(shape), dtype
-
-
 def parse_npy(data: bytes, field: str = "body") -> NDArray[Any]:
-    """The array of .npy bytes: header checked first (_npy_header), no pickles, the data length exact."""
-    fp = io.BytesIO(data)
-    shape, dtype = _npy_header(fp, field)
-    need = int(np.prod(shape)) * dtype.itemsize
-    if len(data) - fp.tell() != need:
-        raise CloudError(field, f"npy: header declares {shape} {dtype} ({need} bytes); the file holds "
-                         f"{len(data) - fp.tell()}")
-    fp.seek(0)
-    try:
-        return np.asarray(np.load(fp, allow_pickle=False))
-    except (ValueError, OSError, EOFError) as exc:
-        raise CloudError(field, f"npy: unreadable ({exc})") from None
-
-
-def parse_npz(data: bytes, field: str = "body") -> dict[str, NDArray[Any]]:
-    """The NPZ_ARRAYS an .npz holds (each member's declared size and header checked before it is decompressed:
-    a zip bomb is refused); 'points' is required."""
-    import zipfile  # noqa: PLC0415
-    import zlib  # noqa: PLC0415
-
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(data))
-    except (zipfile.BadZipFile, OSError, ValueError, NotImplementedError, RuntimeError) as exc:
-        raise CloudError(field, f"npz: not a zip archive ({exc})") from None
-    out: dict[str, NDArray[Any]] = {}
-    with archive:
-        members = {Path(info.filename).stem: info for info in archive.infolist() if info.filename.endswith(".npy")}
-        if "points" not in members:
-            raise CloudError("cloud.points", f"npz: needs an array named 'points' (has {sorted(members)})")
-        for name in NPZ_ARRAYS:
-            info = members.get(name)
-            if info is None:
-                continue
-            if info.file_size > MAX_NPY_VALUES * 8 + 4096:
-                raise CloudError(f"cloud.{name}", f"npz: {name} declares {info.file_size} bytes uncompressed, "
-                                 "beyond the limit")
-            try:
-                raw = archive.read(info)
-            except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError, RuntimeError,
-                    zlib.error) as exc:  # corrupt, an unknown compression, encrypted
-                raise CloudError(f"cloud.{name}", f"npz: {name} unreadable ({exc})") from None
-            out[name] = parse_npy(raw, f"cloud.{name}")
-    return out
+    """The array of .npy bytes: header checked first (numbers only, no pickles, at most MAX_NPY_VALUES values),
+    the data length exact; CloudError naming field in plain words otherwise (graspd.io.npy)."""
+    return parse_npy_bytes(data, MAX_NPY_VALUES, field)
 
 
 def array_cloud(array: NDArray[Any], field: str = "body") -> NDArray[np.float32]:
@@ -170,12 +111,6 @@ def read_cloud(path: str | Path, viewpoints: NDArray[np.floating] | None = None)
     """A ViewpointCloud from .pcd, .ply, .npz or .npy (read_input, without frames): rows with a NaN or infinite
     coordinate are dropped (read_input also counts them)."""
     return read_input(path, viewpoints).cloud
-
-
-def nearest_camera(points: NDArray[np.floating], viewpoints: NDArray[np.floating]) -> NDArray[np.int32]:
-    """Index of the closest camera for each point: a stand-in when a merged cloud lost its sources."""
-    d = np.linalg.norm(np.asarray(points)[:, None, :] - np.asarray(viewpoints)[None, :, :], axis=2)
-    return np.argmin(d, axis=1).astype(np.int32)
 
 
 def save_npz(path: str | Path, cloud: ViewpointCloud) -> None:

@@ -27,7 +27,9 @@ from graspd.core.frames import (
     pose_matrices,
     to_robot,
 )
+from graspd.core.limits import MAX_VIEWPOINTS
 from graspd.core.warning import DetectionWarning
+from graspd.io.camera_source import nearest_camera
 
 
 def finite_rows(points: NDArray[np.floating], normals: NDArray[np.floating] | None = None) -> NDArray[np.bool_]:
@@ -113,6 +115,9 @@ def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_s
         raise CloudError(f"{field}.points", f"must have shape (N, 3), got {pts.shape}")
     if len(pts) == 0:
         raise CloudError(f"{field}.points", "empty cloud (0 points); send at least one point")
+    vps = np.zeros((1, 3), np.float32) if viewpoints is None else np.asarray(viewpoints, np.float32).reshape(-1, 3)
+    if len(vps) > MAX_VIEWPOINTS:
+        raise CloudError(f"{field}.viewpoints", f"1 to {MAX_VIEWPOINTS} camera positions expected, got {len(vps)}")
     poses = None if camera_poses is None else pose_matrices(camera_poses, "camera_poses")
     check_points_frame(points_frame, poses is not None)
     if poses is not None and viewpoints is not None:
@@ -131,12 +136,9 @@ def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_s
         pts = pts[keep]
         src = None if src is None else src[keep]
         nrm = None if nrm is None else nrm[keep]
-    vps = np.zeros((1, 3), np.float32) if viewpoints is None else np.asarray(viewpoints, np.float32).reshape(-1, 3)
     if poses is not None:
         vps = np.zeros((len(poses), 3), np.float32)  # placeholders with the right count: apply_frames sets them
     if src is None and len(vps) > 1 and poses is None:
-        from graspd.io.cloud_files import nearest_camera  # noqa: PLC0415 - cloud_io imports this module
-
         src = nearest_camera(pts, vps)
     cloud = ViewpointCloud(points=pts, viewpoints=vps, camera_source=np.zeros(0, np.int32) if src is None else src,
                            normals=nrm)

@@ -1,6 +1,7 @@
 """LZF decompression (liblzf's format, the one PCL's binary_compressed PCD files use), in plain Python: a
 compressed cloud of 100k points decodes in about 0.1-0.2 s on one core, and nothing beyond the
-declared size is ever written (a lying stream raises instead)."""
+declared size is ever written (a lying stream raises instead): the output buffer is allocated once, at the
+declared size the caller has bounded, and handed back without a copy."""
 
 from __future__ import annotations
 
@@ -9,10 +10,11 @@ class LzfError(ValueError):
     """A stream that is not valid LZF or does not decode to the declared size."""
 
 
-def lzf_decompress(data: bytes, size: int) -> bytes:
-    """The size bytes that data (an LZF stream) encodes.  Each control byte c starts a literal run of c + 1
-    bytes (c < 32) or a back reference of (c >> 5) + 2 bytes (+ one length byte when c >> 5 is 7) at distance
-    ((c & 31) << 8) + next byte + 1 behind the output's end; references may overlap what they produce."""
+def lzf_decompress(data: bytes, size: int) -> bytearray:
+    """The size bytes that data (an LZF stream) encodes (LzfError as soon as it would write past them).  Each
+    control byte c starts a literal run of c + 1 bytes (c < 32) or a back reference of (c >> 5) + 2 bytes (+ one
+    length byte when c >> 5 is 7) at distance ((c & 31) << 8) + next byte + 1 behind the output's end; references
+    may overlap what they produce."""
     out = bytearray(size)
     ip, op, n = 0, 0, len(data)
     while ip < n:
@@ -48,4 +50,4 @@ def lzf_decompress(data: bytes, size: int) -> bytes:
         op += length
     if op != size:
         raise LzfError(f"the stream decodes to {op} bytes, not the declared {size}")
-    return bytes(out)
+    return out

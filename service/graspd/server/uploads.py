@@ -16,6 +16,7 @@ from pydantic.fields import FieldInfo
 from graspd.core.camera import Intrinsics
 from graspd.core.cloud import CloudError
 from graspd.core.frames import POINTS_FRAMES, pose_matrix
+from graspd.core.limits import MAX_VIEWPOINTS
 from graspd.io.cloud_files import (
     NPY_MAGIC,
     NPZ_ARRAYS,
@@ -191,10 +192,21 @@ def _file_arrays(data: bytes, kind: str, query: Mapping[str, str]) -> dict[str, 
     return {"points": depth_points(depth, intrinsics), "depth": True}
 
 
+def check_camera_counts(viewpoints: list[str], camera_poses: list[str] | None) -> None:
+    """At most MAX_VIEWPOINTS viewpoint and camera_pose parameters (one per camera): counted before the file is
+    read or any array is built from them; Problem 422 naming the parameter otherwise."""
+    for name, values in (("viewpoint", viewpoints), ("camera_pose", camera_poses or [])):
+        if len(values) > MAX_VIEWPOINTS:
+            raise Problem(422, f"at most {MAX_VIEWPOINTS} {name} parameters (one per camera), got {len(values)}",
+                          name)
+
+
 def upload_request(data: bytes, kind: str, query: Mapping[str, str], viewpoints: list[str],
                    camera_poses: list[str] | None = None) -> dict[str, Any]:
     """A DetectRequest-shaped dict from file bytes and query parameters (viewpoint and camera_pose may repeat).
-    The cloud is validated by the request as a JSON one is: NaN rows dropped and counted, poses checked."""
+    The cloud is validated by the request as a JSON one is: NaN rows dropped and counted, poses checked.  The
+    camera counts are checked first (check_camera_counts), then the file is decoded under its caps."""
+    check_camera_counts(viewpoints, camera_poses)
     unknown = sorted(set(query) - set(QUERY_PARAMS))
     try:
         arrays = _file_arrays(data, kind, query)
