@@ -14,3 +14,10 @@ MAX_GRASPS = 1_000
 MAX_VIEWPOINTS = 64
 #: Largest |coordinate| of a point or translation (m): nothing a robot sees is farther; more is a unit mistake.
 MAX_COORDINATE = 1e4
+#: Most solid primitives, meshes, and mesh vertices and triangles (all meshes together) of one grasp-planning
+#: target (moveit_msgs/CollisionObject): a graspable object is a handful of shapes; more is refused from the
+#: message's sequence lengths, before any of it is read.
+MAX_TARGET_PRIMITIVES = 256
+MAX_TARGET_MESHES = 64
+MAX_TARGET_VERTICES = 1_000_000
+MAX_TARGET_TRIANGLES = 2_000_000

@@ -1,8 +1,9 @@
 """DDS Security and exposure of the ROS 2 node: the settings of an SROS2 enclave reach the participant's QoS as the
 properties rmw_cyclonedds sets (governance and permissions included, "file:" URIs) and DDS acts on them (it loads
 the security plugins, and refuses the participant when they are absent, which the server reports naming the
-plugins); a node reachable beyond this machine without security is refused; GRASPD_ROS2_* and ROS_DOMAIN_ID
-reach the settings.
+plugins); a node reachable beyond this machine without security is refused; the default participant's sockets
+receive only on the loopback interface (checked on the sockets of a child process) and a local process still
+reaches it; GRASPD_ROS2_* and ROS_DOMAIN_ID reach the settings.
 
 Finding: the cyclonedds wheel from PyPI builds libddsc with security support but ships no security plugins
 (libdds_security_auth, _ac, _crypto; they need OpenSSL), so a secured participant cannot be made with the wheel
@@ -11,6 +12,11 @@ real handshake test can be added)."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+import time
+from dataclasses import replace
 from pathlib import Path
 
 import cyclonedds
@@ -19,8 +25,9 @@ from cyclonedds.core import Policy
 from fastapi.testclient import TestClient
 
 from graspd.server.app import create_app
-from graspd.server.ros2.dds import SECURITY_FILES
+from graspd.server.ros2.dds import SECURITY_FILES, Participant, RawWriter, reliable_qos
 from graspd.server.ros2.errors import Ros2SetupError
+from graspd.server.ros2.interfaces import ros_types
 from graspd.server.ros2.node import domain_config
 from graspd.server.settings import Settings
 
@@ -83,11 +90,12 @@ def test_the_node_is_loopback_only_unless_secured_or_explicitly_anonymous(tmp_pa
     local = domain_config(settings(tmp_path))
     assert '<NetworkInterface address="127.0.0.1" multicast="false"/>' in local.xml
     assert "<AllowMulticast>false</AllowMulticast>" in local.xml and '<Peer address="localhost"/>' in local.xml
+    assert local.loopback_only and local.loopback_strict
     for reach in ({"ros2_discovery": "subnet"}, {"ros2_peers": ["10.0.0.7"]}):
         with pytest.raises(Ros2SetupError, match="GRASPD_ROS2_SECURITY_ENCLAVE"):
             domain_config(settings(tmp_path, **reach))
     open_ = domain_config(settings(tmp_path, ros2_discovery="subnet", ros2_allow_anonymous=True))
-    assert "127.0.0.1" not in open_.xml and "AllowMulticast" not in open_.xml
+    assert "127.0.0.1" not in open_.xml and "AllowMulticast" not in open_.xml and not open_.loopback_only
     secured = domain_config(settings(tmp_path, ros2_discovery="subnet", ros2_security_enclave=enclave(tmp_path)))
     assert any(isinstance(p, Policy.Property) for p in secured.qos)
 
@@ -120,3 +128,71 @@ def test_serve_ros2_flags_reach_the_settings() -> None:
     s = settings_from_args(parser.parse_args(["serve", "--ros2", "--ros2-domain-id", "5"]))
     assert (s.ros2_enabled, s.ros2_domain_id) == (True, 5)
     assert settings_from_args(parser.parse_args(["serve"])).ros2_enabled is False
+
+
+#: A child process that makes the node's participant (domain_config of the default settings, or with the
+#: loopback restriction left out: "unbound"), prints its UDP sockets as [address, port, device] and, with
+#: "listen", waits up to 20 s for a std_msgs/String on rt/graspd_probe and prints "received".
+PARTICIPANT = """
+import json, sys, time
+from dataclasses import replace
+from pathlib import Path
+import psutil
+from graspd.server.ros2.dds import Participant, RawReader, reliable_qos, socket_device
+from graspd.server.ros2.node import domain_config
+from graspd.server.settings import Settings
+domain, folder, mode = int(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
+config = domain_config(Settings(ros2_domain_id=domain, zenoh_enabled=False, models_dir=folder, data_dir=folder))
+p = Participant(config if mode != "unbound" else replace(config, loopback_only=False))
+print(json.dumps([[c.laddr.ip, c.laddr.port, socket_device(c.fd)]
+                  for c in psutil.Process().net_connections(kind="udp")]), flush=True)
+if mode == "listen":
+    got = []
+    reader = RawReader(p, "rt/graspd_probe", "std_msgs/msg/String", "jazzy", reliable_qos(), got.append)
+    end = time.monotonic() + 20
+    while not got and time.monotonic() < end:
+        time.sleep(0.05)
+    print("received" if got else "nothing", flush=True)
+    reader.close()
+p.close()
+"""
+
+
+def participant(tmp_path: Path, domain: int, mode: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-c", PARTICIPANT, str(domain), str(tmp_path), mode],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def sockets_of(tmp_path: Path, domain: int, mode: str) -> list[tuple[str, int, str]]:
+    out, _ = participant(tmp_path, domain, mode).communicate(timeout=60)
+    return [(ip, port, device) for ip, port, device in json.loads(out.splitlines()[0])]
+
+
+def test_the_default_participant_receives_only_on_loopback(tmp_path: Path) -> None:
+    domain = next_domain()
+    bound = sockets_of(tmp_path, domain, "default")
+    assert bound and all(ip == "127.0.0.1" or device == "lo" for ip, _, device in bound), bound
+    assert 7400 + 250 * domain not in {port for _, port, _ in bound}  # no multicast discovery socket
+    # what the node changes: Cyclone binds its receive sockets to 0.0.0.0 whatever its interfaces
+    unbound = sockets_of(tmp_path, domain, "unbound")
+    assert any(ip == "0.0.0.0" and not device for ip, _, device in unbound), unbound
+
+
+def test_a_local_process_still_reaches_the_loopback_only_participant(tmp_path: Path) -> None:
+    domain = next_domain()
+    child = participant(tmp_path, domain, "listen")
+    config = domain_config(settings(tmp_path, ros2_domain_id=domain))
+    peer = Participant(replace(config, loopback_only=False))  # as ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+    store = ros_types("jazzy")
+    hello = bytes(store.serialize_cdr(store.types["std_msgs/msg/String"](data="hello"), "std_msgs/msg/String"))
+    writer = RawWriter(peer, "rt/graspd_probe", "std_msgs/msg/String", "jazzy", reliable_qos())
+    try:
+        end = time.monotonic() + 30
+        while child.poll() is None and time.monotonic() < end:
+            if writer.matched():
+                writer.write(hello)
+            time.sleep(0.1)
+        out, err = child.communicate(timeout=30)
+    finally:
+        peer.close([writer])
+    assert out.splitlines()[-1] == "received", (out, err)

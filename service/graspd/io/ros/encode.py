@@ -387,3 +387,54 @@ def encode_cloud_samples(points: ArrayLike, viewpoints: ArrayLike, samples: Arra
     _write_cloud_sources(w, points, viewpoints, camera_source, header or Header(), normals)
     w.sequence(np.ascontiguousarray(np.asarray(samples, "<f8").reshape(-1, 3)))
     return w.getvalue()
+
+
+#: A shape_msgs/SolidPrimitive with 3 dimensions and no polygon, once the writer stands 4 bytes past a multiple of
+#: 8 (where every such primitive ends): type, dimension count, dimensions, polygon point count (40 bytes).
+_BOX_CDR = np.dtype({"names": ["type", "count", "dimensions", "polygon"], "formats": ["u1", "<u4", ("<f8", 3), "<u4"],
+                     "offsets": [0, 4, 12, 36], "itemsize": 40})
+_IDENTITY_POSE = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+
+
+def encode_grasp_planning(header: Header, pose: ArrayLike = _IDENTITY_POSE, *, box_centres: ArrayLike = (),
+                          box_sizes: ArrayLike = (), meshes: tuple[tuple[ArrayLike, ArrayLike], ...] = (),
+                          target_id: str = "target", group_name: str = "arm") -> bytes:
+    """CDR moveit_msgs/srv/GraspPlanning request (the fields; a service sample puts the rmw request header after
+    the encapsulation): a target in header.frame_id posed at pose (x y z, quaternion x y z w) made of BOX
+    primitives (centres (N, 3) and sizes (N, 3), m, axis-aligned in the target's frame) and meshes ((vertices
+    (V, 3) m, triangles (T, 3) vertex indices) each, at the target's origin).  Vectorised: 60k boxes or a
+    million vertices encode in milliseconds (what a hostile client sends, and what the tests and bench send)."""
+    centres = np.asarray(box_centres, "<f8").reshape(-1, 3)
+    sizes = np.asarray(box_sizes, "<f8").reshape(-1, 3)
+    if len(centres) != len(sizes):
+        raise ValueError(f"{len(centres)} box centres but {len(sizes)} sizes")
+    w = _Writer()
+    w.string(group_name)
+    w.header(header)
+    w.raw(np.asarray(pose, "<f8").reshape(7).tobytes(), 8)
+    w.string(target_id)
+    w.string("")  # type.key
+    w.string("")  # type.db
+    w.scalar("u4", len(centres))
+    if len(centres):
+        w.scalar("u1", 1)  # BOX; the first primitive's padding depends on where it starts
+        w.scalar("u4", 3)
+        w.raw(sizes[0].tobytes(), 8)
+        w.scalar("u4", 0)
+        rest = np.zeros(len(centres) - 1, _BOX_CDR)
+        rest["type"], rest["count"], rest["dimensions"] = 1, 3, sizes[1:]
+        w.raw(rest.tobytes())
+    poses = np.zeros((len(centres), 7), "<f8")
+    poses[:, :3], poses[:, 6] = centres, 1.0
+    w.sequence(poses)
+    w.scalar("u4", len(meshes))
+    for vertices, triangles in meshes:
+        w.sequence(np.ascontiguousarray(np.asarray(triangles, "<u4").reshape(-1, 3)))
+        w.sequence(np.ascontiguousarray(np.asarray(vertices, "<f8").reshape(-1, 3)))
+    w.sequence(np.tile(np.asarray(_IDENTITY_POSE, "<f8"), (len(meshes), 1)))
+    for _ in range(4):  # planes, plane_poses, subframe_names, subframe_poses
+        w.scalar("u4", 0)
+    w.scalar("u1", 0)  # operation ADD
+    for _ in range(3):  # support_surfaces, candidate_grasps, movable_obstacles
+        w.scalar("u4", 0)
+    return w.getvalue()

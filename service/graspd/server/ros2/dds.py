@@ -6,6 +6,9 @@ would build one Python int per byte of a PointCloud2)."""
 
 from __future__ import annotations
 
+import logging
+import os
+import socket
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -13,6 +16,7 @@ from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import quoteattr
 
+import psutil
 from cyclonedds.core import DDSException, InstanceState, Listener, Policy, Qos, SampleState, ViewState
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
@@ -37,6 +41,13 @@ SECURITY_PLUGINS: tuple[tuple[str, str, str, str], ...] = (
     ("dds.sec.crypto", "dds_security_crypto", "init_crypto", "finalize_crypto"),
     ("dds.sec.access", "dds_security_ac", "init_access_control", "finalize_access_control"))
 _ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
+#: The loopback interface's name (Linux), and the addresses of a socket that listens on every interface.
+LOOPBACK_DEVICE = "lo"
+WILDCARD = ("0.0.0.0", "::")
+log = logging.getLogger("graspd.server")
+#: Participants are made one at a time: the sockets a new one opened are told from the others by a before/after
+#: list of this process's sockets.
+_CREATE_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -47,6 +58,10 @@ class DomainConfig:
     domain_id: int
     xml: str
     qos: Qos
+    #: Restrict the participant's receive sockets to the loopback interface (Linux SO_BINDTODEVICE): Cyclone
+    #: binds them to 0.0.0.0 whatever its interfaces; strict: refuse the participant when that cannot be done.
+    loopback_only: bool = False
+    loopback_strict: bool = True
 
 
 def discovery_xml(discovery: str, peers: list[str], interfaces: list[str], max_sample_bytes: int,
@@ -136,6 +151,30 @@ class Participant:
     """One DDS domain (made with the DomainConfig's XML) and participant; topics are made once per name."""
 
     def __init__(self, config: DomainConfig) -> None:
+        with _CREATE_LOCK:
+            before = wildcard_udp_sockets() if config.loopback_only else set()
+            self._create(config)
+            #: the participant's sockets that listen on every interface and were restricted to loopback (fds)
+            self.bound_to_loopback: set[int] = set()
+            if config.loopback_only:
+                self._bind_loopback(wildcard_udp_sockets() - before, config)
+        self._topics: dict[str, Topic[Any]] = {}
+
+    def _bind_loopback(self, fds: set[int], config: DomainConfig) -> None:
+        try:
+            bind_to_loopback(fds)
+            self.bound_to_loopback = fds
+        except OSError as exc:
+            message = (f"ROS 2 domain {config.domain_id}: cannot restrict the DDS sockets to the loopback interface "
+                       f"({exc}): they listen on every interface")
+            if config.loopback_strict:
+                _delete(self.dp)
+                _delete(self.domain)
+                raise Ros2SetupError(f"{message}.  Run on Linux 5.7 or later (or with CAP_NET_RAW), or accept it "
+                                     "with GRASPD_ROS2_ALLOW_ANONYMOUS=true (trusted networks only)") from None
+            log.warning(message)
+
+    def _create(self, config: DomainConfig) -> None:
         try:
             self.domain = Domain(config.domain_id, config.xml)
         except DDSException as exc:
@@ -149,7 +188,6 @@ class Participant:
                     "(libdds_security_auth/_ac/_crypto); build Cyclone DDS with ENABLE_SECURITY and OpenSSL, and "
                     "point GRASPD_ROS2_SECURITY_PLUGINS at them") if secure else ""
             raise Ros2SetupError(f"ROS 2 domain {config.domain_id}: no DDS participant ({exc}).{hint}") from None
-        self._topics: dict[str, Topic[Any]] = {}
 
     def topic(self, name: str, ros_type: str, distro: str) -> Topic[Any]:
         """The DDS topic name (rt/..., rq/..., rr/...) of ros_type (made once)."""
@@ -248,6 +286,31 @@ class RawReader:
         reader, self.reader = self.reader, None
         if reader is not None:
             _delete(reader)
+
+
+def wildcard_udp_sockets() -> set[int]:
+    """File descriptors of this process's UDP sockets bound to every interface (0.0.0.0 or ::)."""
+    return {c.fd for c in psutil.Process().net_connections(kind="udp") if c.laddr and c.laddr.ip in WILDCARD}
+
+
+def bind_to_loopback(fds: set[int]) -> None:
+    """Let the sockets fds receive only what arrives on the loopback interface (SO_BINDTODEVICE "lo": Linux,
+    unprivileged since 5.7 for a socket not yet bound to a device).  OSError when the system refuses it."""
+    option = getattr(socket, "SO_BINDTODEVICE", None)
+    if option is None:
+        raise OSError("SO_BINDTODEVICE is Linux only")
+    for fd in fds:
+        with socket.socket(fileno=os.dup(fd)) as sock:  # the same socket; closing the duplicate leaves it open
+            sock.setsockopt(socket.SOL_SOCKET, option, LOOPBACK_DEVICE.encode())
+
+
+def socket_device(fd: int) -> str:
+    """The interface a socket is restricted to (SO_BINDTODEVICE), "" when none."""
+    option = getattr(socket, "SO_BINDTODEVICE", None)
+    if option is None:
+        return ""
+    with socket.socket(fileno=os.dup(fd)) as sock:
+        return sock.getsockopt(socket.SOL_SOCKET, option, 16).split(b"\0", 1)[0].decode()
 
 
 def _delete(entity: Any) -> None:

@@ -10,23 +10,28 @@ GraspPlanning: a CollisionObject names the target (primitives and meshes posed i
 graspd samples hands at the points of the newest cloud that lie within the target's bounding boxes (the rest of
 the cloud stays: the table and neighbours still stop hands that would collide), and answers in the target's
 frame (target.header.frame_id): the detection frame itself, or the camera frame of a camera-frame cloud moved by
-the configured camera pose.  support_surfaces, candidate_grasps and movable_obstacles are not used.
+the configured camera pose.  support_surfaces, candidate_grasps and movable_obstacles are not used.  The target
+comes bounded (graspd.io.ros.planning: counts within core.limits, a mesh as its vertex bounds); its boxes are
+built and tested vectorised, in chunks of bounded size, until enough points are found or the deadline passes.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from graspd.core.frames import quaternion_matrix
+from graspd.io.ros.planning import PlanTarget
 
 #: Seconds after which a posture is reached (trajectory point time_from_start).
 POSTURE_TIME_S = 0.5
 #: Margin around the target's bounding boxes within which cloud points count as the target's (m).
 TARGET_MARGIN_M = 0.01
+#: Most point-box pairs tested at once (bounds the work arrays: ~24 bytes each, a few alive at a time).
+TEST_CHUNK = 1 << 20
 #: moveit_msgs/MoveItErrorCodes values used here.
 SUCCESS, PLANNING_FAILED, UNABLE_TO_ACQUIRE_SENSOR_DATA, SENSOR_INFO_STALE = 1, -1, -5, -24
 FRAME_TRANSFORM_FAILURE, INVALID_OBJECT_NAME, FAILURE, TIMED_OUT = -21, -19, 99999, -6
@@ -82,69 +87,114 @@ class FingerPostures:
         return one(self.open_width, 0.0), one(float(width) - self.squeeze, self.effort)
 
 
-def pose_matrix(pose: Any) -> F64:
-    """4x4 of a geometry_msgs/Pose (position m, orientation x y z w; a zero quaternion reads as identity)."""
-    q = pose.orientation
-    quat = np.array([q.x, q.y, q.z, q.w], np.float64)
-    out = np.eye(4)
-    if np.isfinite(quat).all() and np.linalg.norm(quat) > 1e-9:
-        out[:3, :3] = quaternion_matrix(quat)
-    p = pose.position
-    out[:3, 3] = [p.x, p.y, p.z]
+def pose_matrices(poses: NDArray[np.floating]) -> F64:
+    """4x4 of each pose (B, 7: position m, quaternion x y z w; a zero or non-finite quaternion reads as
+    identity), vectorised.  PlanningError when a position is not finite."""
+    p = np.asarray(poses, np.float64).reshape(-1, 7)
+    out = np.tile(np.eye(4), (len(p), 1, 1))
+    q = p[:, 3:]
+    with np.errstate(invalid="ignore", over="ignore"):
+        norm = np.linalg.norm(q, axis=1)
+    ok = np.isfinite(q).all(axis=1) & (norm > 1e-9)
+    if ok.any():
+        x, y, z, w = (q[ok] / norm[ok, None]).T
+        out[ok, :3, :3] = np.stack([
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1)], axis=1)
+    out[:, :3, 3] = p[:, :3]
     if not np.isfinite(out).all():
         raise PlanningError(INVALID_OBJECT_NAME, "the target's poses must be finite")
     return out
 
 
-def target_boxes(target: Any) -> list[tuple[F64, F64]]:
-    """Oriented bounding boxes of a moveit_msgs/CollisionObject's primitives and meshes, in the target's header
-    frame: (4x4 box pose, half extents (3,) m) each.  Planes, and primitives without dimensions, bound nothing."""
-    base = pose_matrix(target.pose)
-    boxes: list[tuple[F64, F64]] = []
-    for prim, pose in zip(target.primitives, target.primitive_poses, strict=False):
-        d = np.asarray(prim.dimensions, np.float64)
-        if prim.type == BOX and len(d) >= 3:
-            half = d[:3] / 2
-        elif prim.type == SPHERE and len(d) >= 1:
-            half = np.full(3, d[0])
-        elif prim.type in (CYLINDER, CONE) and len(d) >= 2:
-            half = np.array([d[1], d[1], d[0] / 2])
-        else:
-            continue
-        boxes.append((base @ pose_matrix(pose), np.abs(half)))
-    for mesh, pose in zip(target.meshes, target.mesh_poses, strict=False):
-        if not len(mesh.vertices):
-            continue
-        v = np.array([[p.x, p.y, p.z] for p in mesh.vertices], np.float64)
-        lo, hi = v.min(axis=0), v.max(axis=0)
-        centre = np.eye(4)
-        centre[:3, 3] = (lo + hi) / 2
-        boxes.append((base @ pose_matrix(pose) @ centre, (hi - lo) / 2))
-    return boxes
+@dataclass(frozen=True)
+class Boxes:
+    """Oriented boxes: poses (B, 4, 4) and half extents (B, 3), m."""
+
+    poses: F64
+    halves: F64
+
+    def __len__(self) -> int:
+        return len(self.halves)
 
 
-def points_in_boxes(points: NDArray[np.floating], boxes: list[tuple[F64, F64]], to_points_frame: F64,
-                    margin: float = TARGET_MARGIN_M) -> NDArray[np.bool_]:
-    """Which points (N, 3, in the detection frame) lie within margin (m) of any box (posed in the target frame;
-    to_points_frame maps the target frame into the detection frame)."""
-    pts = np.asarray(points, np.float64)
-    inside = np.zeros(len(pts), bool)
-    for pose, half in boxes:
-        m = to_points_frame @ pose
-        local = (pts - m[:3, 3]) @ m[:3, :3]
-        inside |= (np.abs(local) <= half + margin).all(axis=1)
-    return inside
+def target_boxes(target: PlanTarget) -> Boxes:
+    """Oriented bounding boxes of a GraspPlanning target's primitives and meshes (graspd.io.ros.planning), in
+    the target's header frame, vectorised.  Planes, prisms, primitives without their dimensions and meshes
+    without vertices bound nothing; primitives and meshes without a pose are left out."""
+    base = pose_matrices(target.pose)[0]
+    k = min(len(target.primitive_types), len(target.primitive_poses))
+    types, d = target.primitive_types[:k], target.primitive_dimensions[:k]
+    half = np.full((k, 3), np.nan)
+    box, sphere, round_ = types == BOX, types == SPHERE, (types == CYLINDER) | (types == CONE)
+    half[box] = d[box] / 2
+    half[sphere] = d[sphere, :1]
+    half[round_] = np.stack([d[round_, 1], d[round_, 1], d[round_, 0] / 2], axis=-1)
+    keep = np.isfinite(half).all(axis=1)
+    poses = [base @ pose_matrices(target.primitive_poses[:k][keep])]
+    halves = [np.abs(half[keep])]
+    m = min(len(target.mesh_bounds), len(target.mesh_poses))
+    bounds = target.mesh_bounds[:m]
+    has = np.isfinite(bounds).all(axis=(1, 2))
+    if has.any():
+        lo, hi = bounds[has, 0], bounds[has, 1]
+        centre = np.tile(np.eye(4), (len(lo), 1, 1))
+        centre[:, :3, 3] = (lo + hi) / 2
+        poses.append(base @ pose_matrices(target.mesh_poses[:m][has]) @ centre)
+        halves.append((hi - lo) / 2)
+    return Boxes(np.concatenate(poses).reshape(-1, 4, 4), np.concatenate(halves).reshape(-1, 3))
 
 
-def sample_points_on_target(points: NDArray[np.floating], target: Any, to_points_frame: F64, num_samples: int,
-                            seed: int = 0) -> F64 | None:
+def _check_deadline(deadline: float | None) -> None:
+    if deadline is not None and time.perf_counter() > deadline:
+        raise PlanningError(TIMED_OUT, "the deadline passed while testing the cloud against the target's geometry")
+
+
+def points_in_boxes(points: NDArray[np.floating], boxes: Boxes, to_points_frame: F64,
+                    margin: float = TARGET_MARGIN_M, *, enough: int | None = None, seed: int = 0,
+                    deadline: float | None = None) -> NDArray[np.intp]:
+    """Rows of points (N, 3, detection frame) within margin (m) of any box (posed in the target frame;
+    to_points_frame maps the target frame into the detection frame), sorted.  Bounded: only the points within
+    the boxes' common axis-aligned bounds are tested, in a random order (seed), all boxes at once in chunks of
+    at most TEST_CHUNK point-box pairs; with enough, it stops once that many are found (a uniform random
+    subset of the points within); deadline (time.perf_counter()) is checked between chunks: PlanningError
+    TIMED_OUT when it passes."""
+    pts = np.asarray(points)
+    if not len(boxes) or not len(pts):
+        return np.zeros(0, np.intp)
+    m = to_points_frame @ boxes.poses
+    rot, centre = m[:, :3, :3], m[:, :3, 3]
+    ext = boxes.halves + margin
+    reach = np.einsum("bij,bj->bi", np.abs(rot), ext)  # each box's axis-aligned half extents
+    lo, hi = (centre - reach).min(axis=0), (centre + reach).max(axis=0)
+    near = np.flatnonzero(((pts >= lo) & (pts <= hi)).all(axis=1))
+    if enough is not None and len(near) > enough:
+        near = np.random.default_rng(seed).permutation(near)
+    step = max(1, TEST_CHUNK // len(boxes))
+    found: list[NDArray[np.intp]] = []
+    count = 0
+    for start in range(0, len(near), step):
+        _check_deadline(deadline)
+        rows = near[start:start + step]
+        local = np.einsum("nbi,bij->nbj", pts[rows, None, :] - centre[None], rot)
+        inside = rows[(np.abs(local) <= ext).all(axis=2).any(axis=1)]
+        found.append(inside)
+        count += len(inside)
+        if enough is not None and count >= enough:
+            break
+    return np.sort(np.concatenate(found)) if found else np.zeros(0, np.intp)
+
+
+def sample_points_on_target(points: NDArray[np.floating], target: PlanTarget, to_points_frame: F64,
+                            num_samples: int, seed: int = 0, deadline: float | None = None) -> F64 | None:
     """Where to sample hands for a GraspPlanning target: up to num_samples cloud points (detection frame, m)
-    within its boxes, or None when the target has no geometry (the detector chooses on the whole cloud).
-    PlanningError when the geometry covers no point of the cloud."""
+    within its boxes, chosen at random, or None when the target has no geometry (the detector chooses on the
+    whole cloud).  PlanningError when the geometry covers no point of the cloud, or TIMED_OUT past deadline."""
     boxes = target_boxes(target)
-    if not boxes:
+    if not len(boxes):
         return None
-    inside = np.flatnonzero(points_in_boxes(points, boxes, to_points_frame))
+    inside = points_in_boxes(points, boxes, to_points_frame, enough=num_samples, seed=seed, deadline=deadline)
     if len(inside) == 0:
         raise PlanningError(PLANNING_FAILED, f"no point of the newest cloud lies within the geometry of target "
                             f"{target.id!r} (check its pose and header.frame_id)")

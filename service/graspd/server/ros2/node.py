@@ -39,11 +39,13 @@ from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.io.ros import CloudMessage, Header, RosDecodeError, encode_grasp_config_list
 from graspd.io.ros.encode import moveit_grasp_messages
+from graspd.io.ros.planning import decode_plan_target
 from graspd.io.ros.types import MOVEIT_GRASP, typestore
 from graspd.server.logs import begin_request
 from graspd.server.metrics import Metrics
 from graspd.server.problems import Problem
 from graspd.server.schemas import DetectRequest
+from graspd.server.services.budget import message_cost
 from graspd.server.services.engine import DetectionEngine
 from graspd.server.services.ros_stream import (
     Captured,
@@ -57,6 +59,7 @@ from graspd.server.services.ros_stream import (
 from graspd.server.settings import Settings
 
 from . import moveit
+from .admission import ServiceShare, service_share
 from .dds import (
     DomainConfig,
     Participant,
@@ -72,7 +75,15 @@ from .dds import (
 )
 from .interfaces import PARTICIPANT_ENTITIES_INFO, STRING, ros_types, service_topics, topic_name
 from .names import INPUTS, OUTPUTS, SERVICES, resolve_names
-from .wire import RequestId, frame_sample, participant_entities_info, request_id, service_id, split_request
+from .wire import (
+    REQUEST_HEADER_BYTES,
+    RequestId,
+    frame_sample,
+    participant_entities_info,
+    request_id,
+    service_id,
+    split_request,
+)
 
 log = logging.getLogger("graspd.server")
 #: Depth of the moveit_grasps writer's history: a burst of one message per grasp (at most max_grasps) is kept
@@ -81,6 +92,8 @@ MOVEIT_DEPTH = 256
 #: Headroom of DDS's own sample-size cap over GRASPD_MAX_BODY_BYTES: samples up to it arrive and are refused
 #: with a 413 on graspd/errors; larger ones DDS drops itself (with a warning in its log).
 DDS_SIZE_HEADROOM = 2
+#: MiB of work arrays a GraspPlanning request's geometry test holds at most (moveit.TEST_CHUNK point-box pairs).
+PLAN_WORK_MB = 64.0
 
 
 def domain_config(settings: Settings) -> DomainConfig:
@@ -104,7 +117,9 @@ def domain_config(settings: Settings) -> DomainConfig:
             f"{settings.ros2_discovery}, peers {settings.ros2_peers}, config {settings.ros2_config}) with no DDS "
             "Security, so anyone there could run detections.  Set GRASPD_ROS2_SECURITY_ENCLAVE (an SROS2 enclave), "
             "or keep GRASPD_ROS2_DISCOVERY=localhost; on a trusted network only, GRASPD_ROS2_ALLOW_ANONYMOUS=true")
-    return DomainConfig(settings.ros2_domain_id, xml, participant_qos("/", props))
+    loopback = settings.ros2_discovery == "localhost" and settings.ros2_config is None
+    return DomainConfig(settings.ros2_domain_id, xml, participant_qos("/", props), loopback_only=loopback,
+                        loopback_strict=not settings.ros2_allow_anonymous)
 
 
 @dataclass
@@ -158,6 +173,8 @@ class Ros2Node:
         self._discovery: RawWriter | None = None
         self._frames = LatestFrame()
         self._last_cloud: tuple[bytes, str, float] | None = None  # for plan_grasps: payload, input, arrival
+        #: service calls admitted at once (queued or running): the engine's other workers stay free for HTTP
+        self.share = ServiceShare(service_share(engine.workers))
         self._thread: threading.Thread | None = None
 
     # ---- lifecycle -------------------------------------------------------------------------------------------
@@ -347,19 +364,25 @@ class Ros2Node:
             problem = self._too_large(len(data))
             if problem is not None:
                 raise problem
-            self.engine.admit()
+            self.share.take(self.engine.retry_after())
+            try:
+                self.engine.admit()
+            except Problem:
+                self.share.give()
+                raise
         except Problem as exc:
             self.publish_error(exc, where, ctx.id)
             self._write(entry, refuse(rid, exc))
             self.metrics.requests.labels("ros2-service", "refused").inc()
             return
-        state: dict[str, Any] = {}
+        t0 = time.perf_counter()
+        state: dict[str, Any] = {"deadline": t0 + self.settings.deadline_s}
         header: dict[str, Any] = {}
         caught = _Caught()
-        t0 = time.perf_counter()
+        held = [data]  # the sample, dropped once parsed (a message of megabytes is not kept through detection)
 
         def parse() -> DetectRequest:  # on the worker
-            req = prepare(data, state)
+            req = prepare(held.pop(), state)
             header.update(_json_header(state["msg"].header))
             return req
 
@@ -389,8 +412,10 @@ class Ros2Node:
         try:
             fut, _ = self.engine.enqueue(parse, {"read": 0.0}, header, on_detection=caught)
         except Problem as exc:  # shutting down (the place was given back)
+            self.share.give()
             self._write(entry, refuse(rid, exc))
             return
+        fut.add_done_callback(lambda _: self.share.give())
         fut.add_done_callback(done)
         self.engine.trim_after(fut)
 
@@ -416,12 +441,10 @@ class Ros2Node:
 
     def _plan_prepare(self, data: bytes, state: dict[str, Any]) -> DetectRequest:
         """The target of a GraspPlanning request on the newest cloud: samples within its geometry, the map from
-        its frame into the detection frame (moveit.frame_transform); PlanningError when that cannot be."""
-        _, body = split_request(data)
-        try:
-            request: Any = self.store.deserialize_cdr(body, "moveit_msgs/srv/GraspPlanning_Request")
-        except Exception as exc:  # rosbags: a truncated request or one lying about its sizes
-            raise Problem(422, f"not a usable moveit_msgs/srv/GraspPlanning request: {exc}", "request") from None
+        its frame into the detection frame (moveit.frame_transform); PlanningError when that cannot be.  In that
+        order, each before any cost of the next: the newest cloud's age, the message's memory (the engine's
+        budget), the target's counts (core.limits, read from the message's sequence lengths), the cloud, the
+        geometry test (bounded, stopped by the deadline)."""
         last = self._last_cloud
         if last is None:
             raise moveit.PlanningError(moveit.UNABLE_TO_ACQUIRE_SENSOR_DATA, "no cloud received yet on "
@@ -431,13 +454,24 @@ class Ros2Node:
         if age > self.settings.ros2_plan_cloud_age_s:
             raise moveit.PlanningError(moveit.SENSOR_INFO_STALE, f"the newest cloud is {age:.1f} s old (more than "
                                        f"GRASPD_ROS2_PLAN_CLOUD_AGE_S = {self.settings.ros2_plan_cloud_age_s:g})")
-        msg = self.decode(cloud, entry)
-        target = request.target
-        opts = self.options
-        to_detection = moveit.frame_transform(target.header.frame_id, msg.header.frame_id,
-                                              opts.camera_frame_id or "", opts.camera_poses, opts.points_frame)
-        samples = moveit.sample_points_on_target(msg.cloud.points, target, to_detection,
-                                                 opts.request.num_samples)
+        deadline = state["deadline"]
+        budget = self.engine.budget
+        wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
+        held = budget.take(message_cost(len(data), PLAN_WORK_MB), self.engine.retry_after(), wait)
+        try:
+            try:
+                target = decode_plan_target(data, REQUEST_HEADER_BYTES)
+            except RosDecodeError as exc:
+                raise Problem(422, f"not a usable moveit_msgs/srv/GraspPlanning request: {exc}", exc.field) from None
+            del data
+            msg = self.decode(cloud, entry)
+            opts = self.options
+            to_detection = moveit.frame_transform(target.header.frame_id, msg.header.frame_id,
+                                                  opts.camera_frame_id or "", opts.camera_poses, opts.points_frame)
+            samples = moveit.sample_points_on_target(msg.cloud.points, target, to_detection,
+                                                     opts.request.num_samples, deadline=deadline)
+        finally:
+            budget.give(held)
         if samples is not None:
             msg = replace(msg, samples=samples, sample_indices=None)
         state.update(msg=msg, frame=target.header.frame_id or msg.header.frame_id, to_detection=to_detection)

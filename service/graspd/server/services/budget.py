@@ -47,6 +47,17 @@ def request_cost(points: int, samples: int, crops: int = 0, crop_size: int = 0,
             "crops": (image_pixels * 3 * 2 + crops * crop_size * crop_size * 3 * 2) / MB}
 
 
+#: Copies of a ROS 2 service request alive while the node decodes it: the sample DDS hands over and the bytes the
+#: node keeps (graspd.io.ros decodes in place, on views of them).
+MESSAGE_COPIES = 2
+
+
+def message_cost(message_bytes: int, work_mb: float = 0.0) -> dict[str, float]:
+    """Estimated MiB of a ROS 2 service request while its message is decoded, before its detection (which takes
+    cost_of): the message's copies ("message") plus work_mb of bounded work arrays ("base")."""
+    return {"base": work_mb, "message": MESSAGE_COPIES * message_bytes / MB}
+
+
 def cost_of(req: Any) -> dict[str, float]:
     """request_cost of a parsed DetectRequest."""
     crops = getattr(req, "crops", None)
@@ -96,10 +107,11 @@ class MemoryBudget:
         total = sum(parts.values())
         field = max((k for k in parts if k != "base"), key=lambda k: parts[k])
         over = total - self.budget_mb
-        hint = {"cloud": f"at most about {int(max(0.0, parts['cloud'] - over) * MB / POINT_BYTES)} points (or a "
+        cloud, samples = parts.get("cloud", 0.0), parts.get("num_samples", 0.0)
+        hint = {"cloud": f"at most about {int(max(0.0, cloud - over) * MB / POINT_BYTES)} points (or a "
                          "coarser voxel_size before sending)",
-                "num_samples": f"num_samples at most {int(max(0.0, parts['num_samples'] - over) / SAMPLE_MB)}",
-                "crops": "fewer grasps (max_grasps) or a smaller crops.size or image"}[field]
+                "num_samples": f"num_samples at most {int(max(0.0, samples - over) / SAMPLE_MB)}",
+                "crops": "fewer grasps (max_grasps) or a smaller crops.size or image"}.get(field, f"a smaller {field}")
         return Problem(413, f"this request needs about {total:.0f} MiB of detection memory, more than the server's "
                             f"budget of {self.budget_mb:.0f} MiB (GRASPD_DETECT_MEMORY_MB): send {hint}", field)
 
