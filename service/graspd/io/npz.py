@@ -85,8 +85,9 @@ def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, member: NpzMem
         raise CloudError(field, f"npz: {name} is encrypted")
     cap = member.max_values * 8 + MAX_NPY_HEADER + 12
     if info.file_size > cap:
+        what = f" for {member.shape_text}" if member.shape_text else ""
         raise CloudError(field, f"npz: {name} declares {info.file_size} bytes uncompressed, beyond the limit of "
-                         f"{cap}")
+                         f"{cap}{what}")
     if info.file_size > budget:
         raise CloudError(field, f"npz: {name} declares {info.file_size} bytes uncompressed, beyond the limit of "
                          f"{max_bytes} for all arrays together ({budget} left)")
