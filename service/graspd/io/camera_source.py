@@ -20,13 +20,16 @@ def nearest_camera(points: NDArray[np.floating], viewpoints: NDArray[np.floating
     out = np.zeros(len(pts), np.int32)
     if len(cams) < 2:
         return out
+    dtype = np.result_type(pts.dtype, cams.dtype)  # the arithmetic of points - viewpoints
     for start in range(0, len(pts), BLOCK_ROWS):
         block = pts[start:start + BLOCK_ROWS]
+        columns = [np.ascontiguousarray(block[:, j], dtype) for j in range(3)]
         index = out[start:start + BLOCK_ROWS]
         best: NDArray[np.floating] | None = None
         for k in range(len(cams)):
-            diff = block - cams[k]
-            dist = np.sqrt((diff * diff).sum(axis=1))
+            # (dx² + dy²) + dz², then the root: np.linalg.norm's own order, so equal rows tie as they did
+            dx, dy, dz = (columns[j] - cams[k, j] for j in range(3))
+            dist = np.sqrt(dx * dx + dy * dy + dz * dz)
             if best is None:
                 best = dist
                 continue
