@@ -23,14 +23,17 @@ from __future__ import annotations
 
 import argparse
 import base64
+import io
 import json
 import os
+import re
 import socket
 import struct
 import subprocess
 import sys
 import threading
 import time
+import zipfile
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -593,7 +596,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clouds-s", type=float, default=60.0, help="the 5M-point cloud flood's duration (s)")
     ap.add_argument("--fuzz", type=int, default=40, help="schemathesis examples (0: no fuzzing)")
     ap.add_argument("--skip-issue11", action="store_true", help="only the issue-23 attacks")
+    ap.add_argument("--round3-only", action="store_true",
+                    help="only round three (npz, viewpoints, degenerate geometry, names; the ROS 2 services), "
+                         "written to bench/results/hostile-round3.md unless --out is given")
     args = ap.parse_args(argv)
+    if args.round3_only and args.out == ap.get_default("out"):
+        args.out = ROOT / "bench" / "results" / "hostile-round3.md"
 
     port, zport = free_port(), free_port()
     work = Path(os.environ.get("TMPDIR", "/tmp")) / f"graspd-hostile-{port}"
@@ -625,11 +633,14 @@ def main(argv: list[str] | None = None) -> int:
             if time.monotonic() > deadline or server.poll() is not None:
                 raise SystemExit("server did not start")
             time.sleep(0.2)
-        if not args.skip_issue11:
+        if not (args.skip_issue11 or args.round3_only):
             rows += issue11(url, server.pid, args)
-        rows += ["", "## Issue 23: bounded memory, slow clients, tokens, errors", ""]
-        more, answers = issue23(url, f"tcp/127.0.0.1:{zport}", server.pid, args)
-        rows += more
+        if not args.round3_only:
+            rows += ["", "## Issue 23: bounded memory, slow clients, tokens, errors", ""]
+            more, answers = issue23(url, f"tcp/127.0.0.1:{zport}", server.pid, args)
+            rows += more
+        rows += ["", "## Round three: npz and viewpoints, degenerate geometry, names, machine paths", ""]
+        rows += round3(url, server.pid)
     finally:
         server.terminate()
         try:
@@ -647,14 +658,15 @@ def main(argv: list[str] | None = None) -> int:
              f"answers {found_answers}, logs {found_logs}."]
     print(rows[-1])
     load = os.getloadavg()
-    text = ("# Hostile requests (issues 11 and 23)\n\n"
-            f"Command: `PYTHONPATH=service:client .venv/bin/python bench/hostile.py --clouds-s {args.clouds_s:g} "
-            f"--fuzz {args.fuzz}`\n\n"
+    command = ("--round3-only" if args.round3_only else f"--clouds-s {args.clouds_s:g} --fuzz {args.fuzz}")
+    text = ("# Hostile requests\n\n"
+            f"Command: `PYTHONPATH=service:client .venv/bin/python bench/hostile.py {command}`\n\n"
             f"Machine: {os.cpu_count()} cores, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end "
             f"(shared with other work: latencies are noisy).  Server: `graspd serve` with GRASPD_TOKEN, Zenoh on "
             f"loopback, an unreachable PostgreSQL template library, a writable copy of the models folder, otherwise "
-            f"default settings (workers = cores, queue 32, detection memory budget 2048 MiB).\n\n## Issue 11: small "
-            "malicious requests\n\n" + "\n".join(rows) + "\n")
+            f"default settings (workers = cores, queue 32, detection memory budget 2048 MiB).\n\n"
+            + ("" if args.skip_issue11 or args.round3_only else "## Issue 11: small malicious requests\n\n")
+            + "\n".join(rows) + "\n")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
     print(f"\nwrote {args.out}")
@@ -712,6 +724,113 @@ def issue11(url: str, pid: int, args: argparse.Namespace) -> list[str]:
     rows.append(f"Worst /healthz p99: {worst_p99:.1f} ms (target < 100 ms).")
     return rows
 
+
+
+# ---- round three: npz, viewpoints, degenerate geometry, names, machine paths -------------------------------
+
+def npy_bytes(array: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return buf.getvalue()
+
+
+def npz_bomb(method: int, unpacked: int = 1 << 30) -> bytes:
+    """An .npz whose points.npy member (bzip2 or deflate) holds an npy header declaring 4 KiB of float32 points,
+    then `unpacked` bytes of zeros: a few kB to 1 MB that unpack to 1 GiB."""
+    head = npy_bytes(np.zeros((341, 3), np.float32))[:128]  # the header of a (341, 3) float32 array
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=method, compresslevel=9) as z, z.open("points.npy", "w",
+                                                                                       force_zip64=True) as m:
+        m.write(head)
+        chunk = bytes(16 << 20)
+        for _ in range(unpacked // len(chunk)):
+            m.write(chunk)
+    return buf.getvalue()
+
+
+def npz_with_viewpoints(points: np.ndarray, viewpoints: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.savez_compressed(buf, points=points, viewpoints=viewpoints)
+    return buf.getvalue()
+
+
+def npy_v3_garbage() -> bytes:
+    """A version-3 .npy header whose dictionary is not a literal (a name where a value belongs)."""
+    header = b"{'descr': fmt, 'fortran_order': False, 'shape': (3, 3), }"
+    header += b" " * (-(len(header) + 13) % 64) + b"\n"
+    return b"\x93NUMPY\x03\x00" + struct.pack("<I", len(header)) + header + bytes(36)
+
+
+def round3(url: str, pid: int) -> list[str]:
+    """Each round-three input: status, field, seconds and the server's peak RSS increase; then the answers
+    scanned for object reprs and machine paths."""
+    rng = np.random.default_rng(3)
+    p20k = (rng.uniform(-0.1, 0.1, (20_000, 3)) + [0, 0, 0.6]).astype(np.float32)
+    p1m = (rng.uniform(-0.3, 0.3, (1_000_000, 3)) + [0, 0, 0.8]).astype(np.float32)
+    vp = lambda k: [("viewpoint", f"0,0,{i % 10}") for i in range(k)]  # noqa: E731
+    octet, npy_t, npz_t = "application/octet-stream", "application/x-npy", "application/x-npz"
+    print("making the compressed bombs (1 GiB each, ~15 s)", flush=True)
+    cases: list[tuple[str, str, dict[str, Any]]] = [
+        ("1", ".npz, bzip2 points.npy declaring 4 KiB, unpacking to 1 GiB",
+         {"content": npz_bomb(zipfile.ZIP_BZIP2), "headers": {"Content-Type": npz_t}}),
+        ("1", ".npz, deflate points.npy declaring 4 KiB, unpacking to 1 GiB",
+         {"content": npz_bomb(zipfile.ZIP_DEFLATED), "headers": {"Content-Type": npz_t}}),
+        ("2", ".npy of 20k points with 1,000 viewpoint= parameters",
+         {"content": npy_bytes(p20k), "params": vp(1000), "headers": {"Content-Type": npy_t}}),
+        ("2", ".npz of 20k points with a viewpoints member of 1,000 cameras",
+         {"content": npz_with_viewpoints(p20k, rng.uniform(-1, 1, (1000, 3)).astype(np.float32)),
+          "headers": {"Content-Type": npz_t}}),
+        ("2", ".npy of 1M points with 2,500 viewpoint= parameters (the most a 64 kB URL holds)",
+         {"content": npy_bytes(p1m), "params": vp(2500), "headers": {"Content-Type": npy_t}}),
+        ("6", "JSON: 200 points, all at the viewpoint",
+         {"json": {"cloud": {"points": np.zeros((200, 3)).tolist()}}}),
+        ("6", ".npy of 5M zeros",
+         {"content": npy_bytes(np.zeros((5_000_000, 3), np.float32)), "headers": {"Content-Type": npy_t}}),
+        ("8", ".npy with a garbage version-3 header",
+         {"content": npy_v3_garbage(), "headers": {"Content-Type": octet}}),
+    ]
+    rows = ["| row | input | bytes | status | field or warnings | time (s) | server RSS peak increase (MB) |",
+            "|---|---|---:|---:|---|---:|---:|"]
+    print("\n".join(rows), flush=True)
+    answers: list[str] = []
+    rss = RssPeak(pid)
+    met = True
+    with httpx.Client(base_url=url, timeout=120, headers=AUTH) as c:
+        c.post("/detect", params={"num_samples": "50"}, content=npy_bytes(p20k[:2000]),
+               headers={"Content-Type": npy_t})  # warm-up
+        for row, name, kwargs in cases:
+            sent = len(kwargs.get("content", b"")) or len(json.dumps(kwargs.get("json", {})))
+            base = rss.reset()
+            t0 = time.perf_counter()
+            r = c.post("/detect", **kwargs)
+            took = time.perf_counter() - t0
+            grow = (rss.peak() - base) / MB
+            answers.append(r.text)
+            body = r.json()
+            what = body.get("field") if r.status_code >= 400 else ", ".join(w["code"] for w in body["warnings"])
+            ok = ((400 <= r.status_code < 500) or (r.status_code == 200 and row == "6" and body["warnings"])) \
+                and took <= 2.0 and grow <= 150
+            met &= ok
+            line = f"| {row} | {name} | {sent:,} | {r.status_code} | {what} | {took:.2f} | {grow:.0f} |"
+            rows.append(line)
+            print(line, flush=True)
+        named = c.post("/models", files={"mesh": ("mug.ply", LYING_PLY)}, data={"name": "mug\n"})
+        answers.append(named.text)
+        rows.append(f"| 7 | POST /models, name \"mug\\n\" | | {named.status_code} | {named.json().get('field')} | | |")
+        listing = c.get("/models")
+        answers.append(listing.text)
+    rss.close()
+    leaks = {kind: sum(bool(rx.search(a)) for a in answers) for kind, rx in ROUND3_LEAKS.items()}
+    rows += ["", f"Targets (rows 1, 2, 6: a 4xx, or 200 with a warning for 6, within 2 s and <= 150 MB): "
+             f"{'met' if met else 'MISSED'}.  Row 7: {named.status_code} naming `{named.json().get('field')}`.  "
+             f"Answers scanned (these {len(answers)} and GET /models, {len(listing.text):,} bytes): {leaks}."]
+    print(rows[-1], flush=True)
+    return rows
+
+
+#: What no answer may hold: a Python object's repr, or a directory of a machine.
+ROUND3_LEAKS = {"object repr": re.compile(r"object at 0x[0-9a-fA-F]+"),
+                "machine path": re.compile(r"(?<![\w.~/:])/(?:tmp|work|home|root|usr|opt|var|srv|data)/")}
 
 if __name__ == "__main__":
     raise SystemExit(main())

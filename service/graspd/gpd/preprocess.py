@@ -85,7 +85,10 @@ def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) ->
         return c.__class__(points=np.zeros((0, 3), np.float32), viewpoints=c.viewpoints,
                            normals=np.zeros((0, 3), np.float32))
     pts, src, nrm = c.points, c.camera_source, c.normals
-    if p.voxel_size > 0.0:
+    if p.voxel_size > 0.0 and len(pts) > 1 and bool(np.all(np.ptp(pts, axis=0) < p.voxel_size)):
+        pts, src = pts[:1], src[:1]  # every point in about one voxel (millions of zeros): one point, no grid
+        nrm = None if nrm is None else nrm[:1]
+    elif p.voxel_size > 0.0:
         pts, src, nrm = voxelize(pts, src, p.voxel_size, nrm)
     if p.remove_outliers and len(pts) > p.outlier_neighbors:
         keep_idx = statistical_inliers(pts, p.outlier_neighbors, p.outlier_std_ratio)

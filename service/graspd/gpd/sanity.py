@@ -62,7 +62,10 @@ def hidden_share(points: NDArray[np.floating], viewpoints: NDArray[np.floating],
     nearer by more than margin_m.  A depth camera sees only the first surface along
     each ray, so a correct request scores near 0; a viewpoint behind the surface sees the scene's layers out of
     order and scores high.  0 for an empty cloud."""
-    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    pts = np.asarray(points).reshape(-1, 3)
+    if len(pts) > 2 * max_points:  # every k-th point first: a 5M-point cloud is not copied whole as float64
+        pts = pts[:: len(pts) // max_points]
+    pts = pts.astype(np.float64)
     pts = pts[np.isfinite(pts).all(axis=1)]
     if len(pts) == 0:
         return 0.0
