@@ -58,7 +58,8 @@ class Ranking:
 @dataclass(frozen=True)
 class GraspSet:
     """M grasps: positions (M,3), rotations (M,3,3), widths (M,), scores (M,), samples (M,3), and unknown (M,):
-    the share of each open hand and its approach path that lies in space no camera saw (NaN: not checked).
+    the share of each open hand and its approach path that lies in space no camera saw (NaN: not checked);
+    objects (M,): the id of the scene object each closes on (graspd.gpd.objects; -1: none or not known).
 
     scores are NaN until a classifier has scored the set; widths are the object extent between
     the fingers along the binormal (m).  ranking: the terms selection ranked them by (None before selection).
@@ -71,12 +72,15 @@ class GraspSet:
     samples: F64 = field(default_factory=lambda: _empty(3))
     unknown: F64 | None = None
     ranking: Ranking | None = None
+    objects: NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         m = len(self.positions)
         if self.unknown is None:
             object.__setattr__(self, "unknown", np.full(m, np.nan))
-        for name in ("rotations", "widths", "scores", "samples", "unknown"):
+        if self.objects is None:
+            object.__setattr__(self, "objects", np.full(m, -1, np.int64))
+        for name in ("rotations", "widths", "scores", "samples", "unknown", "objects"):
             if len(getattr(self, name)) != m:
                 raise ValueError(f"GraspSet.{name} has {len(getattr(self, name))} rows, expected {m}")
         if self.ranking is not None and len(self.ranking.key) != m:
@@ -87,6 +91,12 @@ class GraspSet:
         """unknown as an array (M,) (the field is never None after construction)."""
         assert self.unknown is not None
         return self.unknown
+
+    @property
+    def object_ids(self) -> NDArray[np.int64]:
+        """objects as an array (M,) (the field is never None after construction)."""
+        assert self.objects is not None
+        return self.objects
 
     def __len__(self) -> int:
         return int(self.positions.shape[0])
@@ -103,6 +113,7 @@ class GraspSet:
             samples=self.samples[index],
             unknown=self.unknown_share[index],
             ranking=None if self.ranking is None else self.ranking[index],
+            objects=self.object_ids[index],
         )
 
     @property
@@ -137,6 +148,10 @@ class GraspSet:
         """The set with each hand's share in unseen space (M,) recorded."""
         return replace(self, unknown=np.asarray(unknown, np.float64).reshape(-1))
 
+    def with_objects(self, objects: NDArray[np.integer]) -> GraspSet:
+        """The set with the scene object each grasp closes on (M,) recorded (-1: none)."""
+        return replace(self, objects=np.asarray(objects, np.int64).reshape(-1))
+
     def transformed(self, rotation: NDArray[np.floating], translation: NDArray[np.floating]) -> GraspSet:
         """The grasps moved rigidly by p -> R p + t."""
         r = np.asarray(rotation, np.float64)
@@ -159,6 +174,7 @@ class GraspSet:
             scores=np.concatenate([s.scores for s in sets]),
             samples=np.concatenate([s.samples for s in sets]),
             unknown=np.concatenate([s.unknown_share for s in sets]),
+            objects=np.concatenate([s.object_ids for s in sets]),
         )
 
     def to_dicts(self) -> list[dict[str, Any]]:
@@ -179,6 +195,7 @@ class GraspSet:
                     "sample": self.samples[i].tolist(),
                     "pose": poses[i].tolist(),
                     "quat_xyzw": quats[i].tolist(),
+                    "object": None if self.object_ids[i] < 0 else int(self.object_ids[i]),
                 }
             )
         return out

@@ -21,3 +21,13 @@ MAX_TARGET_PRIMITIVES = 256
 MAX_TARGET_MESHES = 64
 MAX_TARGET_VERTICES = 1_000_000
 MAX_TARGET_TRIANGLES = 2_000_000
+#: Most rows one target names (target.indices; a mask has one pixel per cloud row, so MAX_POINTS bounds it too),
+#: sample points one target gives (target.points) and characters of a compressed COCO RLE mask (its counts
+#: string): checked from the lengths sent, before any array is built.
+MAX_TARGET_INDICES = MAX_POINTS
+MAX_TARGET_POINTS = MAX_NUM_SAMPLES
+MAX_TARGET_RLE_CHARS = 1 << 22
+#: Largest object id a target may name (ids count the scene's objects from 0).
+MAX_OBJECT_ID = 100_000
+#: Most grasps per object before every other graspable object has one (max_per_object; 0 = off).
+MAX_PER_OBJECT = MAX_GRASPS

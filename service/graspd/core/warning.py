@@ -21,6 +21,7 @@ WARNING_CODES: dict[str, str] = {
     "few_points": "too few points are left after the workspace crop",
     "model_hand_mismatch": "the model was not trained for the requested hand; scores are less reliable",
     "no_candidates": "no grasp candidate survived; the stage that removed them is named",
+    "target_too_small": "the request's target holds too little of an object to grasp; the message says why",
 }
 
 

@@ -25,10 +25,12 @@ from graspd.core.warning import DetectionWarning
 from graspd.gpd.candidates import SamplingParams, search_hands
 from graspd.gpd.environment import Environment, EnvironmentParams, Label, hand_hits_environment, model_environment
 from graspd.gpd.images import encode_batches
+from graspd.gpd.objects import SceneObject, Segmentation, segment_objects
 from graspd.gpd.occlusion import MAX_UNKNOWN_SHARE, UNKNOWN_SPACE_MODES, UnknownSpace, unknown_share
 from graspd.gpd.preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
 from graspd.gpd.scene import ClosingRegionPoints, Scene
-from graspd.gpd.selection import SelectionParams, Vec3, feasible_mask, select
+from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT, SelectionParams, Vec3, feasible_mask, select
+from graspd.gpd.target import MIN_TARGET_POINTS, Target, TargetError, target_mask
 
 
 class Scorer(Protocol):
@@ -57,7 +59,10 @@ class DetectionParams:
     first pass scores every candidate and only the best cascade_keep fraction (at least cascade_min) are
     encoded and scored by the full model; the rest are dropped.  unknown_space "avoid" (default): a hand with
     more than max_unknown (default none) of its fingers, palm or approach path in space no camera saw (behind a
-    seen surface from every camera) is treated as colliding; "allow" checks the seen points only, as GPD does."""
+    seen surface from every camera) is treated as colliding; "allow" checks the seen points only, as GPD does.
+    target (graspd.gpd.target): sample on it only and keep the hands whose closing region holds no object point
+    outside it; a target of sample points replaces sample_points.  max_per_object (0 = off): the ranked list gives
+    no object more than this many grasps before every other object with a grasp has one (selection.cover_order)."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -91,8 +96,12 @@ class DetectionParams:
     unknown_space: UnknownSpace = "avoid"
     max_unknown: float = MAX_UNKNOWN_SHARE
     sample_points: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    target: Target | None = field(default=None, compare=False, repr=False)
+    max_per_object: int = DEFAULT_MAX_PER_OBJECT
 
     def __post_init__(self) -> None:
+        if self.max_per_object < 0:
+            raise ValueError(f"max_per_object must be >= 0 (0 = off), got {self.max_per_object}")
         if not 1 <= self.num_samples <= MAX_NUM_SAMPLES:
             raise ValueError(f"num_samples must be in [1, {MAX_NUM_SAMPLES}], got {self.num_samples}")
         if self.max_grasps < 0:
@@ -138,12 +147,14 @@ class DetectionParams:
             width_margin=margin,
             reference_position=self.reference_position,
             max_grasps=self.max_grasps,
+            max_per_object=self.max_per_object,
         )
 
 
 @dataclass(frozen=True)
 class Detection:
-    """Ranked grasps (best first) with what produced them and how long each stage took (s)."""
+    """Ranked grasps (best first) with what produced them and how long each stage took (s); objects: the scene's
+    objects by id (graspd.gpd.objects), which the grasps' object ids refer to."""
 
     grasps: GraspSet
     timings: dict[str, float]
@@ -154,6 +165,16 @@ class Detection:
     hand: HandGeometry = field(default_factory=HandGeometry)
     environment: Environment | None = None
     warnings: tuple[DetectionWarning, ...] = ()
+    objects: tuple[SceneObject, ...] = ()
+    max_per_object: int = 0
+
+    def object_grasps(self) -> list[list[int]]:
+        """For each object (by id), the positions of its grasps in the ranked list."""
+        out: list[list[int]] = [[] for _ in self.objects]
+        for k, oid in enumerate(self.grasps.object_ids.tolist()):
+            if 0 <= oid < len(out):
+                out[oid].append(k)
+        return out
 
     def warned(self, *more: DetectionWarning) -> Detection:
         """This detection with more warnings appended (codes already present are not repeated)."""
@@ -171,6 +192,8 @@ class Detection:
             "hand": self.hand.to_dict(),
             "environment": None if self.environment is None else self.environment.to_dict(),
             "warnings": [w.to_dict() for w in self.warnings],
+            "objects": [{**o.to_dict(), "grasps": g} for o, g in zip(self.objects, self.object_grasps(), strict=True)],
+            "max_per_object": self.max_per_object,
         }
 
 
@@ -247,6 +270,8 @@ class GraspDetector:
                     "unknown_space", f"{int((share > p.max_unknown).sum())} of the top {len(top)} grasps put "
                     f"up to {100 * float(share.max()):.0f}% of the hand into space no camera saw (unknown_space "
                     "is 'allow'); a hidden neighbour may be there"))
+        if p.target is not None and not len(grasps):
+            warnings.append(target_warning(prep, p.target, len(candidates)))
         lap("select")
         timings["total"] = time.perf_counter() - t0
         return Detection(
@@ -259,6 +284,8 @@ class GraspDetector:
             hand=h,
             environment=env,
             warnings=tuple(warnings),
+            objects=prep.segmentation.objects,
+            max_per_object=p.max_per_object if p.use_selection else 0,
         )
 
     def prepare(self, cloud: ViewpointCloud, p: DetectionParams, h: HandGeometry,
@@ -275,12 +302,24 @@ class GraspDetector:
         if lap is not None:
             lap("scene")
         modelled = env.mode != "none"
+        segmentation = segment_objects(prepared.points, env.object_mask)
+        if lap is not None:
+            lap("objects")
+        target = None
+        if p.target is not None:
+            target = target_mask(p.target, cloud, prepared, p.voxel_size, p.workspace, segmentation)
+            if lap is not None:
+                lap("target")
         if p.exclude_support_plane is False or (p.exclude_support_plane is None and not modelled):
             pool = None
         elif modelled:
             pool = env.object_mask
         else:
             pool = ~support_plane_mask(prepared.points)
+        if target is not None:
+            pool = target if pool is None else pool & target
+            if np.count_nonzero(pool) < MIN_TARGET_POINTS:  # too small to grasp: no candidates, a warning says why
+                pool = np.zeros_like(pool)
         # the support is a plane the hands stop short of in closed form, not thousands of points to test
         plane = env.support if modelled else None
         sampling = SamplingParams(num_samples=p.num_samples, num_orientations=p.num_orientations,
@@ -290,7 +329,7 @@ class GraspDetector:
                                   obstacles=None if plane is None else ~env.closed_form_mask(prepared.points),
                                   support=plane, support_clearance=env.clearance)
         return Prepared(cloud=prepared, environment=env, scene=scene, sampling=sampling,
-                        selection=p.selection(h, env))
+                        selection=p.selection(h, env), segmentation=segmentation, target=target)
 
     @staticmethod
     def search(prep: Prepared, sampling: SamplingParams, p: DetectionParams, h: HandGeometry
@@ -312,7 +351,13 @@ class GraspDetector:
                                             cands.rotations[feasible], h, p.approach_distance)
             feasible &= ~(share > p.max_unknown)
             cands = cands.with_unknown(share)
-        return cands[feasible], region.subset(feasible)
+        if prep.target is not None and feasible.any():  # an object point outside the target between the fingers
+            outside = ~prep.target[region.index]
+            if prep.environment.mode != "none":
+                outside &= prep.environment.labels[region.index] == Label.OBJECT
+            feasible[region.grasp[outside]] = False
+        kept, kept_region = cands[feasible], region.subset(feasible)
+        return kept.with_objects(prep.segmentation.grasp_objects(kept_region, len(kept))), kept_region
 
 
 @dataclass(frozen=True)
@@ -325,6 +370,8 @@ class Prepared:
     scene: Scene
     sampling: SamplingParams
     selection: SelectionParams
+    segmentation: Segmentation = field(default_factory=lambda: Segmentation.empty(0))
+    target: NDArray[np.bool_] | None = None
 
 
 #: Early stop: a round ends the search once this many times max_grasps candidates, each in its own
@@ -367,14 +414,40 @@ def enough_grasps(candidates: GraspSet, p: DetectionParams) -> bool:
 
 
 def _nearest(scene: Scene, p: DetectionParams) -> tuple[int, ...] | None:
-    """Rows of the scene nearest p.sample_points (within p.frame_radius, each once), None without them."""
-    if p.sample_points is None:
+    """Rows of the scene nearest the sample points (the target's, else p.sample_points; within p.frame_radius,
+    each once), None without them.  TargetError when a target's points are all farther from the cloud."""
+    points = p.target.points if p.target is not None and p.target.points is not None else p.sample_points
+    if points is None:
         return None
-    if len(p.sample_points) == 0 or len(scene.points) == 0:
+    if len(points) == 0 or len(scene.points) == 0:
         return ()
-    dist, idx = scene.tree.query(np.asarray(p.sample_points, np.float64).reshape(-1, 3),
-                                 distance_upper_bound=p.frame_radius)
-    return tuple(np.unique(idx[np.isfinite(dist)]).tolist())
+    dist, idx = scene.tree.query(np.asarray(points, np.float64).reshape(-1, 3), distance_upper_bound=p.frame_radius)
+    found = tuple(np.unique(idx[np.isfinite(dist)]).tolist())
+    if not found and p.target is not None and p.target.points is not None:
+        raise TargetError(p.target.field, f"none of its {len(points)} points lies within frame_radius "
+                          f"({p.frame_radius:g} m) of the cloud (after the workspace crop)")
+    return found
+
+
+def target_warning(prep: Prepared, target: Target, num_candidates: int) -> DetectionWarning:
+    """Why a target got no grasp: too few object points in it, or no hand that closes on it alone."""
+    if prep.target is None:
+        near = len(prep.sampling.sample_indices or ())
+        return DetectionWarning("target_too_small", f"{target.field}: no collision-free hand at the {near} cloud "
+                                f"points nearest its points ({num_candidates} candidates passed the checks); no "
+                                "grasp returned")
+    pool = prep.sampling.sample_pool
+    on_objects = int(np.count_nonzero(pool)) if pool is not None else 0
+    held = int(np.count_nonzero(prep.target))
+    if pool is None or on_objects < MIN_TARGET_POINTS:
+        why = (f"it covers {held} points of the cloud, {on_objects} of them on objects (the rest support, walls or "
+               f"declared boxes); at least {MIN_TARGET_POINTS} object points are needed")
+    else:
+        pts = prep.cloud.points[pool]
+        span = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+        why = (f"no collision-free hand closes on its {on_objects} object points ({100 * span:.1f} cm across) "
+               "without taking in a point of another object")
+    return DetectionWarning("target_too_small", f"{target.field}: {why}; no grasp returned")
 
 
 MIN_SCORE_PIECE = 64  # images scored together at least: below this a second thread saves less than it costs

@@ -1,0 +1,98 @@
+"""Scene objects: the object points the environment stage kept (not support, walls or declared boxes), split into
+groups no farther than OBJECT_GAP apart.  Ids count the groups from 0 in order of position (x, then y, then z of
+their centres, cloud frame), so the same cloud gets the same ids whatever the request samples, targets or seeds.
+Touching objects are one group; a target (graspd.gpd.target) tells them apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graspd.core.points import eps_clusters
+from graspd.gpd.scene import ClosingRegionPoints
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+#: Object points at most this far apart (m) belong to one object: two voxels of the default 3 mm grid, less than
+#: the 1 cm a finger needs to pass between two objects.
+OBJECT_GAP = 0.006
+#: Fewer points than this are a speck (noise, a sliver seen at a grazing angle), not an object.
+MIN_OBJECT_POINTS = 20
+#: Centres are compared to this resolution (m) when ids are ordered, so that float noise cannot swap two ids.
+ORDER_RESOLUTION = 1e-3
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """One object of the scene: its id, the centre and extent of its points' axis-aligned bounds (m, the frame
+    of the cloud detection ran in) and how many (preprocessed) points it has."""
+
+    id: int
+    centre: F64
+    extent: F64
+    num_points: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"id": self.id, "centre": self.centre.tolist(), "extent": self.extent.tolist(),
+                "num_points": self.num_points}
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """The object id of every preprocessed point (N,) (-1: environment or a speck) and the objects by id."""
+
+    labels: I64
+    objects: tuple[SceneObject, ...] = ()
+
+    @staticmethod
+    def empty(n: int) -> Segmentation:
+        return Segmentation(np.full(n, -1, np.int64))
+
+    def grasp_objects(self, region: ClosingRegionPoints, num_grasps: int) -> I64:
+        """The object each of num_grasps hands closes on: the one with most points in its closing region (ties:
+        the lower id); -1 when the region holds no object point."""
+        out = np.full(num_grasps, -1, np.int64)
+        k = len(self.objects)
+        if k == 0 or num_grasps == 0 or len(region.grasp) == 0:
+            return out
+        lab = self.labels[region.index]
+        on = lab >= 0
+        votes = np.bincount(region.grasp[on] * k + lab[on], minlength=num_grasps * k).reshape(num_grasps, k)
+        best = np.argmax(votes, axis=1)
+        has = votes[np.arange(num_grasps), best] > 0
+        out[has] = best[has]
+        return out
+
+
+def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_], gap: float = OBJECT_GAP,
+                    min_points: int = MIN_OBJECT_POINTS) -> Segmentation:
+    """The objects among points (N,3, m) where object_mask holds: groups of points linked by steps of at most gap
+    (m), at least min_points each, ids ordered by the position of their centres (x, then y, then z)."""
+    n = len(points)
+    idx = np.flatnonzero(object_mask)
+    if len(idx) < min_points:
+        return Segmentation.empty(n)
+    pts = np.asarray(points, np.float64)[idx]
+    group = eps_clusters(pts, gap)
+    sizes = np.bincount(group)
+    keep = np.flatnonzero(sizes >= min_points)
+    if len(keep) == 0:
+        return Segmentation.empty(n)
+    by_group = pts[np.argsort(group, kind="stable")]
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])  # connected-component labels leave no gaps
+    lo, hi = np.minimum.reduceat(by_group, starts, axis=0), np.maximum.reduceat(by_group, starts, axis=0)
+    centres = (lo[keep] + hi[keep]) / 2.0
+    key = np.round(centres / ORDER_RESOLUTION).astype(np.int64)
+    order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+    new_id = np.full(len(sizes), -1, np.int64)
+    new_id[keep[order]] = np.arange(len(keep))
+    labels = np.full(n, -1, np.int64)
+    labels[idx] = new_id[group]
+    objects = tuple(SceneObject(id=i, centre=centres[j], extent=hi[keep[j]] - lo[keep[j]],
+                                num_points=int(sizes[keep[j]])) for i, j in enumerate(order))
+    return Segmentation(labels, objects)
