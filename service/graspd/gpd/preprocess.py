@@ -16,7 +16,9 @@ Workspace = tuple[float, float, float, float, float, float]
 @dataclass(frozen=True)
 class PreprocessParams:
     """voxel_size (m, 0 = off); workspace box [xmin, xmax, ymin, ymax, zmin, zmax] in the cloud frame;
-    statistical outlier removal; normals from neighbours within normal_radius (m, at most max_nn)."""
+    statistical outlier removal; normals from neighbours within normal_radius (m, at most max_nn); range_window
+    (m, 0 = off): with no workspace, only points at most this much farther from their camera than the nearest
+    surface the cameras see (region_mask)."""
 
     voxel_size: float = 0.003
     workspace: Workspace | None = None
@@ -26,6 +28,16 @@ class PreprocessParams:
     normal_radius: float = 0.01
     normal_max_nn: int = 30
     recompute_normals: bool = False
+    range_window: float = 0.0
+
+
+#: The range window a detection uses by default (m): points more than this beyond the nearest surface the cameras
+#: see are left out when a request gives no workspace.  A tabletop seen from 0.5-1 m keeps its table and objects;
+#: a room 1.6-2.5 m behind them goes (measured on the Kinect and stereo captures of bench/real.py).
+DEFAULT_RANGE_WINDOW = 1.0
+#: Share of the points (lowest ranges first) whose range defines the near end of the range window: robust to a
+#: few stray points at the lens.
+NEAR_QUANTILE = 0.01
 
 
 def crop_mask(points: NDArray[np.floating], workspace: Workspace) -> NDArray[np.bool_]:
@@ -35,6 +47,31 @@ def crop_mask(points: NDArray[np.floating], workspace: Workspace) -> NDArray[np.
     if np.any(hi < lo):
         raise CloudError("workspace", "each max must be >= its min ([xmin, xmax, ymin, ymax, zmin, zmax])")
     return np.all((points >= lo) & (points <= hi), axis=1)
+
+
+def range_limit(points: NDArray[np.floating], camera_source: NDArray[np.int32], viewpoints: NDArray[np.floating],
+                window: float) -> tuple[NDArray[np.float64], float]:
+    """Each point's range from the camera that saw it (N,) and the farthest range kept by a range window of
+    `window` m beyond the near end of the scene (the NEAR_QUANTILE range): depth noise grows with range, so far,
+    sparse points (a room behind the table) are the least reliable, and a hand rarely reaches them."""
+    ranges = np.linalg.norm(np.asarray(points, np.float64) - np.asarray(viewpoints, np.float64)[camera_source], axis=1)
+    if len(ranges) == 0:
+        return ranges, float("inf")
+    near = float(np.quantile(ranges, NEAR_QUANTILE))
+    return ranges, near + window
+
+
+def region_mask(cloud: ViewpointCloud, workspace: Workspace | None, range_window: float) -> NDArray[np.bool_]:
+    """The points (finite ones) a detection works on: those inside the workspace box when one is given, else,
+    with range_window > 0, those within the range window (range_limit); else all finite points."""
+    mask = np.asarray(np.isfinite(cloud.points).all(axis=1), bool)
+    if workspace is not None:
+        return mask & crop_mask(cloud.points, workspace)
+    if range_window > 0.0 and mask.any():
+        idx = np.flatnonzero(mask)
+        ranges, far = range_limit(cloud.points[idx], cloud.camera_source[idx], cloud.viewpoints, range_window)
+        mask[idx[ranges > far]] = False
+    return mask
 
 
 def voxelize(points: NDArray[np.float32], camera_source: NDArray[np.int32], voxel_size: float,
@@ -73,14 +110,13 @@ def orient_toward_cameras(points: NDArray[np.float32], normals: NDArray[np.float
 
 
 def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) -> ViewpointCloud:
-    """Drop non-finite points, crop, voxelize, remove outliers, and give every point an oriented normal."""
+    """Keep the finite points of the region (region_mask: the workspace, else the range window), voxelize,
+    remove outliers, and give every point an oriented normal."""
     p = params or PreprocessParams()
-    finite = np.asarray(np.isfinite(cloud.points).all(axis=1), bool)
+    keep = region_mask(cloud, p.workspace, p.range_window)
     if cloud.normals is not None:
-        finite = finite & np.asarray(np.isfinite(cloud.normals).all(axis=1), bool)
-    c = cloud.select(finite) if not finite.all() else cloud
-    if p.workspace is not None:
-        c = c.select(crop_mask(c.points, p.workspace))
+        keep &= np.asarray(np.isfinite(cloud.normals).all(axis=1), bool)
+    c = cloud.select(keep) if not keep.all() else cloud
     if len(c) == 0:
         return c.__class__(points=np.zeros((0, 3), np.float32), viewpoints=c.viewpoints,
                            normals=np.zeros((0, 3), np.float32))
