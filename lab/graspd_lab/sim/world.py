@@ -19,7 +19,7 @@ import pybullet as pb
 
 from graspd.core.hand import HandGeometry
 from graspd_lab.sim.containers import ContainerSpec
-from graspd_lab.sim.objects import TEST_OBJECT_IDS, body_mesh, graspable_scale, object_urdf
+from graspd_lab.sim.objects import TEST_OBJECT_IDS, body_mesh, graspable_scale, load_flags, object_urdf
 from graspd_lab.world.scenes import TrayGeometry
 
 SCENE_KINDS = ("pour", "pile", "packed", "container")
@@ -97,7 +97,7 @@ class SimWorld:
 
     def add_object(self, object_id: int, position: np.ndarray, quat_xyzw: np.ndarray, scale: float) -> int:
         body = pb.loadURDF(object_urdf(object_id), position.tolist(), quat_xyzw.tolist(),
-                           globalScaling=scale, physicsClientId=self.client)
+                           globalScaling=scale, flags=load_flags(object_id), physicsClientId=self.client)
         pb.changeDynamics(body, -1, lateralFriction=1.0, spinningFriction=0.002, rollingFriction=0.0005,
                           physicsClientId=self.client)
         self.objects[body] = object_id

@@ -1,4 +1,5 @@
-"""The one object catalogue: procedural shapes and pybullet_data's random_urdfs, with no download.
+"""The one object catalogue: procedural shapes, pybullet_data's random_urdfs and the household models, with no
+download.
 
 Every catalogue object is an open3d TriangleMesh in metres, centred on its bounding-box centre, scaled so a
 two-finger hand can close on it (smallest bounding extent at most `fit` x the hand's max aperture),
@@ -9,6 +10,10 @@ rules"). The rule is written once, in urdf_folder: every loader of a random_urdf
 meshes, the sized meshes of scripted scenes, the simulator's URDFs and extents) goes through it and
 is refused a held-out object unless the caller says it is the held-out evaluation (held_out_ok).
 pybullet_data ships inside the pybullet wheel (the lab distribution graspd-lab).
+
+Household models (graspd_lab.world.household, kind "household", index k = the k-th model by name) are the
+exception to the fitting: they keep their true size (scale 1).  Their held-out rule is household.HELD_OUT,
+enforced by check_not_held_out for their simulator ids and by load_object.
 """
 
 from __future__ import annotations
@@ -22,6 +27,8 @@ import numpy as np
 import open3d as o3d
 
 from graspd.core.hand import HandGeometry
+from graspd_lab.world import household
+from graspd_lab.world.held_out import HeldOutObjectError
 from graspd_lab.world.meshes import (
     box_mesh,
     capsule_mesh,
@@ -39,10 +46,6 @@ TRAINING_URDFS = range(0, 900)
 PROCEDURAL_KINDS = ("box", "cylinder", "sphere", "cone", "capsule", "composite")
 #: Scale of the random_urdfs meshes in their own URDF files (mesh units -> metres).
 URDF_MESH_SCALE = 0.015
-
-
-class HeldOutObjectError(PermissionError):
-    """A held-out test object was requested for training or validation."""
 
 
 @dataclass(frozen=True)
@@ -75,8 +78,12 @@ def pybullet_data_dir() -> Path:
 
 
 def check_not_held_out(index: int, held_out_ok: bool = False) -> None:
-    """The held-out rule: raise HeldOutObjectError for random_urdfs 900-999 unless held_out_ok (held-out
-    evaluation only), ValueError for an index outside [0, 999]."""
+    """The held-out rule of a simulator object id: raise HeldOutObjectError for random_urdfs 900-999 and the
+    held-out household models unless held_out_ok (held-out evaluation only), ValueError for an id that is neither
+    a random_urdfs index in [0, 999] nor a household model (household.HOUSEHOLD_ID_BASE + k)."""
+    if household.is_household_id(index):
+        household.check_household_not_held_out(household.household_name(index), held_out_ok)
+        return
     if index in HELD_OUT_URDFS and not held_out_ok:
         raise HeldOutObjectError(
             f"random_urdfs/{index:03d} is a held-out test object (900-999): never load it for training or "
@@ -210,10 +217,34 @@ def procedural_object(kind: str, index: int, seed: int = 0, hand: HandGeometry |
                        category=category, mesh=mesh, scale=factor)
 
 
-def object_catalogue(num_urdfs: int = 900, procedural_per_kind: dict[str, int] | None = None
-                     ) -> list[tuple[str, int]]:
+def household_object(index: int, held_out_ok: bool = False) -> GraspObject:
+    """Household model `index` (household.household_names() order) at its true size: its collision mesh (the
+    convex parts pybullet simulates), centred on its bounding-box centre, scale 1; held-out models refused."""
+    names = household.household_names()
+    if not 0 <= index < len(names):
+        raise ValueError(f"household index must lie in [0, {len(names) - 1}], got {index}")
+    name = names[index]
+    mesh = clean_mesh(o3d.geometry.TriangleMesh(household.collision_mesh(name, held_out_ok)))
+    return GraspObject(name=f"household_{name}", source=f"graspd_lab:data/household/{name}.urdf",
+                       category=_household_category(mesh), mesh=mesh, scale=1.0)
+
+
+def _household_category(mesh: o3d.geometry.TriangleMesh) -> str:
+    """box, cylinder or other, by how much of its bounding box along the principal axes its convex hull fills
+    (a box fills it, a cylinder pi/4 of it)."""
+    hull, _ = mesh.compute_convex_hull()
+    v = np.asarray(hull.vertices)
+    _, _, axes = np.linalg.svd(v - v.mean(axis=0), full_matrices=False)
+    local = v @ axes.T
+    fill = hull.get_volume() / max(float(np.prod(local.max(axis=0) - local.min(axis=0))), 1e-12)
+    return "box" if fill > 0.85 else "cylinder" if 0.72 < fill <= 0.82 else "other"
+
+
+def object_catalogue(num_urdfs: int = 900, procedural_per_kind: dict[str, int] | None = None,
+                     household_models: bool = False) -> list[tuple[str, int]]:
     """Object specs (kind, index) for a dataset: kind "urdf" for random_urdfs 000..num_urdfs-1 (at most
-    900: the held-out objects are never listed), or a procedural kind."""
+    900: the held-out objects are never listed), a procedural kind, and (household_models) kind "household"
+    for every household model that is not held out."""
     if not 0 <= num_urdfs <= len(TRAINING_URDFS):
         raise ValueError(f"num_urdfs must lie in [0, {len(TRAINING_URDFS)}] (900-999 are held out), got {num_urdfs}")
     specs: list[tuple[str, int]] = [("urdf", i) for i in TRAINING_URDFS[:num_urdfs]]
@@ -221,11 +252,17 @@ def object_catalogue(num_urdfs: int = 900, procedural_per_kind: dict[str, int] |
         if kind not in PROCEDURAL_KINDS:
             raise ValueError(f"procedural kind must be one of {PROCEDURAL_KINDS}, got {kind!r}")
         specs.extend((kind, i) for i in range(count))
+    if household_models:
+        names = household.household_names()
+        specs.extend(("household", names.index(n)) for n in household.training_names())
     return specs
 
 
 def load_object(kind: str, index: int, seed: int = 0, hand: HandGeometry | None = None) -> GraspObject:
-    """One object of object_catalogue: a training random_urdf (never a held-out one) or a procedural shape."""
+    """One object of object_catalogue: a training random_urdf or household model (never a held-out one:
+    HeldOutObjectError) or a procedural shape."""
     if kind == "urdf":
         return random_urdf_mesh(index, hand)
+    if kind == "household":
+        return household_object(index)
     return procedural_object(kind, index, seed, hand)
