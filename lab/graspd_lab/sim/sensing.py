@@ -1,6 +1,6 @@
-"""Simulated depth cameras: pybullet's CPU renderer (ER_TINY_RENDERER), metric depth, noise
-(graspd_lab.world.noise.noisy_depth) and back-projection into world-frame points, fused into a
-ViewpointCloud as a robot sends it.
+"""Simulated depth cameras: pybullet's CPU renderer (ER_TINY_RENDERER), metric depth, a sensor's noise
+(graspd_lab.world.noise: the Kinect model noisy_depth, or another SensorNoise) and back-projection into
+world-frame points, fused into a ViewpointCloud as a robot sends it.
 
 The cameras are graspd.core.camera.Camera (the simulator's rigs use vertical fields of view, as
 pybullet takes them) and the noise parameters graspd_lab.world.noise.DepthNoise; only the pybullet
@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from graspd.core.camera import Camera, active_cameras, passive_cameras, side_camera
 from graspd.core.cloud import ViewpointCloud
-from graspd_lab.world.noise import DepthNoise, noisy_depth
+from graspd_lab.world.noise import DepthNoise, SensorNoise, Surfaces, noisy_depth
 
 F64 = NDArray[np.float64]
 
@@ -53,6 +53,19 @@ def render_depth(client: int, camera: Camera) -> F64:
     return z
 
 
+def render_depth_and_surfaces(client: int, camera: Camera) -> tuple[F64, NDArray[np.int64]]:
+    """render_depth and the body id each pixel shows (H, W; -1 where nothing was hit)."""
+    view, proj = camera_matrices(camera)
+    _, _, _, depth_buf, seg = pb.getCameraImage(
+        camera.width, camera.height, view, proj, renderer=pb.ER_TINY_RENDERER, physicsClientId=client)
+    d = np.asarray(depth_buf, np.float64).reshape(camera.height, camera.width)
+    n, f = camera.near, camera.far
+    z = f * n / (f - (f - n) * d)
+    z[d >= 1.0] = np.inf
+    ids = np.asarray(seg, np.int64).reshape(camera.height, camera.width)
+    return z, np.where(d >= 1.0, -1, ids)
+
+
 def pixel_rays(camera: Camera) -> F64:
     """Unit-depth rays (H, W, 3) in world frame: point = position + z * ray for optical-axis depth z."""
     view, proj = camera_matrices(camera)
@@ -68,16 +81,24 @@ def pixel_rays(camera: Camera) -> F64:
     return eye @ cam_to_world.T
 
 
-def observe(client: int, cameras: list[Camera], noise: DepthNoise, rng: np.random.Generator,
+def observe(client: int, cameras: list[Camera], noise: DepthNoise | SensorNoise, rng: np.random.Generator,
             region: tuple[float, float, float, float, float, float]) -> ViewpointCloud:
-    """Render every camera, add noise, back-project and keep points inside region
-    [xmin, xmax, ymin, ymax, zmin, zmax] (world, m); camera_source indexes the camera list."""
+    """Render every camera, add the sensor's noise, back-project and keep points inside region
+    [xmin, xmax, ymin, ymax, zmin, zmax] (world, m); camera_source indexes the camera list.  A model with
+    materials (dark, shiny surfaces) draws them once per observation, for every body, so all cameras agree."""
     pts_all, src_all = [], []
     lo = np.asarray(region[0::2])
     hi = np.asarray(region[1::2])
+    bodies = np.array([pb.getBodyUniqueId(i, physicsClientId=client)
+                       for i in range(pb.getNumBodies(physicsClientId=client))], np.int64)
+    materials = noise.draw_surfaces(bodies, rng)
     for k, cam in enumerate(cameras):
         rays = pixel_rays(cam)
-        z = noisy_depth(render_depth(client, cam), rays, noise, rng)
+        if materials is None:
+            z = noise.rasterised(render_depth(client, cam), rays, rng)
+        else:
+            depth, ids = render_depth_and_surfaces(client, cam)
+            z = noise.rasterised(depth, rays, rng, Surfaces(ids=ids, dark=materials.dark, shiny=materials.shiny))
         ok = np.isfinite(z)
         pts = np.asarray(cam.position) + rays[ok] * z[ok][:, None]
         keep = np.all((pts >= lo) & (pts <= hi), axis=1)

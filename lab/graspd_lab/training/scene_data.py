@@ -6,6 +6,11 @@ cameras (two passive cameras 53 degrees apart, or one side camera) and its depth
 (DepthNoise.benchmark()), with training objects only (random_urdfs 000-899; never 900-999).  Each scene is
 seen several times while objects are taken out of it one at a time, as a robot clears it.
 
+Household models (graspd_lab.world.household, at their true size, never a held-out one) join the scenes'
+objects at household_share, and each scene may draw its sensor from sensor_mix (the Kinect model, an active-stereo
+or a ToF camera: graspd_lab.world.noise); the defaults (no household models, the Kinect only) make the datasets
+they always made.  --mix household is the retrain's mix: piles, packed scenes, trays and containers.
+
 Every view is cropped to the benchmark's workspace box and goes through the detector's own stages
 (GraspDetector.prepare and search with default DetectionParams): the candidates are exactly those the
 service would score on that cloud.  Each is labelled against the true meshes of the objects, the floor
@@ -23,6 +28,7 @@ than positives, and the highest-scoring ones are what precision at the top depen
   PYTHONPATH=service python -m graspd_lab.training.scene_data --out DATA --scenes 600 --workers 2
   ... --workers 2 --ray              (Ray tasks on this machine; graspd-lab[cluster])
   ... --ray --address auto           (a Ray cluster; --out must be a folder every node sees)
+  ... --mix household --household-share 0.5 --sensors mixed   (household models, mixed sensors)
 
 The chunks depend only on the parameters: one process, a pool or Ray write the same bytes (graspd_lab.cluster).
 """
@@ -61,7 +67,8 @@ from graspd_lab.training.dataset import (
     write_npz,
 )
 from graspd_lab.training.labels import LabelParams, label_grasps
-from graspd_lab.world.noise import DepthNoise
+from graspd_lab.world import household
+from graspd_lab.world.noise import DepthNoise, SensorNoise, draw_sensor, sensor_noise
 from graspd_lab.world.objects import TRAINING_URDFS, check_not_held_out
 from graspd_lab.world.render import MeshScene
 
@@ -73,7 +80,15 @@ SCENE_MIX: tuple[tuple[str, float], ...] = (("pour", 0.4), ("pile", 0.35), ("pac
 CONTAINER_MIX: tuple[tuple[str, float], ...] = (("container:tray", 0.2), ("container:deep_bin", 0.15),
                                                 ("container:platform", 0.15), ("container:tote", 0.2),
                                                 ("container:shelf", 0.1), ("pour", 0.1), ("pile", 0.1))
-MIXES: dict[str, tuple[tuple[str, float], ...]] = {"clutter": SCENE_MIX, "containers": CONTAINER_MIX}
+#: Household scenes: VGN's piles and packed scenes, the benchmark's trays, and the containers' training styles.
+HOUSEHOLD_MIX: tuple[tuple[str, float], ...] = (("pile", 0.3), ("packed", 0.25), ("pour", 0.1),
+                                                ("container:tray", 0.15), ("container:tote", 0.1),
+                                                ("container:deep_bin", 0.05), ("container:platform", 0.05))
+MIXES: dict[str, tuple[tuple[str, float], ...]] = {"clutter": SCENE_MIX, "containers": CONTAINER_MIX,
+                                                   "household": HOUSEHOLD_MIX}
+#: Sensors a scene is seen with, and their shares: the Kinect model only (the benchmark's), or all three.
+SENSOR_MIXES: dict[str, tuple[tuple[str, float], ...]] = {
+    "kinect": (("kinect", 1.0),), "mixed": (("kinect", 0.34), ("stereo", 0.33), ("tof", 0.33))}
 #: Sensing and its share of the views: the benchmark's passive pair and one side camera.
 SENSING_MIX: tuple[tuple[str, float], ...] = (("passive", 0.6), ("side", 0.4))
 PARTS = ("train", "val", "test")
@@ -100,7 +115,9 @@ class SceneParams:
     (num_samples of the detector) and the most rows kept per view: every positive up to half of it, and
     negatives (a uniform draw) up to negatives_per_positive per positive, at least min_negatives.
     hard_negatives_per_view: hands the detector itself rejects (rim and wall pinches, grasps on the support,
-    hands in unseen space) added to each view's candidates before the draw."""
+    hands in unseen space) added to each view's candidates before the draw.  household_share: the expected share
+    of a scene's objects that are household models (true size); sensor_mix: (sensor, weight) each scene's sensor
+    is drawn from ("kinect" is `noise`, the others graspd_lab.world.noise.sensor_noise)."""
 
     seed: int = 0
     scenes: int = 600
@@ -118,6 +135,8 @@ class SceneParams:
     hand: HandGeometry = field(default_factory=HandGeometry)
     noise: DepthNoise = field(default_factory=DepthNoise.benchmark)
     labels: LabelParams = field(default_factory=scene_labels)
+    household_share: float = 0.0
+    sensor_mix: tuple[tuple[str, float], ...] = SENSOR_MIXES["kinect"]
 
     def __post_init__(self) -> None:
         if self.scenes < 1 or self.views_per_scene < 1:
@@ -126,11 +145,24 @@ class SceneParams:
             raise ValueError(f"objects must be (min, max) with 1 <= min <= max <= 15, got {self.objects}")
         if self.num_samples < 1 or self.per_view < 2 or self.scenes_per_chunk < 1:
             raise ValueError("num_samples, per_view (>= 2) and scenes_per_chunk must be positive")
+        if not 0.0 <= self.household_share <= 1.0:
+            raise ValueError(f"household_share must lie in [0, 1], got {self.household_share}")
+        draw_sensor(self.sensor_mix, np.random.default_rng(0))  # ValueError for an unknown sensor
 
     def object_parts(self) -> dict[str, list[int]]:
-        """The training objects split into parts (seeded); held-out objects are never listed."""
+        """The training objects split into parts (seeded); held-out objects are never listed.  With
+        household_share > 0 the training household models (ids household.HOUSEHOLD_ID_BASE + k) are split
+        alike and listed after the random_urdfs."""
         ids = np.array([i for i in TRAINING_URDFS if i not in BROKEN_URDFS], np.int64)
-        ids = ids[np.random.default_rng([self.seed, 11]).permutation(len(ids))]
+        parts = self._split(ids, np.random.default_rng([self.seed, 11]))
+        if self.household_share > 0.0:
+            house = np.array([household.household_id(n) for n in household.training_names()], np.int64)
+            for part, members in self._split(house, np.random.default_rng([self.seed, 18])).items():
+                parts[part] = parts[part] + members
+        return parts
+
+    def _split(self, ids: NDArray[np.int64], rng: np.random.Generator) -> dict[str, list[int]]:
+        ids = ids[rng.permutation(len(ids))]
         n_test = int(round(self.part_fractions[0] * len(ids)))
         n_val = int(round(self.part_fractions[1] * len(ids)))
         return {"test": sorted(ids[:n_test].tolist()), "val": sorted(ids[n_test : n_test + n_val].tolist()),
@@ -168,7 +200,7 @@ class SceneView:
 
 
 def scene_views(kind: str, object_ids: list[int], seed: int, views: int, hand: HandGeometry,
-                noise: DepthNoise, sensing_mix: tuple[tuple[str, float], ...] = SENSING_MIX,
+                noise: DepthNoise | SensorNoise, sensing_mix: tuple[tuple[str, float], ...] = SENSING_MIX,
                 held_out_ok: bool = False) -> list[SceneView]:
     """Build a scene of the objects (pybullet, settled) and see it `views` times, removing one random object
     between views (never the last).  The benchmark builds the same scenes from held-out objects
@@ -290,14 +322,31 @@ def _with_hard_candidates(det: GraspDetector, prep: Any, cands: GraspSet, region
 
 
 def scene_spec(scene_id: int, params: SceneParams, parts: dict[str, list[int]]) -> dict[str, Any]:
-    """What scene scene_id is: kind, part and object ids (deterministic from the seed)."""
+    """What scene scene_id is: kind, part, object ids and sensor (deterministic from the seed)."""
     rng = np.random.default_rng([params.seed, 14, scene_id])
     kind = _choice(params.scene_mix, rng)
     part = params.scene_part(scene_id)
     n = 1 if kind == "single" else int(rng.integers(params.objects[0], params.objects[1] + 1))
-    ids = rng.choice(np.asarray(parts[part]), size=n, replace=False)
+    pool = np.asarray(parts[part])
+    house = np.zeros(len(pool), bool)
+    n_house = 0
+    if params.household_share > 0.0:
+        house = pool >= household.HOUSEHOLD_ID_BASE
+        n_house = min(int(np.random.default_rng([params.seed, 18, scene_id]).binomial(n, params.household_share)),
+                      int(house.sum()))
+    ids = rng.choice(pool[~house], size=n - n_house, replace=False)
+    if n_house:
+        ids = np.r_[ids, np.random.default_rng([params.seed, 19, scene_id]).choice(pool[house], size=n_house,
+                                                                                   replace=False)]
+    sensor = draw_sensor(params.sensor_mix, np.random.default_rng([params.seed, 20, scene_id]))
     return {"id": scene_id, "name": f"scene_{scene_id:05d}", "source": kind, "category": "other", "part": part,
-            "objects": [int(i) for i in ids]}
+            "objects": [int(i) for i in ids], "sensor": sensor}
+
+
+def scene_noise(spec: dict[str, Any], params: SceneParams) -> DepthNoise | SensorNoise:
+    """The noise model a scene is seen with: params.noise for the Kinect, else the sensor's default model."""
+    sensor = spec.get("sensor", "kinect")
+    return params.noise if sensor == "kinect" else sensor_noise(sensor)
 
 
 def _generate_chunk(task: tuple[int, list[dict[str, Any]], SceneParams, str]
@@ -315,14 +364,14 @@ def _generate_chunk(task: tuple[int, list[dict[str, Any]], SceneParams, str]
         rng = np.random.default_rng([params.seed, 15, spec["id"]])
         try:
             seen = scene_views(spec["source"], spec["objects"], params.seed * 100_003 + spec["id"],
-                               params.views_per_scene, params.hand, params.noise, params.sensing_mix)
+                               params.views_per_scene, params.hand, scene_noise(spec, params), params.sensing_mix)
         except ValueError as exc:
             scenes.append({**spec, "skipped": str(exc)})
             continue
         scenes.append(spec)
         for view_id, view in enumerate(seen):
             rows, record = _view_rows(view, spec["id"], view_id, params, rng)
-            views.append(record)
+            views.append({**record, "sensor": spec.get("sensor", "kinect")})
             parts.append(rows)
     arrays = {k: np.concatenate([p[k] for p in [_empty_rows(), *parts]]) for k in CHUNK_KEYS}
     digest = write_npz(Path(out_dir) / name, arrays)
@@ -425,6 +474,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mix", choices=sorted(MIXES), default="clutter",
                     help="scene kinds: clutter (trays, piles, packed rows, lone objects) or containers (the "
                     "container family's training styles with some trays and piles)")
+    ap.add_argument("--household-share", type=float, default=0.0, metavar="F",
+                    help="expected share of each scene's objects that are household models at true size (0-1)")
+    ap.add_argument("--sensors", choices=sorted(SENSOR_MIXES), default="kinect",
+                    help="the sensor each scene is seen with: kinect (the benchmark's model) or mixed (Kinect, "
+                    "active stereo and ToF, drawn per scene)")
     ap.add_argument("--hard-negatives", type=int, default=0, metavar="N",
                     help="per view, add up to N hands the detector rejects (rims, walls, support, unseen space)")
     args = ap.parse_args(argv)
@@ -433,7 +487,8 @@ def main(argv: list[str] | None = None) -> int:
                              objects=(args.objects[0], args.objects[1]), num_samples=args.samples,
                              per_view=args.per_view, scenes_per_chunk=args.scenes_per_chunk,
                              hand=hand_preset(args.hand), scene_mix=MIXES[args.mix],
-                             hard_negatives_per_view=args.hard_negatives)
+                             hard_negatives_per_view=args.hard_negatives, household_share=args.household_share,
+                             sensor_mix=SENSOR_MIXES[args.sensors])
         runner = runner_from_args(args, args.workers, context="spawn")
     except (ValueError, KeyError, RayMissingError) as exc:
         ap.error(str(exc))
@@ -449,4 +504,4 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
-__all__ = ["SceneParams", "SceneView", "generate_scene_dataset", "scene_spec", "scene_views"]
+__all__ = ["SceneParams", "SceneView", "generate_scene_dataset", "scene_noise", "scene_spec", "scene_views"]
