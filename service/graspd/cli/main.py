@@ -54,24 +54,60 @@ class CliError(Exception):
     """A command cannot run as asked: the message says what is wrong and what to do (printed, exit 2)."""
 
 
-def _detect(args: argparse.Namespace) -> int:
-    from dataclasses import replace
+def _intrinsics(values: list[str] | None) -> Any:
+    """--intrinsics: four numbers fx fy cx cy, or one calibration YAML file (graspd.io.calibration)."""
+    if values is None:
+        return None
+    if len(values) == 1:
+        from graspd.io.calibration import MAX_CALIBRATION_BYTES, parse_calibration
 
+        path = Path(values[0])
+        if path.stat().st_size > MAX_CALIBRATION_BYTES:
+            raise ValueError(f"--intrinsics {path.name}: larger than {MAX_CALIBRATION_BYTES} bytes")
+        return parse_calibration(path.read_bytes())
+    if len(values) != 4:
+        raise ValueError(f"--intrinsics takes FX FY CX CY (pixels) or one calibration YAML file, got {values}")
+    return [float(v) for v in values]
+
+
+def _inputs(args: argparse.Namespace) -> Any:
+    """(label, CloudInput, message description or None) of each cloud to detect on: the file's one, or one per
+    selected message of a bag."""
     import numpy as np
 
-    from graspd.core.errors import FieldError
-    from graspd.core.hand import HandGeometry, hand_preset
-    from graspd.gpd.detector import DetectionParams, GraspDetector
-    from graspd.gpd.environment import EnvironmentParams
-    from graspd.gpd.preprocess import PreprocessParams, preprocess
+    from graspd.io.bag import BagQuery, is_bag_path, read_bag
     from graspd.io.cloud_files import read_input
 
+    if is_bag_path(args.cloud):
+        query = BagQuery(topic=args.topic, info_topic=args.info_topic, index=args.index, every=args.every,
+                         frame=args.frame, depth_scale=args.depth_scale)
+        for message in read_bag(args.cloud, query):
+            yield f"{Path(args.cloud).name} {message.topic} #{message.index}", message.cloud_input(), \
+                message.describe()
+        return
+    viewpoints = np.array(args.viewpoint, np.float32).reshape(-1, 3) if args.viewpoint else None
+    # the service's way with the same file (graspd.io.inputs): NaN rows dropped and counted, camera poses applied
+    yield Path(args.cloud).name, read_input(args.cloud, viewpoints=viewpoints, camera_poses=args.camera_pose,
+                                            points_frame=args.points_frame,
+                                            intrinsics=_intrinsics(args.intrinsics),
+                                            depth_scale=args.depth_scale), None
+
+
+def _numbered(path: str | None, index: int | None) -> str | None:
+    """A per-message output path: NAME-INDEX.EXT (None: path itself)."""
+    if path is None or index is None:
+        return path
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}-{index}{p.suffix}"))
+
+
+def _detect(args: argparse.Namespace) -> int:
+    from graspd.core.errors import FieldError
+    from graspd.core.hand import HandGeometry, hand_preset
+    from graspd.gpd.detector import DetectionParams
+    from graspd.gpd.environment import EnvironmentParams
+
     try:
-        viewpoints = np.array(args.viewpoint, np.float32).reshape(-1, 3) if args.viewpoint else None
-        # the service's way with the same file (graspd.io.inputs): NaN rows dropped and counted, camera poses applied
-        given = read_input(args.cloud, viewpoints=viewpoints, camera_poses=args.camera_pose,
-                           points_frame=args.points_frame, intrinsics=args.intrinsics, depth_scale=args.depth_scale)
-        cloud = given.cloud
         hand = hand_preset(args.hand) if args.hand else HandGeometry()
         params = DetectionParams(
             num_samples=args.samples,
@@ -85,6 +121,8 @@ def _detect(args: argparse.Namespace) -> int:
             approach_distance=args.approach_distance,
             seed=args.seed,
         )
+        inputs = _inputs(args)
+        first = next(inputs)  # the file read (or the bag's first selected message) before any model loads
     except (FieldError, KeyError, ValueError, OSError) as exc:  # FieldError: CloudError, a bad camera pose
         print(f"graspd detect: {exc}", file=sys.stderr)
         return 2
@@ -94,39 +132,68 @@ def _detect(args: argparse.Namespace) -> int:
     except CliError as exc:
         print(f"graspd detect: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    detection = GraspDetector(classifier, hand, prefilter).detect(cloud, params)
-    detection = replace(detection, warnings=(*given.warnings, *detection.warnings))  # the input's first, as served
-    detection = _checked(detection, cloud, params, classifier)  # then the request-level checks, as served
-    out = {"frame": given.frame, **_with_ranking(detection)}
-    if classifier is None:
-        out["note"] = "no classifier: candidates are unscored (the paper's 'no classification' ablation)"
+    results = []
+    current = first
+    while True:
+        label, given, message = current
+        index = None if message is None or args.every is None else message["index"]
+        results.append(_detect_one(args, label, given, message, hand, params, classifier, prefilter, index))
+        if message is None or args.every is None:
+            break
+        try:
+            current = next(inputs)
+        except StopIteration:
+            break
+        except (FieldError, KeyError, ValueError, OSError) as exc:
+            print(f"graspd detect: {exc}", file=sys.stderr)
+            return 2
+    out: Any = results if args.every is not None and message is not None else results[0]
     text = json.dumps(out, indent=1)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text)
-    if args.plot or args.view:
+    else:
+        print(text)
+    return 0
+
+
+def _detect_one(args: argparse.Namespace, label: str, given: Any, message: dict[str, Any] | None, hand: Any,
+                params: Any, classifier: Any, prefilter: Any, index: int | None) -> dict[str, Any]:
+    """One detection on one input, as the service runs it; the answer (with the bag message it came from)."""
+    from dataclasses import replace
+
+    from graspd.gpd.detector import GraspDetector
+    from graspd.gpd.preprocess import PreprocessParams, preprocess
+
+    cloud = given.cloud
+    detection = GraspDetector(classifier, hand, prefilter).detect(cloud, params)
+    detection = replace(detection, warnings=(*given.warnings, *detection.warnings))  # the input's first, as served
+    detection = _checked(detection, cloud, params, classifier)  # then the request-level checks, as served
+    out = {"frame": given.frame, **({"message": message} if message is not None else {}), **_with_ranking(detection)}
+    if classifier is None:
+        out["note"] = "no classifier: candidates are unscored (the paper's 'no classification' ablation)"
+    plot, view = _numbered(args.plot, index), _numbered(args.view, index)
+    if plot or view:
         from graspd.viz.plot import plot_grasps  # matplotlib: only when a picture is asked for
         from graspd.viz.viewer import viewer_html
 
         # the cloud the environment labelled: the detector's preprocessing of the input
         shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
-        title = f"{Path(args.cloud).name}: {_drawn(args.top, detection)}"
-        if args.plot:
-            plot_grasps(shown, detection.grasps, hand, args.plot, top=args.top, title=title,
+        title = f"{label}: {_drawn(args.top, detection)}"
+        if plot:
+            plot_grasps(shown, detection.grasps, hand, plot, top=args.top, title=title,
                         gravity=params.gravity, environment=detection.environment, warnings=detection.warnings)
-        if args.view:
-            Path(args.view).parent.mkdir(parents=True, exist_ok=True)
-            Path(args.view).write_text(viewer_html(shown, detection, hand, top=args.view_top,
-                                                   title=f"{Path(args.cloud).name}: {len(detection.grasps)} grasps, "
-                                                         f"model {detection.model or 'none (unscored)'}"),
-                                       encoding="utf-8")
+        if view:
+            Path(view).parent.mkdir(parents=True, exist_ok=True)
+            Path(view).write_text(viewer_html(shown, detection, hand, top=args.view_top,
+                                              title=f"{label}: {len(detection.grasps)} grasps, "
+                                                    f"model {detection.model or 'none (unscored)'}"),
+                                  encoding="utf-8")
     t = detection.timings
-    print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates on {detection.num_points} points "
-          f"in {t['total']:.2f} s (" + ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k != "total") + ")",
-          file=sys.stderr)
-    if not args.out:
-        print(text)
-    return 0
+    print(f"{label}: {len(detection.grasps)} grasps from {detection.num_candidates} candidates on "
+          f"{detection.num_points} points in {t['total']:.2f} s ("
+          + ", ".join(f"{k} {v:.2f}" for k, v in t.items() if k != "total") + ")", file=sys.stderr)
+    return out
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -270,11 +337,12 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="graspd", description="Grasp Pose Detection for two-finger hands")
     parser.add_argument("--version", action="version", version=f"graspd {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-    d = sub.add_parser("detect", help="detect grasps in a point cloud file (.pcd, .ply, .npz, .npy) or a depth "
-                       "image (.png, .npy with --intrinsics)")
+    d = sub.add_parser("detect", help="detect grasps in a point cloud file (.pcd, .ply, .npz, .npy), a depth "
+                       "image (.png, .npy with --intrinsics) or a ROS bag (.mcap, .db3, .bag, a rosbag2 folder)")
     d.add_argument("cloud", help=".pcd, .ply; .npz (points, optional viewpoints, camera_source, normals, "
                    "camera_poses); .npy ((N,3) points, (H,W,3) organised, or with --intrinsics an (H,W) depth image in "
-                   "metres); .png (16-bit depth, --depth-scale m a unit) with --intrinsics.  Rows with NaN are dropped "
+                   "metres); .png (16-bit depth, --depth-scale m a unit) with --intrinsics; a ROS bag (rosbag2 .mcap, "
+                   ".db3 or folder, ROS 1 .bag) with --topic.  Rows with NaN are dropped "
                    "and counted (warning non_finite_dropped)")
     d.add_argument("--viewpoint", type=float, nargs=3, action="extend", metavar=("X", "Y", "Z"),
                    help="camera position in the cloud frame (m); repeat for several cameras")
@@ -285,10 +353,22 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
     d.add_argument("--points-frame", choices=("camera", "robot"),
                    help="with --camera-pose: the points are in the camera's frame (moved into the robot frame) or "
                    "already in the robot frame; a depth image is always 'camera'")
-    d.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
-                   help="depth images: pinhole intrinsics in pixels (ROS CameraInfo K)")
+    d.add_argument("--intrinsics", nargs="+", metavar="V",
+                   help="depth images: pinhole intrinsics FX FY CX CY in pixels (ROS CameraInfo K), or the camera's "
+                   "calibration YAML file as ROS camera drivers write it (camera_calibration_parsers; its projection "
+                   "matrix is used, as depth_image_proc does)")
     d.add_argument("--depth-scale", type=float, default=0.001,
                    help="depth PNG: metres per unit (default 0.001: millimetres)")
+    d.add_argument("--topic", help="bags: the PointCloud2 or depth Image topic (default: the bag's only "
+                   "PointCloud2 topic, else its only Image topic)")
+    d.add_argument("--info-topic", help="bags: the CameraInfo topic of a depth Image topic (default: the sibling "
+                   "camera_info, e.g. /camera/depth/camera_info for /camera/depth/image_rect_raw)")
+    d.add_argument("--index", type=int, default=0, help="bags: the message of the topic to detect on (0-based)")
+    d.add_argument("--every", type=int, help="bags: detect on every Nth message from --index on (one answer per "
+                   "message: a JSON list; --plot/--view files get -INDEX before their suffix)")
+    d.add_argument("--frame", help="bags: the frame the grasps are given in, through the bag's /tf_static chain "
+                   "from the cloud's frame (default: the root of that chain; the cloud's own frame when it has no "
+                   "/tf_static)")
     d.add_argument("--workspace", type=float, nargs=6, metavar=("XMIN", "XMAX", "YMIN", "YMAX", "ZMIN", "ZMAX"))
     d.add_argument("--hand", help="hand preset: gpd (default), panda, robotiq_2f85")
     d.add_argument("--samples", type=int, default=1000, help="points to sample hands at")

@@ -15,18 +15,20 @@ from numpy.typing import NDArray
 
 from graspd.core.camera import Intrinsics
 from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.io.calibration import CameraCalibration
 from graspd.io.camera_source import nearest_camera
 from graspd.io.depth import DEFAULT_DEPTH_SCALE, depth_metres, depth_points, read_depth_png
+from graspd.io.file_cloud import FileCloud
 from graspd.io.inputs import CloudInput, cloud_input
 from graspd.io.npy import NPY_MAGIC, parse_npy_bytes
 from graspd.io.npz import MAX_NPZ_BYTES, NPZ_ARRAYS, ZIP_MAGIC, parse_npz
-from graspd.io.pcd import MAX_FILE_POINTS, MAX_PCD_EXPANSION, PcdHeader, check_pcd_header, parse_pcd
-from graspd.io.ply import PlyHeader, check_ply, check_ply_header, parse_ply
+from graspd.io.pcd import MAX_FILE_POINTS, MAX_PCD_EXPANSION, PcdHeader, check_pcd_header, parse_pcd, read_pcd
+from graspd.io.ply import PlyHeader, check_ply, check_ply_header, parse_ply, read_ply
 
 __all__ = ["CLOUD_SUFFIXES", "MAX_FILE_POINTS", "MAX_NPY_VALUES", "MAX_NPZ_BYTES", "MAX_PCD_EXPANSION", "NPY_MAGIC",
-           "NPZ_ARRAYS", "ZIP_MAGIC", "PcdHeader", "PlyHeader", "array_cloud", "check_pcd_header", "check_ply",
-           "check_ply_header", "nearest_camera", "parse_npy", "parse_npz", "parse_pcd", "parse_ply", "read_cloud",
-           "read_input", "save_npz"]
+           "NPZ_ARRAYS", "ZIP_MAGIC", "FileCloud", "PcdHeader", "PlyHeader", "array_cloud", "check_pcd_header",
+           "check_ply", "check_ply_header", "depth_cloud", "file_arrays", "nearest_camera", "parse_npy", "parse_npz",
+           "parse_pcd", "parse_ply", "read_cloud", "read_input", "read_pcd", "read_ply", "save_npz"]
 
 
 # ---- numpy files: .npy (one array, graspd.io.npy) and .npz (named arrays, graspd.io.npz) -----------------
@@ -59,28 +61,43 @@ def array_cloud(array: NDArray[Any], field: str = "body") -> NDArray[np.float32]
 CLOUD_SUFFIXES = (".pcd", ".ply", ".npz", ".npy", ".png")
 
 
+def file_arrays(cloud: FileCloud) -> dict[str, Any]:
+    """The detector's arrays of a PCD or PLY file: points, the header's camera position, the file's normals when
+    they are usable (FileCloud.usable_normals: otherwise the detector estimates them)."""
+    return {"points": cloud.points, "viewpoints": None if cloud.viewpoint is None else cloud.viewpoint.reshape(1, 3),
+            "normals": cloud.usable_normals()}
+
+
+def depth_cloud(depth: NDArray[np.float32], intrinsics: Sequence[float] | CameraCalibration,
+                field: str = "intrinsics") -> NDArray[np.float32]:
+    """The points of a depth image (H,W, m) with intrinsics: 4 numbers fx, fy, cx, cy, or a camera's calibration
+    (graspd.io.calibration: its size must be the image's)."""
+    if isinstance(intrinsics, CameraCalibration):
+        intrinsics.check_image(depth.shape[1], depth.shape[0], field)
+        return depth_points(depth, intrinsics.intrinsics(field))
+    return depth_points(depth, Intrinsics.parse(intrinsics, field))
+
+
 def read_input(path: str | Path, viewpoints: NDArray[np.floating] | None = None, *,
                camera_poses: object = None, points_frame: str | None = None,
-               intrinsics: Sequence[float] | None = None, depth_scale: float = DEFAULT_DEPTH_SCALE) -> CloudInput:
+               intrinsics: Sequence[float] | CameraCalibration | None = None,
+               depth_scale: float = DEFAULT_DEPTH_SCALE) -> CloudInput:
     """The detector's cloud from a file, as the service makes it of the same upload (graspd.io.inputs.cloud_input:
     non-finite rows dropped and counted, camera poses applied).
 
     .pcd, .ply: points; .npz: points plus optional viewpoints, camera_source, normals, camera_poses; .npy: (N,3)
     points, an organised (H,W,3) cloud, or with intrinsics an (H,W) depth image (float: metres; integer:
-    depth_scale units); .png: a 16-bit
-    depth image (depth_scale metres a unit, default millimetres) with intrinsics (fx, fy, cx, cy).  A depth image
-    is in its camera's optical frame; a camera pose (one) makes it points_frame "camera".  Camera positions come,
-    in order of precedence, from `viewpoints`, from the file (PCD VIEWPOINT header; NPZ viewpoints), else the
-    origin (a camera-frame cloud)."""
+    depth_scale units); .png: a 16-bit depth image (depth_scale metres a unit, default millimetres) with
+    intrinsics (fx, fy, cx, cy, or the camera's calibration, graspd.io.calibration).  A PCD's or PLY's normals
+    are used when usable (FileCloud.usable_normals).  A depth image is in its camera's optical frame; a camera
+    pose (one) makes it points_frame "camera".  Camera positions come, in order of precedence, from
+    `viewpoints`, from the file (PCD VIEWPOINT header; NPZ viewpoints), else the origin (a camera-frame cloud)."""
     path = Path(path)
     suffix = path.suffix.lower()
     data = path.read_bytes()
     arrays: dict[str, Any] = {}
-    if suffix == ".pcd":
-        points, file_vp = parse_pcd(data)
-        arrays = {"points": points, "viewpoints": file_vp}
-    elif suffix == ".ply":
-        arrays = {"points": parse_ply(data)}
+    if suffix in (".pcd", ".ply"):
+        arrays = file_arrays(read_pcd(data) if suffix == ".pcd" else read_ply(data))
     elif suffix == ".npz":
         arrays = dict(parse_npz(data))
     elif suffix in (".npy", ".png"):
@@ -91,7 +108,7 @@ def read_input(path: str | Path, viewpoints: NDArray[np.floating] | None = None,
             arrays = {"points": array_cloud(image)}
         else:
             depth = read_depth_png(data, depth_scale) if image is None else depth_metres(image, depth_scale)
-            arrays = {"points": depth_points(depth, Intrinsics.parse(intrinsics))}
+            arrays = {"points": depth_cloud(depth, intrinsics)}
             points_frame = points_frame or ("camera" if camera_poses is not None else None)
     else:
         raise CloudError("cloud", f"unsupported cloud file type {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")

@@ -1,7 +1,8 @@
 """PLY files: the header's counts checked against the caps and the data length before anything is allocated (a
 reader that trusted them would reserve the declared count, or pad a short file with zeros), then the vertex
 element's x, y, z read with numpy: `ascii` (graspd.io.text_numbers: C speed, one row a line),
-`binary_little_endian` and `binary_big_endian` (records through a numpy dtype; `property list` rows too)."""
+`binary_little_endian` and `binary_big_endian` (records through a numpy dtype; `property list` rows too), with
+normals, colours and scalars where the file has them (graspd.io.file_cloud)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from numpy.typing import NDArray
 
 from graspd.core.cloud import CloudError
 from graspd.core.limits import MAX_POINTS
+from graspd.io.file_cloud import MAX_SCALARS, FileCloud, colours_from_channels, kept_scalar
 from graspd.io.text_numbers import line_counts, line_start, parse_numbers
 
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
@@ -150,20 +152,19 @@ def _ascii_vertex_rows(body: memoryview, head: PlyHeader) -> tuple[NDArray[np.fl
     return values, np.cumsum(per_line) - per_line
 
 
-def _ascii_xyz(body: memoryview, head: PlyHeader) -> NDArray[np.float32]:
-    """x, y, z of ASCII vertex rows, property by property over all rows at once: a list property's row holds its
-    count then that many items, so the columns after it sit at a per-row position."""
+def _ascii_columns(body: memoryview, head: PlyHeader, wanted: frozenset[int]) -> dict[int, NDArray[np.floating]]:
+    """The wanted vertex properties of ASCII rows (by property index), property by property over all rows at
+    once: a list property's row holds its count then that many items, so the columns after it sit at a per-row
+    position."""
     values, position = _ascii_vertex_rows(body, head)
     ends = np.append(position[1:], values.size)  # one past each row's last value
     props = head.elements[head.vertex].properties
-    names = [p[-1] for p in props]
-    wanted = {names.index(a): k for k, a in enumerate("xyz")}
-    out = np.empty((len(position), 3), np.float32)
+    out: dict[int, NDArray[np.floating]] = {}
     for i, prop in enumerate(props):
         if (position >= ends).any():
             break
         if i in wanted:
-            out[:, wanted[i]] = values[position]
+            out[i] = values[position]
         if prop[0] == "list":
             length = values[position]
             if not (np.isfinite(length) & (length >= 0) & (length == np.round(length))).all():
@@ -272,23 +273,54 @@ def _binary_rows(body: memoryview, offset: int, element: PlyElement, endian: str
     return _walk_rows(body, offset, element, endian, wanted)
 
 
-def _binary_xyz(body: memoryview, head: PlyHeader) -> NDArray[np.float32]:
-    """x, y, z of binary vertex rows, after the rows of the elements before them."""
+def _binary_columns(body: memoryview, head: PlyHeader, wanted: frozenset[int]) -> dict[int, NDArray[np.number]]:
+    """The wanted vertex properties of binary rows (by property index), after the rows of the elements before
+    them."""
     offset = 0
     for element in head.elements[: head.vertex]:
         _, offset = _binary_rows(body, offset, element, head.endian())
-    element = head.elements[head.vertex]
-    names = [p[-1] for p in element.properties]
-    columns, _ = _binary_rows(body, offset, element, head.endian(), frozenset(names.index(a) for a in "xyz"))
-    out = np.empty((element.count, 3), np.float32)
-    for k, a in enumerate("xyz"):
-        out[:, k] = columns[names.index(a)]
-    return out
+    columns, _ = _binary_rows(body, offset, head.elements[head.vertex], head.endian(), wanted)
+    return columns
+
+
+#: Vertex colour properties by the name writers give them: Open3D, CloudCompare and the RealSense viewer write
+#: red/green/blue (uchar), some writers diffuse_red/... or r/g/b; floats are fractions 0-1.
+_COLOUR_NAMES = (("red", "green", "blue"), ("diffuse_red", "diffuse_green", "diffuse_blue"), ("r", "g", "b"))
+_NORMAL_NAMES = ("nx", "ny", "nz")
+
+
+def read_ply(data: bytes) -> FileCloud:
+    """Everything graspd uses of a PLY file's vertices (ascii, binary_little_endian or binary_big_endian): x, y, z
+    (float32, m), normals nx/ny/nz, colours (red/green/blue, diffuse_*, r/g/b; uchar or float 0-1), the kept
+    scalars (intensity, label, curvature, CloudCompare's scalar_*).  Other elements (faces, edges) are skipped:
+    a mesh file gives its vertices.  A file holding fewer vertices, or fewer values in a row, than its header
+    declares is refused with a CloudError."""
+    head = check_ply_header(data)
+    body = memoryview(data)[head.offset:]
+    props = head.elements[head.vertex].properties
+    index = {p[-1]: i for i, p in reversed(list(enumerate(props))) if p[0] != "list"}  # the first of each name
+    normals = [index[a] for a in _NORMAL_NAMES] if all(a in index for a in _NORMAL_NAMES) else []
+    colours = next(([index[a] for a in names] for names in _COLOUR_NAMES if all(a in index for a in names)), [])
+    scalars = [name for name in index if kept_scalar(name)][:MAX_SCALARS]
+    wanted = frozenset([*(index[a] for a in "xyz"), *normals, *colours, *(index[a] for a in scalars)])
+    columns: dict[int, NDArray[np.generic]] = dict(
+        _ascii_columns(body, head, wanted) if head.format == "ascii" else _binary_columns(body, head, wanted))
+    if head.format == "ascii":  # text has no type: integer colour columns are integers
+        for i in colours:
+            if _PLY_KINDS[props[i][0]] != "f":
+                columns[i] = np.asarray(columns[i]).astype(np.int64)
+
+    def stack(which: list[int]) -> NDArray[np.float32]:
+        out = np.empty((head.elements[head.vertex].count, 3), np.float32)
+        for k, i in enumerate(which):
+            out[:, k] = columns[i]
+        return out
+
+    return FileCloud(stack([index[a] for a in "xyz"]), stack(normals) if normals else None,
+                     colours_from_channels([columns[i] for i in colours]) if colours else None,
+                     {name: np.asarray(columns[index[name]]) for name in scalars})
 
 
 def parse_ply(data: bytes) -> NDArray[np.float32]:
-    """Vertex positions (N,3) float32 of a PLY file (ascii, binary_little_endian or binary_big_endian); a file
-    holding fewer vertices, or fewer values in a row, than its header declares is refused with a CloudError."""
-    head = check_ply_header(data)
-    body = memoryview(data)[head.offset:]
-    return _ascii_xyz(body, head) if head.format == "ascii" else _binary_xyz(body, head)
+    """Vertex positions (N,3) float32 of a PLY file (read_ply without the other properties)."""
+    return read_ply(data).points

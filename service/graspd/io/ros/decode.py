@@ -69,7 +69,7 @@ class CloudMessage:
         return None
 
 
-class _Reader:
+class CdrReader:
     """Sequential CDR reader over one payload; alignment is relative to the end of the 4-byte encapsulation."""
 
     def __init__(self, payload: bytes | bytearray | memoryview) -> None:
@@ -130,14 +130,18 @@ class _Reader:
         return Header(self.string(f"{field}.frame_id"), (sec, nanosec))
 
 
+_Reader = CdrReader  # the name graspd.io.ros.planning imports
+
+
 @dataclass(frozen=True)
 class _RawCloud:
     header: Header
     points: NDArray[np.float32]  # (N, 3), every declared point, NaN rows included
     normals: NDArray[np.float32] | None  # (N, 3) when the cloud has normal_x/y/z
+    shape: tuple[int, int] = (0, 0)  # (height, width): height > 1 for an organised cloud
 
 
-def _read_pointcloud2(r: _Reader, prefix: str) -> _RawCloud:
+def _read_pointcloud2(r: CdrReader, prefix: str) -> _RawCloud:
     header = r.header(f"{prefix}header")
     height = r.scalar("u4", f"{prefix}height")
     width = r.scalar("u4", f"{prefix}width")
@@ -184,10 +188,10 @@ def _read_pointcloud2(r: _Reader, prefix: str) -> _RawCloud:
         offsets.append(offset)
     if n == 0:
         empty = np.zeros((0, 3), np.float32)
-        return _RawCloud(header, empty, empty.copy() if has_normals else None)
+        return _RawCloud(header, empty, empty.copy() if has_normals else None, (height, width))
     points = _gather(data, offsets[:3], formats[:3], height, width, point_step, row_step)
     normals = _gather(data, offsets[3:], formats[3:], height, width, point_step, row_step) if has_normals else None
-    return _RawCloud(header, points, normals)
+    return _RawCloud(header, points, normals, (height, width))
 
 
 def _gather(data: NDArray[np.generic], offsets: list[int], formats: list[np.dtype[np.generic]], height: int,
@@ -211,7 +215,25 @@ def _gather(data: NDArray[np.generic], offsets: list[int], formats: list[np.dtyp
     return out
 
 
-def _read_cloud_sources(r: _Reader, prefix: str) -> tuple[_RawCloud, NDArray[np.int64], NDArray[np.float64]]:
+@dataclass(frozen=True)
+class PointCloudRows:
+    """Every row of a PointCloud2 (non-finite ones included, in pixel order), for a reader that counts and drops
+    them itself (graspd.io.inputs): points (N,3) float32 and normals (N,3) when the cloud has normal_x/y/z, in
+    header.frame_id (m); shape (height, width)."""
+
+    header: Header
+    points: NDArray[np.float32]
+    normals: NDArray[np.float32] | None
+    shape: tuple[int, int]
+
+
+def pointcloud2_rows(payload: bytes | bytearray | memoryview) -> PointCloudRows:
+    """A CDR sensor_msgs/PointCloud2 -> all its rows, bounded as decode_pointcloud2 is."""
+    raw = _read_pointcloud2(CdrReader(payload), "")
+    return PointCloudRows(raw.header, raw.points, raw.normals, raw.shape)
+
+
+def _read_cloud_sources(r: CdrReader, prefix: str) -> tuple[_RawCloud, NDArray[np.int64], NDArray[np.float64]]:
     raw = _read_pointcloud2(r, f"{prefix}cloud.")
     nsrc = r.count(f"{prefix}camera_source", MAX_POINTS, 8)
     camera_source = r.array("i8", nsrc, f"{prefix}camera_source").astype(np.int64)
@@ -271,7 +293,7 @@ def decode_pointcloud2(payload: bytes | bytearray | memoryview,
                        viewpoints: ArrayLike = ((0.0, 0.0, 0.0),)) -> CloudMessage:
     """A CDR sensor_msgs/PointCloud2 -> its finite points (header.frame_id, m), seen from viewpoints (K, 3), all
     points attributed to camera 0 (the sensor origin of the cloud frame by default)."""
-    r = _Reader(payload)
+    r = CdrReader(payload)
     raw = _read_pointcloud2(r, "")
     vps = np.asarray(viewpoints, np.float64).reshape(-1, 3)
     keep = _finite_rows(raw)
@@ -282,7 +304,7 @@ def decode_pointcloud2(payload: bytes | bytearray | memoryview,
 def decode_cloud_sources(payload: bytes | bytearray | memoryview) -> CloudMessage:
     """A CDR gpd_ros/CloudSources -> the cloud's finite points with their camera_source index into view_points
     (camera positions, header.frame_id, m); normals kept when the cloud has normal_x/y/z."""
-    r = _Reader(payload)
+    r = CdrReader(payload)
     raw, src, vps = _read_cloud_sources(r, "")
     keep = _finite_rows(raw)
     cloud = _viewpoint_cloud(raw, src, vps, keep, "")
@@ -293,7 +315,7 @@ def decode_cloud_indexed(payload: bytes | bytearray | memoryview) -> CloudMessag
     """A CDR gpd_ros/CloudIndexed -> the cloud of cloud_sources plus sample_indices: rows of cloud.points to
     sample at (indices into the message's cloud, renumbered after non-finite points are dropped; indices of
     dropped points are left out)."""
-    r = _Reader(payload)
+    r = CdrReader(payload)
     raw, src, vps = _read_cloud_sources(r, "cloud_sources.")
     nidx = r.count("indices", MAX_SAMPLES, 8)
     indices = r.array("i8", nidx, "indices").astype(np.int64)
@@ -315,7 +337,7 @@ def decode_cloud_indexed(payload: bytes | bytearray | memoryview) -> CloudMessag
 def decode_cloud_samples(payload: bytes | bytearray | memoryview) -> CloudMessage:
     """A CDR gpd_ros/CloudSamples -> the cloud of cloud_sources plus samples (K, 3): positions to sample at
     (header.frame_id, m)."""
-    r = _Reader(payload)
+    r = CdrReader(payload)
     raw, src, vps = _read_cloud_sources(r, "cloud_sources.")
     nsamples = r.count("samples", MAX_SAMPLES, 24)
     samples = r.array("f8", nsamples, "samples", 3).astype(np.float64).reshape(-1, 3)
