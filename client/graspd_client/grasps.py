@@ -98,6 +98,11 @@ class Grasps:
     crops: list[bytes | None] = field(default_factory=list)
     crop_pixels: F64 = field(default_factory=lambda: np.zeros((0, 2)))
     in_image: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    #: The object each grasp closes on, an id into scene_objects (-1: none); method "gpd" only.
+    object_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    #: The scene's objects by id, each {"id", "centre", "extent", "num_points", "grasps"} (positions in this list):
+    #: a request's target={"object": id} names one.
+    scene_objects: list[dict[str, Any]] = field(default_factory=list)
     raw: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def __len__(self) -> int:
@@ -173,5 +178,7 @@ class Grasps:
             crops=crops,
             crop_pixels=pixels,
             in_image=inside,
+            object_ids=np.array([-1 if g.get("object") is None else int(g["object"]) for g in gs], np.int64),
+            scene_objects=[o for o in body.get("objects") or () if isinstance(o, dict)],
             raw=body,
         )

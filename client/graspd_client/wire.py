@@ -17,7 +17,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from .codec import WireError, encode_array
 
@@ -27,6 +27,13 @@ API_VERSION = "1"
 MAX_NUM_SAMPLES = 20_000
 MAX_GRASPS = 1_000
 MAX_VIEWPOINTS = 64
+MAX_TARGET_INDICES = 5_000_000
+MAX_TARGET_POINTS = 20_000
+MAX_TARGET_RLE_CHARS = 1 << 22
+MAX_OBJECT_ID = 100_000
+MAX_PER_OBJECT = 1_000
+#: The kinds of target a detect request may give (one of them).
+TARGET_KINDS: tuple[str, ...] = ("indices", "mask", "box", "points", "object")
 MIN_CROP_SIZE = 8
 MAX_CROP_SIZE = 512
 DEFAULT_CROP_SIZE = 120
@@ -103,6 +110,8 @@ def build_detect_request(
     points_frame: str | None = None,
     normals: ArrayLike | None = None,
     unknown_space: str | None = None,
+    target: Mapping[str, Any] | None = None,
+    max_per_object: int | None = None,
 ) -> dict[str, Any]:
     """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
 
@@ -118,6 +127,10 @@ def build_detect_request(
     z, qx, qy, qz, qw) with points_frame "camera" or "robot" (see the module's note on frames); viewpoints are
     then left out.  normals (N,3): optional unit normals pointing toward the cameras.  unknown_space "avoid" (the
     server's default: a hand reaching into space no camera saw collides) or "allow" (seen points only).
+    target: what to grasp, one of {"indices": rows}, {"mask": PNG bytes, a boolean (H, W) image or COCO RLE
+    {"size", "counts"}}, {"box": {"centre", "rotation" or "quat_xyzw", "half_extents"}}, {"points": (K, 3)} or
+    {"object": id} (build_target).  max_per_object: most grasps per object before every other object has one
+    (0 = pure ranking; default the server's).
     """
     body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source, camera_poses=camera_poses,
                                                  points_frame=points_frame, normals=normals)}
@@ -132,10 +145,13 @@ def build_detect_request(
     options = {"model": model, "num_samples": num_samples, "max_grasps": max_grasps, "min_score": min_score,
                "selection": selection, "seed": seed, "clustering": clustering, "use_classifier": use_classifier,
                "exclude_support_plane": exclude_support_plane, "min_aperture": min_aperture,
-               "max_aperture": max_aperture, "approach_distance": approach_distance, "unknown_space": unknown_space}
+               "max_aperture": max_aperture, "approach_distance": approach_distance, "unknown_space": unknown_space,
+               "max_per_object": max_per_object}
     body.update({k: v for k, v in options.items() if v is not None})
     if environment is not None:
         body["environment"] = environment if isinstance(environment, str) else dict(environment)
+    if target is not None:
+        body["target"] = build_target(target)
     if gravity is not None:
         body["gravity"] = _vec(gravity, 3, "gravity")
     if approach_direction is not None:
@@ -161,6 +177,57 @@ def build_detect_request(
             crops["size"] = int(crop_size)
         body["crops"] = crops
     return body
+
+
+def build_target(target: Mapping[str, Any]) -> dict[str, Any]:
+    """The JSON of a request's target from numpy inputs: indices (N,) ints; mask PNG bytes, base64 text, a
+    boolean (H, W) image (sent as COCO RLE: column-major run lengths) or {"size", "counts"}; box {"centre",
+    "rotation" (3x3) or "quat_xyzw", "half_extents"} (m, the request's frame); points (K, 3) m; object an id.
+    Counts are checked against the server's limits before anything is sent."""
+    given = [k for k in target if k in TARGET_KINDS]
+    if len(given) != 1 or len(target) != 1:
+        raise WireError("target", f"exactly one of {list(TARGET_KINDS)} expected, got {sorted(target)}")
+    kind, value = given[0], target[given[0]]
+    if kind == "indices":
+        idx = np.asarray(value).reshape(-1)
+        if len(idx) > MAX_TARGET_INDICES:
+            raise WireError("target.indices", f"{len(idx)} rows exceeds the limit of {MAX_TARGET_INDICES}")
+        if idx.dtype.kind not in "iu":
+            raise WireError("target.indices", f"integer rows expected, got dtype {idx.dtype.name}")
+        return {"indices": encode_array(idx.astype(np.int64))}
+    if kind == "mask":
+        if isinstance(value, bytes | bytearray):
+            return {"mask": base64.b64encode(bytes(value)).decode("ascii")}
+        if isinstance(value, str | Mapping):
+            return {"mask": value if isinstance(value, str) else dict(value)}
+        image = np.asarray(value).astype(bool)
+        if image.ndim != 2:
+            raise WireError("target.mask", f"a 2-D (height, width) image expected, got shape {image.shape}")
+        return {"mask": {"size": list(image.shape), "counts": rle_counts(image)}}
+    if kind == "box":
+        box = dict(value)
+        out: dict[str, Any] = {"centre": _vec(box["centre"], 3, "target.box.centre"),
+                               "half_extents": _vec(box["half_extents"], 3, "target.box.half_extents")}
+        if box.get("rotation") is not None:
+            out["rotation"] = np.asarray(box["rotation"], np.float64).reshape(3, 3).tolist()
+        if box.get("quat_xyzw") is not None:
+            out["quat_xyzw"] = _vec(box["quat_xyzw"], 4, "target.box.quat_xyzw")
+        return {"box": out}
+    if kind == "points":
+        pts = np.asarray(value, np.float64).reshape(-1, 3)
+        if len(pts) > MAX_TARGET_POINTS:
+            raise WireError("target.points", f"{len(pts)} points exceeds the limit of {MAX_TARGET_POINTS}")
+        return {"points": encode_array(pts)}
+    return {"object": int(value)}
+
+
+def rle_counts(image: NDArray[np.bool_]) -> list[int]:
+    """COCO run lengths of a boolean (H, W) image: column-major, alternating runs of 0 and 1 from 0."""
+    flat = np.asarray(image, bool).T.reshape(-1)
+    change = np.flatnonzero(np.diff(flat.astype(np.int8))) + 1
+    bounds = np.concatenate([[0], change, [flat.size]])
+    counts = np.diff(bounds).tolist()
+    return [0, *counts] if flat.size and flat[0] else counts
 
 
 def camera_poses_json(poses: Sequence[Any] | ArrayLike) -> list[Any]:

@@ -16,13 +16,13 @@ from graspd.core.hand import HandGeometry
 from graspd.gpd.detector import Detection
 from graspd.gpd.environment import Environment
 from graspd.server.schemas import DetectRequest, DetectResponse
-from graspd.server.uploads import CLOUD_PARAMS, QUERY_PARAMS, openapi_parameters
+from graspd.server.uploads import CLOUD_PARAMS, QUERY_PARAMS, TARGET_PARAMS, openapi_parameters
 from graspd.templates import TemplateDetection
 from graspd_client import wire
 
 GPD_KEYS = {"request_id", "method", "frame", "grasps", "timings", "model", "scored", "num_candidates", "num_points",
-            "hand", "environment", "warnings"}
-TEMPLATE_KEYS = GPD_KEYS - {"environment"} | {"num_entries"}
+            "hand", "environment", "warnings", "objects", "max_per_object"}
+TEMPLATE_KEYS = GPD_KEYS - {"environment", "objects", "max_per_object"} | {"num_entries"}
 
 
 def _grasps(n: int, seed: int = 0) -> GraspSet:
@@ -80,8 +80,8 @@ def test_http_answers_validate_against_the_declared_model(client: TestClient, bo
 
 
 def test_upload_query_parameters_come_from_detect_request(client: TestClient) -> None:
-    objects = {"cloud", "approach", "crops"}  # no query form: nested objects
-    assert set(QUERY_PARAMS) == set(CLOUD_PARAMS) | set(DetectRequest.model_fields) - objects
+    objects = {"cloud", "approach", "crops", "target"}  # no query form: nested objects (target: its own params)
+    assert set(QUERY_PARAMS) == set(CLOUD_PARAMS) | set(DetectRequest.model_fields) - objects | set(TARGET_PARAMS)
     assert set(CLOUD_PARAMS) == {"viewpoint", "camera_pose", "points_frame", "intrinsics", "depth_scale"}
     documented = client.get("/openapi.json").json()["paths"]["/detect"]["post"]["parameters"]
     assert documented == openapi_parameters()

@@ -195,7 +195,6 @@ class GraspSet:
                     "sample": self.samples[i].tolist(),
                     "pose": poses[i].tolist(),
                     "quat_xyzw": quats[i].tolist(),
-                    "object": None if self.object_ids[i] < 0 else int(self.object_ids[i]),
                 }
             )
         return out

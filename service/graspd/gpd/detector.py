@@ -183,7 +183,8 @@ class Detection:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "grasps": self.grasps.to_dicts(),
+            "grasps": [{**g, "object": oid if oid >= 0 else None}
+                       for g, oid in zip(self.grasps.to_dicts(), self.grasps.object_ids.tolist(), strict=True)],
             "timings": dict(self.timings),
             "model": self.model,
             "scored": self.scored,

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from graspd.core.points import eps_clusters
 from graspd.gpd.scene import ClosingRegionPoints
@@ -44,7 +45,8 @@ class SceneObject:
 
 @dataclass(frozen=True)
 class Segmentation:
-    """The object id of every preprocessed point (N,) (-1: environment or a speck) and the objects by id."""
+    """The object id of every preprocessed point (N,) (-1: environment, or no object in the scene) and the objects
+    by id."""
 
     labels: I64
     objects: tuple[SceneObject, ...] = ()
@@ -72,7 +74,9 @@ class Segmentation:
 def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_], gap: float = OBJECT_GAP,
                     min_points: int = MIN_OBJECT_POINTS) -> Segmentation:
     """The objects among points (N,3, m) where object_mask holds: groups of points linked by steps of at most gap
-    (m), at least min_points each, ids ordered by the position of their centres (x, then y, then z)."""
+    (m), at least min_points each.  Smaller groups (specks: strips of a side seen at a grazing angle, noise) join
+    the nearest object, so that every object point belongs to one; an object's centre and extent are those of its
+    own group.  Ids are ordered by the position of the objects' centres (x, then y, then z)."""
     n = len(points)
     idx = np.flatnonzero(object_mask)
     if len(idx) < min_points:
@@ -83,16 +87,25 @@ def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_]
     keep = np.flatnonzero(sizes >= min_points)
     if len(keep) == 0:
         return Segmentation.empty(n)
-    by_group = pts[np.argsort(group, kind="stable")]
-    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])  # connected-component labels leave no gaps
-    lo, hi = np.minimum.reduceat(by_group, starts, axis=0), np.maximum.reduceat(by_group, starts, axis=0)
-    centres = (lo[keep] + hi[keep]) / 2.0
+    kept = np.full(len(sizes), -1, np.int64)
+    kept[keep] = np.arange(len(keep))
+    label = kept[group]
+    solid = np.flatnonzero(label >= 0)
+    by_object = solid[np.argsort(label[solid], kind="stable")]
+    starts = np.concatenate([[0], np.cumsum(sizes[keep])[:-1]])
+    sorted_pts = pts[by_object]
+    lo, hi = np.minimum.reduceat(sorted_pts, starts, axis=0), np.maximum.reduceat(sorted_pts, starts, axis=0)
+    centres = (lo + hi) / 2.0
     key = np.round(centres / ORDER_RESOLUTION).astype(np.int64)
     order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
-    new_id = np.full(len(sizes), -1, np.int64)
-    new_id[keep[order]] = np.arange(len(keep))
+    new_id = np.empty(len(keep), np.int64)
+    new_id[order] = np.arange(len(keep))
+    specks = np.flatnonzero(label < 0)
+    if len(specks):
+        label[specks] = label[solid[cKDTree(pts[solid]).query(pts[specks])[1]]]
+    counts = np.bincount(label, minlength=len(keep))
     labels = np.full(n, -1, np.int64)
-    labels[idx] = new_id[group]
-    objects = tuple(SceneObject(id=i, centre=centres[j], extent=hi[keep[j]] - lo[keep[j]],
-                                num_points=int(sizes[keep[j]])) for i, j in enumerate(order))
+    labels[idx] = new_id[label]
+    objects = tuple(SceneObject(id=i, centre=centres[j], extent=hi[j] - lo[j], num_points=int(counts[j]))
+                    for i, j in enumerate(order))
     return Segmentation(labels, objects)

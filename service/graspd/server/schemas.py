@@ -33,16 +33,38 @@ from graspd.core.errors import FieldError
 from graspd.core.frames import check_camera_source, check_points_frame, pose_matrix
 from graspd.core.grasp import RANKING_RULE
 from graspd.core.hand import HAND_PRESETS, HandGeometry
-from graspd.core.limits import MAX_COORDINATE, MAX_GRASPS, MAX_NUM_SAMPLES, MAX_POINTS, MAX_VIEWPOINTS
+from graspd.core.limits import (
+    MAX_COORDINATE,
+    MAX_GRASPS,
+    MAX_NUM_SAMPLES,
+    MAX_OBJECT_ID,
+    MAX_PER_OBJECT,
+    MAX_POINTS,
+    MAX_TARGET_INDICES,
+    MAX_TARGET_POINTS,
+    MAX_TARGET_RLE_CHARS,
+    MAX_VIEWPOINTS,
+)
+from graspd.core.masks import rle_decode, rle_string_counts
 from graspd.core.warning import WARNING_CODES, DetectionWarning
 from graspd.gpd.detector import Detection, DetectionParams
 from graspd.gpd.environment import Box, EnvironmentParams, Plane
+from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT
+from graspd.gpd.target import OrientedBox, Target, TargetKind
 from graspd.io.inputs import CloudInput, apply_frames, finite_rows, keep_finite
-from graspd.io.png import check_image_size, decode_png_rgb
+from graspd.io.png import check_image_size, decode_png_rgb, png_size
 from graspd.templates import TemplateDetection
 from graspd.templates.demonstration import check_hand_pose
 from graspd_client import wire
 from graspd_client.codec import WIRE_DTYPES, WireError, decode_array
+
+#: What max_per_object does and why its default is what it is (bench/results/targets.md).
+MAX_PER_OBJECT_TEXT = (
+    f"most grasps one object gets before every other object with a grasp has one (0 = off: pure ranking).  The "
+    f"best grasp always comes first; then rounds of up to max_per_object grasps per object, each round in ranked "
+    f"order.  Default {DEFAULT_MAX_PER_OBJECT}: on held-out scenes it covers the most objects in the top 10 with "
+    "the same first grasp and the least loss of precision in the top 5 (bench/targets.py)"
+)
 
 #: How /detect orders its grasps (selection.select); the OpenAPI descriptions and the README say the same.
 RANKING = (
@@ -144,6 +166,7 @@ class Cloud(BaseModel):
     camera_source: CameraSource | None = None  # type: ignore[valid-type]
     normals: Normals | None = None  # type: ignore[valid-type]
     _dropped: int = PrivateAttr(default=0)
+    _kept: np.ndarray | None = PrivateAttr(default=None)
     _received: int = PrivateAttr(default=0)
 
     @field_validator("points")
@@ -200,6 +223,7 @@ class Cloud(BaseModel):
                             "viewpoints are the cameras' positions in the robot frame)")
         self._received = len(self.points)
         keep, self._dropped = keep_finite(self.points, self.normals, ".points")
+        self._kept = keep
         if keep is not None:
             self.points = np.asarray(self.points)[keep]
             self.camera_source = None if self.camera_source is None else self.camera_source[keep]
@@ -400,6 +424,188 @@ class EnvironmentSpec(BaseModel):
             boxes=tuple(Box.from_bounds(b) for b in self.boxes))
 
 
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+def _png_mask_size(b64: str) -> tuple[int, int]:
+    """(width, height) a base64 PNG mask declares, checked against the PNG limits before anything is decoded."""
+    try:
+        raw = base64.b64decode(b64[:64] + "=" * (-len(b64[:64]) % 4), validate=True)  # the IHDR is in 33 bytes
+    except (binascii.Error, ValueError) as exc:
+        raise ValueError(f"invalid base64 ({exc})") from None
+    width, height = png_size(raw)
+    check_image_size(width, height, MAX_POINTS)
+    return width, height
+
+
+class MaskRLE(BaseModel):
+    """A mask run-length encoded as COCO writes it (pycocotools): size [height, width]; counts the run lengths,
+    column-major, alternating 0s and 1s from 0s: a list of integers or pycocotools' compressed string."""
+
+    model_config = ConfigDict(extra="forbid")
+    size: list[Annotated[int, Field(ge=1, le=MAX_POINTS)]] = Field(min_length=2, max_length=2,
+                                                                   description="[height, width] (pixels)")
+    counts: list[Annotated[int, Field(ge=0, le=MAX_POINTS)]] | Annotated[str, Field(max_length=MAX_TARGET_RLE_CHARS)]
+
+    @field_validator("counts", mode="before")
+    @classmethod
+    def _counts(cls, v: Any) -> Any:
+        if isinstance(v, list) and len(v) > MAX_POINTS + 1:  # counted before any element is checked
+            raise ValueError(f"{len(v)} runs exceeds the limit of {MAX_POINTS + 1}")
+        return v
+
+    @model_validator(mode="after")
+    def _image(self) -> MaskRLE:
+        if self.size[0] * self.size[1] > MAX_POINTS:
+            raise WireError(".size", f"{self.size[1]}x{self.size[0]} pixels exceeds the limit of {MAX_POINTS}")
+        return self
+
+    def decode(self) -> np.ndarray:
+        """One flag per pixel, row-major (height * width,)."""
+        try:
+            counts = (rle_string_counts(self.counts) if isinstance(self.counts, str)
+                      else np.asarray(self.counts, np.int64))
+            return rle_decode(counts, self.size[0], self.size[1])
+        except FieldError as exc:
+            raise WireError(".counts", exc.message) from None
+
+
+class TargetBox(BaseModel):
+    """An oriented box in the request's frame (the robot frame with camera_poses), metres: centre, the rotation
+    whose columns are the box axes (a 3x3 row-major matrix, or quat_xyzw as camera_poses takes it; default none)
+    and the half extents along those axes."""
+
+    model_config = ConfigDict(extra="forbid")
+    centre: list[Finite] = Field(min_length=3, max_length=3, description="box centre (m)")
+    rotation: list[list[Finite]] | None = Field(None, min_length=3, max_length=3,
+                                                description="3x3 row-major; columns are the box axes")
+    quat_xyzw: list[Finite] | None = Field(None, min_length=4, max_length=4,
+                                           description="the rotation as a unit quaternion x, y, z, w")
+    half_extents: list[Annotated[float, Field(ge=0.0, le=MAX_COORDINATE, allow_inf_nan=False)]] = Field(
+        min_length=3, max_length=3, description="half sizes along the box axes (m)")
+
+    @model_validator(mode="after")
+    def _rotation(self) -> TargetBox:
+        if self.rotation is not None and self.quat_xyzw is not None:
+            raise WireError(".rotation", "give rotation or quat_xyzw, not both")
+        self.oriented()
+        return self
+
+    def oriented(self) -> OrientedBox:
+        """The checked box (graspd.core.frames.pose_matrix checks the rotation)."""
+        if self.quat_xyzw is not None:
+            value: Any = {"position": self.centre, "quat_xyzw": self.quat_xyzw}
+            sub = ""
+        else:
+            rot = np.eye(3) if self.rotation is None else np.asarray(self.rotation, np.float64)
+            if rot.shape != (3, 3):
+                raise WireError(".rotation", f"a 3x3 matrix expected, got shape {rot.shape}")
+            value = np.block([[rot, np.asarray(self.centre, np.float64)[:, None]], [np.zeros((1, 3)), np.ones((1, 1))]])
+            sub = ".rotation"
+        try:
+            pose = pose_matrix(value, "")
+        except FieldError as exc:
+            raise WireError(sub + exc.field if exc.field.startswith(".") or not exc.field else exc.field,
+                            exc.message) from None
+        return OrientedBox(centre=pose[:3, 3].copy(), rotation=pose[:3, :3].copy(),
+                           half_extents=np.asarray(self.half_extents, np.float64))
+
+
+TargetIndices = _array((None,), "i", "int64", False, "rows of the cloud (0-based, as sent: NaN rows count)")
+TargetPoints = _array((None, 3), "f", "float64", True, "sample points (K,3), m, in the request's frame")
+TARGET_FIELDS = ("indices", "mask", "box", "points", "object")
+
+
+class TargetSpec(BaseModel):
+    """What to grasp, exactly one of: indices (rows of the cloud as sent, gpd_ros CloudIndexed), mask (one flag
+    per row of an organised cloud or pixel of a depth image, height x width = the cloud's rows: a base64 PNG,
+    nonzero = target, or COCO RLE), box (an oriented box), points (sample points, gpd_ros CloudSamples: hands are
+    sampled at the cloud points nearest them) or object (an id from a previous answer's objects, for the same
+    cloud).  Candidates are sampled on the target only and a grasp closes on no object point outside it;
+    collisions, the environment and unseen space are checked against the whole cloud."""
+
+    model_config = ConfigDict(extra="forbid")
+    indices: TargetIndices | None = None  # type: ignore[valid-type]
+    mask: MaskRLE | str | None = Field(None, description="a base64 PNG (any mode; nonzero pixels are the target) "
+                                       "or {size: [height, width], counts} (COCO RLE, column-major)")
+    box: TargetBox | None = None
+    points: TargetPoints | None = None  # type: ignore[valid-type]
+    object: int | None = Field(None, ge=0, le=MAX_OBJECT_ID, description="an object id (the answer's objects)")
+
+    @field_validator("indices", "points", mode="before")
+    @classmethod
+    def _count(cls, v: Any, info: ValidationInfo) -> Any:
+        limit = MAX_TARGET_INDICES if info.field_name == "indices" else MAX_TARGET_POINTS
+        n = len(v) if isinstance(v, list) else (v.get("shape") or [0])[0] if isinstance(v, dict) else 0
+        if isinstance(n, int) and n > limit:  # counted from the length sent, before an array is built
+            raise ValueError(f"{n} {info.field_name} exceeds the limit of {limit}")
+        return v
+
+    @field_validator("mask")
+    @classmethod
+    def _png(cls, v: MaskRLE | str | None) -> MaskRLE | str | None:
+        if isinstance(v, str):
+            _png_mask_size(v)
+        return v
+
+    @model_validator(mode="after")
+    def _one(self) -> TargetSpec:
+        given = [name for name in TARGET_FIELDS if getattr(self, name) is not None]
+        if len(given) != 1:
+            raise ValueError(f"exactly one of {list(TARGET_FIELDS)} expected, got {given or 'none'}")
+        if self.indices is not None and not len(self.indices):
+            raise WireError(".indices", "selects no row (empty)")
+        if self.points is not None and not len(self.points):
+            raise WireError(".points", "no sample point given (empty)")
+        return self
+
+    def rows(self, received: int) -> np.ndarray | None:
+        """One flag per row of the cloud as sent (received rows) for indices and masks, else None; WireError
+        naming the field when an index lies outside the cloud or the mask is not the cloud's size."""
+        if self.indices is not None:
+            idx = self.indices
+            if idx.min() < 0 or idx.max() >= received:
+                raise WireError(".indices", f"rows must lie in [0, {received - 1}] (the cloud has {received} rows), "
+                                f"got values in [{idx.min()}, {idx.max()}]")
+            rows = np.zeros(received, bool)
+            rows[idx] = True
+            return rows
+        if self.mask is None:
+            return None
+        if isinstance(self.mask, str):
+            width, height = _png_mask_size(self.mask)
+        else:
+            height, width = self.mask.size
+        if width * height != received:
+            raise WireError(".mask", f"a {width}x{height} mask has {width * height} pixels, the cloud {received} "
+                            "rows; send the mask of the organised cloud's (or depth image's) own image")
+        if isinstance(self.mask, str):
+            try:
+                return np.asarray(decode_png_rgb(self.mask, MAX_POINTS).any(axis=2)).reshape(-1)
+            except ValueError as exc:
+                raise WireError(".mask", str(exc)) from None
+        return self.mask.decode()
+
+    def target(self, received: int, kept: np.ndarray | None) -> Target:
+        """The detector's target; rows of the cloud as sent are mapped onto the rows kept (kept: the finite rows'
+        mask, None when all are)."""
+        if self.box is not None:
+            return Target("box", box=self.box.oriented())
+        if self.points is not None:
+            return Target("points", points=np.asarray(self.points, np.float64))
+        if self.object is not None:
+            return Target("object", object_id=self.object)
+        rows = self.rows(received)
+        assert rows is not None
+        kind: TargetKind = "indices" if self.indices is not None else "mask"
+        if kept is not None:
+            rows = rows[kept]
+        if not rows.any():
+            raise WireError(f".{kind}", "selects no row of the cloud with finite coordinates" if kept is not None
+                            else "selects no row of the cloud")
+        return Target(kind, rows=rows)
+
+
 class DetectRequest(BaseModel):
     """POST /detect body and the Zenoh query payload (JSON)."""
 
@@ -460,6 +666,10 @@ class DetectRequest(BaseModel):
         "gpd", description="detector: 'gpd' (sampled candidates scored by the CNN) or 'templates' (grasp "
         "templates matched against the demonstration library, Herzog et al. 2012; uses cloud, workspace, "
         "max_grasps and the library's hand only)")
+    target: TargetSpec | None = Field(None, description="what to grasp (one of indices, mask, box, points, object); "
+                                      "default: every object")
+    max_per_object: int = Field(DEFAULT_MAX_PER_OBJECT, ge=0, le=MAX_PER_OBJECT, description=MAX_PER_OBJECT_TEXT)
+    _target: Target | None = PrivateAttr(default=None)
 
     @field_validator("workspace")
     @classmethod
@@ -495,6 +705,20 @@ class DetectRequest(BaseModel):
         if v is not None and lo is not None and v < lo:
             raise ValueError(f"must be >= min_aperture ({lo:g} m), got {v:g}")
         return v
+
+    @model_validator(mode="after")
+    def _target_on_cloud(self) -> DetectRequest:
+        """The target checked against the cloud it points into (indices in range, a mask of its size) and mapped
+        onto the rows kept (non-finite ones dropped); WireError naming target.<field>."""
+        if self.target is None:
+            return self
+        if self.method == "templates":
+            raise WireError("target", "method 'templates' takes no target; use method 'gpd'")
+        try:
+            self._target = self.target.target(self.cloud._received or len(self.cloud.points), self.cloud._kept)
+        except WireError as exc:
+            raise WireError("target" + exc.field, exc.message) from None
+        return self
 
     def hand_geometry(self) -> HandGeometry | None:
         """The requested hand, None for the detector's own."""
@@ -539,12 +763,26 @@ class DetectRequest(BaseModel):
                 cascade=self.cascade,
                 unknown_space=self.unknown_space,
                 seed=self.seed,
+                target=self._target,
+                max_per_object=self.max_per_object,
             )
         except ValueError as exc:
             raise WireError("body", str(exc)) from None
 
 
 Vec3Out = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class ObjectOut(BaseModel):
+    """One object of the scene (graspd.gpd.objects): the object points the environment stage kept, split where
+    they are more than 6 mm apart (touching objects are one); ids count from 0 by position (x, then y, then z of
+    the centre) and stay the same for the same cloud whatever num_samples, target or seed say."""
+
+    id: int = Field(description="the object's id: a request's target.object names it")
+    centre: Vec3Out = Field(description="centre of its points' axis-aligned bounds (m, the answer's frame)")
+    extent: Vec3Out = Field(description="size of those bounds along x, y, z (m)")
+    num_points: int = Field(description="its points after preprocessing (3 mm voxels by default)")
+    grasps: list[int] = Field(description="positions of its grasps in this answer's grasps list, best first")
 
 
 class CropOut(BaseModel):
@@ -587,6 +825,8 @@ class GraspOut(BaseModel):
                                    "better)")
     ranking: RankingOut | None = Field(None, description="gpd with selection: the terms that ranked this grasp "
                                        "(the response's ranking_rule says how they combine)")
+    object: int | None = Field(None, description="gpd: the id of the object it closes on (the answer's objects), "
+                               "null when its closing region holds no object's points")
 
 
 class PlaneOut(BaseModel):
@@ -693,6 +933,9 @@ class DetectResponse(BaseModel):
                                          "graspd_lab.training.dataset --hand NAME, then graspd train)")
     ranking_rule: str | None = Field(None, description="gpd with selection: how each grasp's ranking terms combine "
                                      "into the key it was sorted by")
+    objects: list[ObjectOut] | None = Field(None, description="gpd: the scene's objects by id, each with its grasps")
+    max_per_object: int | None = Field(None, description="gpd: the max_per_object the list was ordered with (0: "
+                                       "pure ranking; " + MAX_PER_OBJECT_TEXT + ")")
 
     @classmethod
     def from_detection(cls, det: Detection | TemplateDetection, *, request_id: str, timings: dict[str, float],
@@ -731,7 +974,12 @@ class DetectResponse(BaseModel):
             out.update(model=None, scored=True, num_entries=det.num_entries)
         else:
             env = det.environment
-            out.update(model=det.model, scored=det.scored, environment=None if env is None else env.to_dict())
+            out.update(model=det.model, scored=det.scored, environment=None if env is None else env.to_dict(),
+                       max_per_object=det.max_per_object,
+                       objects=[{**o.to_dict(), "grasps": ks} for o, ks in zip(det.objects, det.object_grasps(),
+                                                                                 strict=True)])
+            for grasp, oid in zip(grasps, g.object_ids.tolist(), strict=True):
+                grasp["object"] = oid if oid >= 0 else None
             if g.ranking is not None:  # the terms selection ranked by (graspd.core.grasp.Ranking); NaN goes as null
                 for grasp, terms in zip(grasps, g.ranking.to_dicts(), strict=True):
                     grasp["ranking"] = {k: v if math.isfinite(v) else None for k, v in terms.items()}

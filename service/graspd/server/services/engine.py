@@ -25,6 +25,7 @@ from graspd.core.parallel import THREADS
 from graspd.gpd.blas import set_blas_threads
 from graspd.gpd.detector import Detection, DetectionParams
 from graspd.gpd.sanity import check_detection, hidden_share, in_workspace
+from graspd.gpd.target import TargetError
 from graspd.io.png import encode_png_b64
 from graspd.server.logs import current_request
 from graspd.server.metrics import Metrics
@@ -184,8 +185,11 @@ class DetectionEngine:
             ctx = current_request()
             hidden = None if req.method == "templates" else self._checks.submit(
                 hidden_share, in_workspace(cloud.points, params.workspace), cloud.viewpoints)
-            with THREADS.request():  # concurrent requests share the cores (graspd.core.parallel)
-                det = self._detect(req, cloud, params, hand, model)
+            try:
+                with THREADS.request():  # concurrent requests share the cores (graspd.core.parallel)
+                    det = self._detect(req, cloud, params, hand, model)
+            except TargetError as exc:  # the target selects nothing of the cloud: a 422 naming target.<field>
+                raise from_wire(exc) from None
             input_warnings = given.warnings  # the input's own (non-finite rows dropped), first
             if isinstance(det, Detection):
                 det = replace(det, warnings=(*input_warnings, *det.warnings))
