@@ -17,18 +17,22 @@ from graspd.core.camera import Intrinsics
 from graspd.core.cloud import CloudError
 from graspd.core.frames import POINTS_FRAMES, pose_matrix
 from graspd.core.limits import MAX_TARGET_INDICES, MAX_VIEWPOINTS
+from graspd.io.bag import BagQuery, bag_kind, read_bag
+from graspd.io.calibration import CameraCalibration, looks_like_calibration, parse_calibration
 from graspd.io.cloud_files import (
     NPY_MAGIC,
     NPZ_ARRAYS,
     ZIP_MAGIC,
     array_cloud,
+    depth_cloud,
+    file_arrays,
     nearest_camera,
     parse_npy,
     parse_npz,
-    parse_pcd,
-    parse_ply,
+    read_pcd,
+    read_ply,
 )
-from graspd.io.depth import DEFAULT_DEPTH_SCALE, PNG_MAGIC, depth_metres, depth_points, read_depth_png
+from graspd.io.depth import DEFAULT_DEPTH_SCALE, PNG_MAGIC, depth_metres, read_depth_png
 from graspd.server.problems import CALLER_ERRORS, Problem, from_error, from_wire
 from graspd.server.schemas import DetectRequest
 
@@ -37,8 +41,10 @@ PLY_TYPES = ("application/ply", "application/x-ply", "model/ply", "text/ply")
 NPY_TYPES = ("application/x-npy", "application/npy")
 NPZ_TYPES = ("application/x-npz", "application/npz", "application/zip")
 PNG_TYPES = ("image/png",)
+BAG_TYPES = ("application/x-mcap", "application/mcap", "application/x-rosbag", "application/x-ros-bag",
+             "application/vnd.sqlite3", "application/x-sqlite3")
 #: What a file upload may be, and how it is recognised (content type, else its first bytes).
-UPLOAD_KINDS = ("pcd", "ply", "npy", "npz", "png")
+UPLOAD_KINDS = ("pcd", "ply", "npy", "npz", "png", "bag")
 
 
 def sniff(data: bytes, content_type: str) -> str:
@@ -48,12 +54,14 @@ def sniff(data: bytes, content_type: str) -> str:
     if ct == "application/json" or ct.endswith("+json"):
         return "json"
     for kind, types in (("pcd", PCD_TYPES), ("ply", PLY_TYPES), ("npy", NPY_TYPES), ("npz", NPZ_TYPES),
-                        ("png", PNG_TYPES)):
+                        ("png", PNG_TYPES), ("bag", BAG_TYPES)):
         if ct in types:
             return kind
     for kind, magic in (("npy", NPY_MAGIC), ("npz", ZIP_MAGIC), ("png", PNG_MAGIC)):
         if data.startswith(magic):
             return kind
+    if bag_kind(data) is not None:
+        return "bag"
     head = data[:512].lstrip()
     if head.startswith(b"ply"):
         return "ply"
@@ -61,8 +69,9 @@ def sniff(data: bytes, content_type: str) -> str:
         return "pcd"
     if head.startswith(b"{"):
         return "json"
-    raise Problem(415, "not JSON, PCD, PLY, NPY, NPZ or a depth PNG; send a DetectRequest as application/json or a "
-                  ".pcd/.ply/.npy/.npz file, or a 16-bit depth PNG with intrinsics", "body")
+    raise Problem(415, "not JSON, PCD, PLY, NPY, NPZ, a depth PNG or a ROS bag; send a DetectRequest as "
+                  "application/json or a .pcd/.ply/.npy/.npz file, a 16-bit depth PNG with intrinsics, or an MCAP or "
+                  "ROS 1 bag with topic", "body")
 
 
 @dataclass(frozen=True)
@@ -144,6 +153,38 @@ def _target(query: Mapping[str, str]) -> dict[str, Any] | None:
     return {"indices": numbers}
 
 
+#: Query parameters of a bag upload (graspd.io.bag.BagQuery).
+BAG_PARAMS = {
+    "topic": QueryParam("topic", "text", {"type": "string"}, "bags (MCAP or ROS 1 .bag as the body): the "
+                        "PointCloud2 or depth Image topic; default the bag's only PointCloud2 topic, else its only "
+                        "Image topic"),
+    "index": QueryParam("index", "text", {"type": "integer", "minimum": 0}, "bags: the message of the topic "
+                        "(0-based, default 0)"),
+    "info_topic": QueryParam("info_topic", "text", {"type": "string"}, "bags: the CameraInfo topic of a depth "
+                             "Image topic (default: its sibling camera_info)"),
+    "frame": QueryParam("frame", "text", {"type": "string"}, "bags: the frame grasps are given in, through the "
+                        "bag's /tf_static chain from the cloud's frame (default: the chain's root; without "
+                        "/tf_static, the cloud's own frame)"),
+}
+
+
+def _bag_arrays(data: bytes, query: Mapping[str, str]) -> dict[str, Any]:
+    """The cloud arrays of one message of an uploaded bag (graspd.io.bag: read from memory, every chunk
+    decompressed under a bound), with the camera pose its /tf_static gives."""
+    index = query.get("index", "0")
+    if not index.isdigit() or len(index) > 9:
+        raise Problem(422, f"a message index 0 or more expected, got {index!r}", "index")
+    bag_query = BagQuery(topic=query.get("topic"), info_topic=query.get("info_topic"), index=int(index),
+                         frame=query.get("frame"),
+                         depth_scale=_floats(query["depth_scale"], 1, "depth_scale")[0] if "depth_scale" in query
+                         else DEFAULT_DEPTH_SCALE)
+    message = next(read_bag(data, bag_query))
+    arrays: dict[str, Any] = {"points": message.points, "normals": message.normals}
+    if message.camera_pose is not None:
+        arrays.update(camera_poses=[message.camera_pose.tolist()], depth=True)  # points in the camera's frame
+    return arrays
+
+
 def _query_params() -> dict[str, QueryParam]:
     """The upload query parameters: those of the file's cloud (viewpoint, camera_pose, points_frame, intrinsics,
     depth_scale), then every DetectRequest field that has a query form."""
@@ -161,10 +202,12 @@ def _query_params() -> dict[str, QueryParam]:
         "the file's points, 'camera' (the camera's, as a driver gives them) or 'robot'"),
         "intrinsics": QueryParam(
         "intrinsics", "vector", {"type": "string"}, "depth images (a 16-bit PNG, or an .npy of metres): the "
-        "camera's pinhole intrinsics 'fx,fy,cx,cy' (pixels; ROS CameraInfo K)", 4),
+        "camera's pinhole intrinsics 'fx,fy,cx,cy' (pixels; ROS CameraInfo K), or its calibration YAML as ROS "
+        "camera drivers write it (camera_calibration_parsers: image_width, image_height, camera_matrix, "
+        "projection_matrix, ...; P's intrinsics are used, as depth_image_proc does)", 4),
         "depth_scale": QueryParam(
         "depth_scale", "text", {"type": "number", "exclusiveMinimum": 0}, "depth PNG or integer .npy: metres per "
-        f"unit (default {DEFAULT_DEPTH_SCALE:g}: millimetres)")}
+        f"unit (default {DEFAULT_DEPTH_SCALE:g}: millimetres)"), **BAG_PARAMS}
     for name, info in DetectRequest.model_fields.items():
         param = _query_param(name, info, props[name])
         if param is not None:
@@ -193,7 +236,7 @@ def _floats(text: str, n: int, field: str) -> list[float]:
 
 
 #: The query parameters that describe the file's cloud (the others are DetectRequest fields).
-CLOUD_PARAMS = ("viewpoint", "camera_pose", "points_frame", "intrinsics", "depth_scale")
+CLOUD_PARAMS = ("viewpoint", "camera_pose", "points_frame", "intrinsics", "depth_scale", *BAG_PARAMS)
 
 
 def _camera_pose(text: str) -> list[list[float]]:
@@ -209,11 +252,10 @@ def _camera_pose(text: str) -> list[list[float]]:
 def _file_arrays(data: bytes, kind: str, query: Mapping[str, str]) -> dict[str, Any]:
     """The cloud arrays of an uploaded file (points, and what the file says of its cameras), as CloudError or
     Problem naming what is wrong."""
-    if kind == "pcd":
-        points, file_vp = parse_pcd(data)
-        return {"points": points, "viewpoints": None if file_vp is None else file_vp.reshape(1, 3)}
-    if kind == "ply":
-        return {"points": parse_ply(data)}
+    if kind in ("pcd", "ply"):
+        return file_arrays(read_pcd(data) if kind == "pcd" else read_ply(data))
+    if kind == "bag":
+        return _bag_arrays(data, query)
     if kind == "npz":
         arrays: dict[str, Any] = dict(parse_npz(data))
         if "camera_poses" in arrays:
@@ -224,10 +266,18 @@ def _file_arrays(data: bytes, kind: str, query: Mapping[str, str]) -> dict[str, 
         if image is None:
             raise Problem(422, "a depth PNG needs the camera's intrinsics 'fx,fy,cx,cy' (pixels)", "intrinsics")
         return {"points": array_cloud(image)}
-    intrinsics = Intrinsics.parse(_floats(query["intrinsics"], 4, "intrinsics"))
+    intrinsics = _intrinsics(query["intrinsics"])
     scale = _floats(query["depth_scale"], 1, "depth_scale")[0] if "depth_scale" in query else DEFAULT_DEPTH_SCALE
     depth = read_depth_png(data, scale) if image is None else depth_metres(image, scale)
-    return {"points": depth_points(depth, intrinsics), "depth": True}
+    return {"points": depth_cloud(depth, intrinsics), "depth": True}
+
+
+def _intrinsics(text: str) -> list[float] | CameraCalibration:
+    """The intrinsics parameter: 'fx,fy,cx,cy' (pixels), or the camera's calibration YAML as ROS drivers write
+    it (graspd.io.calibration; its size must be the depth image's)."""
+    if looks_like_calibration(text):
+        return parse_calibration(text)
+    return list(Intrinsics.parse(_floats(text, 4, "intrinsics")))
 
 
 def check_camera_counts(viewpoints: list[str], camera_poses: list[str] | None) -> None:
@@ -249,7 +299,7 @@ def upload_request(data: bytes, kind: str, query: Mapping[str, str], viewpoints:
     try:
         arrays = _file_arrays(data, kind, query)
     except CloudError as exc:
-        raise from_error(exc, ("cloud", "intrinsics", "depth_scale")) from None
+        raise from_error(exc, ("cloud", "intrinsics", "depth_scale", *BAG_PARAMS)) from None
     except (ValueError, KeyError, IndexError, UnicodeDecodeError) as exc:
         raise Problem(422, f"unreadable {kind.upper()} file ({type(exc).__name__}: {exc})", "body") from None
     points = np.asarray(arrays["points"])
