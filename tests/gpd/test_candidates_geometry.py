@@ -6,7 +6,7 @@ import numpy as np
 
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
-from graspd.gpd.candidates import SamplingParams, darboux_frames, sample_candidates, search_hands
+from graspd.gpd.candidates import SamplingParams, darboux_frames, finger_offsets, sample_candidates, search_hands
 from graspd.gpd.preprocess import PreprocessParams, preprocess
 from graspd.gpd.scene import Scene
 
@@ -104,9 +104,10 @@ def test_candidates_are_rotated_and_translated_with_the_cloud(cylinder_scene: Vi
     same_axis = np.abs(np.einsum("ik,jk->ij", moved.axis, b.axis)) > 1 - 1e-6
     matched = (same_pos & same_app & same_axis).any(axis=1)
     # Not exact: the unobserved-space grid is axis-aligned in the cloud frame, so hands whose collision check
-    # grazes a voxel boundary can flip (2-4% of ~400 hands, depending on the numpy/open3d build); a broken
+    # grazes a voxel boundary can flip (2-5% of ~200 hands, depending on the numpy/open3d build: 4.9% here),
+    # and a flipped neighbour can move a hand's centring on what it holds (one more hand, 5.4%); a broken
     # transform would match next to none.
-    assert matched.mean() > 0.95
+    assert matched.mean() > 0.93
 
 
 def test_grasp_frames_are_right_handed_rotations(cylinder_two_cameras: ViewpointCloud) -> None:
@@ -130,3 +131,26 @@ def test_the_hand_body_holds_its_fingers_and_palm_not_the_closing_region() -> No
     assert hand.body_contains(pts).tolist() == [True, True, True, False, False, False]
     closed_to_2cm = hand.body_contains(np.array([[hd / 2, 0.015, 0.0]]), opening=0.02)
     assert closed_to_2cm.tolist() == [True]
+
+
+def _off_centre(grasps_and_region: tuple) -> np.ndarray:
+    """|middle of the points between the fingers| (m) of each hand: 0 when the hand is centred on them."""
+    grasps, region = grasps_and_region
+    y = region.local[:, 1].astype(np.float64)
+    lo = np.full(len(grasps), np.inf)
+    hi = np.full(len(grasps), -np.inf)
+    np.minimum.at(lo, region.grasp, y)
+    np.maximum.at(hi, region.grasp, y)
+    return np.abs(lo + hi) / 2
+
+
+def test_hands_are_centred_on_what_they_hold(cylinder_scene: ViewpointCloud) -> None:
+    """A gripper closes symmetrically: each hand sits at the collision-free finger placement nearest the middle
+    of what lies between its fingers (within half the placement grid's 1 cm step), where GPD's middle of the
+    collision-free placements leaves the object centimetres off the middle."""
+    scene = Scene.build(preprocess(cylinder_scene, PreprocessParams(voxel_size=0.003)), HAND)
+    centred = _off_centre(search_hands(scene, HAND, SamplingParams(num_samples=200, seed=3)))
+    gpd = _off_centre(search_hands(scene, HAND, SamplingParams(num_samples=200, seed=3, centre_on_object=False)))
+    step = np.diff(finger_offsets(HAND, SamplingParams().num_finger_placements))[0]
+    assert np.median(centred) <= step / 2 + 1e-6 and np.median(gpd) > 2 * np.median(centred), (
+        np.median(centred), np.median(gpd))

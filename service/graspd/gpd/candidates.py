@@ -8,7 +8,9 @@ fingertips reach at least init_bite past p (so the closing region holds p).
 
 Collision checks are binned along the closing direction at a resolution of a quarter finger width:
 a point within one bin of a finger counts as touching it, a conservative margin for sensor noise.
-Per (sample, orientation) the middle of the collision-free finger placements is kept, as GPD does.
+Per (sample, orientation) the middle of the collision-free finger placements is taken, as GPD does, then the
+hand moves to the collision-free placement nearest the middle of what lies between its fingers: a gripper
+closes symmetrically, and an object off the middle would be pushed sideways.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from graspd.gpd.environment import Plane
 from graspd.gpd.scene import ClosingRegionPoints, Scene, ball_pairs
 
 MIN_FRAME_POINTS = 3
+F64 = NDArray[np.float64]
 CHUNK = 128  # samples per task of the hand search: smaller tasks balance 2 cores better, in cache
 
 
@@ -38,7 +41,9 @@ class SamplingParams:
     plus approach distance); None checks only the points within the hand's own reach, as GPD does.
     obstacles: the points the hands test against (default all); support (its normal toward the free side)
     stops each hand support_clearance (m) short of the plane in closed form, so the support's points need not
-    be among the obstacles (most of a tabletop cloud is table)."""
+    be among the obstacles (most of a tabletop cloud is table).  centre_on_object: each hand moves to the
+    collision-free finger placement nearest the middle of the points between its fingers (False: the middle
+    of the collision-free placements, GPD's choice)."""
 
     num_samples: int = 1000
     num_orientations: int = 8
@@ -51,6 +56,7 @@ class SamplingParams:
     obstacles: NDArray[np.bool_] | None = None
     support: Plane | None = None
     support_clearance: float = 0.0
+    centre_on_object: bool = True
 
 
 def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float
@@ -301,32 +307,49 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     cost = np.where(valid, np.abs(j_idx - mean_j[:, :, None]), np.inf)
     best_j = np.argmin(cost, axis=2)
     si, pi = np.nonzero(n_valid > 0)
-    bj = best_j[si, pi]
-    t_star = tip[si, pi, bj].astype(np.float64)
-
-    # Closing-region points of each hand, from its sample's slab (same axis for every orientation): every
-    # (orientation, slab point) pair tested at once against the hand of its (sample, orientation), if any.
     m = len(si)
     cand_of = np.full((n_s, n_phi), -1, np.int64)
     cand_of[si, pi] = np.arange(m)
-    shift = np.zeros((n_s, n_phi))  # hand base along the rotated approach, past the sample (m)
-    shift[si, pi] = t_star - hd
-    across = np.zeros((n_s, n_phi))  # hand centre along the rotated binormal (m)
-    across[si, pi] = s_grid[bj]
     cand_all = cand_of.reshape(-1)[hand_key]  # (Phi, T): the hand of each (orientation, point) pair, or -1
     flat = np.flatnonzero(cand_all >= 0)  # in (orientation, point) order
-    cand = cand_all.reshape(-1)[flat]
-    key = hand_key.reshape(-1)[flat]
-    hx = x_phi.reshape(-1)[flat] - shift.reshape(-1)[key]  # float64, as (x - (t* - hd)) per hand
-    hy = y_phi.reshape(-1)[flat] - across.reshape(-1)[key]
     half_w = hand.closing_half_width
-    order = np.flatnonzero((hx >= 0.0) & (hx <= hd) & (np.abs(hy) <= half_w))
-    order = order[np.argsort(cand[order], kind="stable")]  # by hand, each hand's points in slab order
-    elem, cand, hx, hy = flat[order] % len(sid), cand[order], hx[order], hy[order]
-    ymin = np.full(m, np.inf)
-    ymax = np.full(m, -np.inf)
-    np.minimum.at(ymin, cand, hy)
-    np.maximum.at(ymax, cand, hy)
+
+    def closing_region(bj: NDArray[np.intp]) -> tuple[F64, NDArray[np.int64], NDArray[np.int64], F64, F64, F64, F64]:
+        """The closing-region points of each hand at finger placement bj, from its sample's slab (same axis
+        for every orientation): every (orientation, slab point) pair tested at once against its hand; the
+        hands' depths, their points' (hand, slab element, x, y) and each hand's y bounds of its points."""
+        t_star = tip[si, pi, bj].astype(np.float64)
+        shift = np.zeros((n_s, n_phi))  # hand base along the rotated approach, past the sample (m)
+        shift[si, pi] = t_star - hd
+        across = np.zeros((n_s, n_phi))  # hand centre along the rotated binormal (m)
+        across[si, pi] = s_grid[bj]
+        cand = cand_all.reshape(-1)[flat]
+        key = hand_key.reshape(-1)[flat]
+        hx = x_phi.reshape(-1)[flat] - shift.reshape(-1)[key]  # float64, as (x - (t* - hd)) per hand
+        hy = y_phi.reshape(-1)[flat] - across.reshape(-1)[key]
+        order = np.flatnonzero((hx >= 0.0) & (hx <= hd) & (np.abs(hy) <= half_w))
+        order = order[np.argsort(cand[order], kind="stable")]  # by hand, each hand's points in slab order
+        elem, cand, hx, hy = flat[order] % len(sid), cand[order], hx[order], hy[order]
+        ymin = np.full(m, np.inf)
+        ymax = np.full(m, -np.inf)
+        np.minimum.at(ymin, cand, hy)
+        np.maximum.at(ymax, cand, hy)
+        return t_star, cand.astype(np.int64), elem.astype(np.int64), hx, hy, ymin, ymax
+
+    bj = best_j[si, pi]
+    t_star, cand, elem, hx, hy, ymin, ymax = closing_region(bj)
+    if p.centre_on_object and m:
+        # A gripper closes symmetrically: move each hand to the valid placement nearest the middle of what lies
+        # between its fingers, so the object is not pushed sideways (a neighbour's collision keeps it put).
+        middle = s_grid[bj] + np.where(np.isfinite(ymin), (ymin + ymax) / 2.0, 0.0)
+        # nearest to 0.1 mm (float noise cannot flip a tie), then nearest the middle placement: the same hand
+        # whichever way the cloud is rotated
+        gap = np.round(np.abs(s_grid[None, :] - middle[:, None]) / 1e-4) * len(s_grid)
+        gap += np.abs(np.arange(len(s_grid))[None, :] - bj[:, None])
+        centred = np.argmin(np.where(valid[si, pi], gap, np.inf), axis=1)
+        if (centred != bj).any():
+            bj = centred
+            t_star, cand, elem, hx, hy, ymin, ymax = closing_region(bj)
     keep = np.isfinite(ymin)
 
     c, s_ = np.cos(phis[pi])[:, None], np.sin(phis[pi])[:, None]
