@@ -27,8 +27,9 @@ SIX = (
 
 #: Nine objects on a 3 x 3 grid of 10 cm (boxes and cylinders of different heights: some rank far above others).
 NINE = tuple(
-    (("box", (0.04 + 0.005 * (k % 3), 0.05, 0.06 + 0.01 * k), (k % 3 - 1) * 0.11, (k // 3 - 1) * 0.11, 0.3 * k)
-     if k % 2 == 0 else ("cylinder", (0.02 + 0.002 * k, 0.07 + 0.005 * k), (k % 3 - 1) * 0.11, (k // 3 - 1) * 0.11, 0.0))
+    ("box", (0.04 + 0.005 * (k % 3), 0.05, 0.06 + 0.01 * k), (k % 3 - 1) * 0.11, (k // 3 - 1) * 0.11, 0.3 * k)
+    if k % 2 == 0 else
+    ("cylinder", (0.02 + 0.002 * k, 0.07 + 0.005 * k), (k % 3 - 1) * 0.11, (k // 3 - 1) * 0.11, 0.0)
     for k in range(9))
 #: Object 2 of SIX with a box standing 5 mm beside it: the grasp across it along x is blocked.
 NEIGHBOUR = ("box", (0.03, 0.08, 0.09), 0.045, -0.06, 0.0)

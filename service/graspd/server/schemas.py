@@ -584,7 +584,10 @@ class TargetSpec(BaseModel):
                 return np.asarray(decode_png_rgb(self.mask, MAX_POINTS).any(axis=2)).reshape(-1)
             except ValueError as exc:
                 raise WireError(".mask", str(exc)) from None
-        return self.mask.decode()
+        try:
+            return self.mask.decode()
+        except WireError as exc:
+            raise WireError(".mask" + exc.field, exc.message) from None
 
     def target(self, received: int, kept: np.ndarray | None) -> Target:
         """The detector's target; rows of the cloud as sent are mapped onto the rows kept (kept: the finite rows'
