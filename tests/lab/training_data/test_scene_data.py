@@ -10,11 +10,23 @@ import numpy as np
 import pytest
 
 from graspd_lab.training.dataset import iter_chunks, read_split
-from graspd_lab.training.scene_data import SceneParams, generate_scene_dataset, scene_views
+from graspd_lab.training.scene_data import (
+    HOUSEHOLD_MIX,
+    SENSOR_MIXES,
+    SceneParams,
+    generate_scene_dataset,
+    scene_spec,
+    scene_views,
+)
 from graspd_lab.training.scene_eval import precision_at_k
+from graspd_lab.world import household
 from graspd_lab.world.objects import HELD_OUT_URDFS, HeldOutObjectError
 
 TINY = SceneParams(scenes=3, views_per_scene=2, objects=(2, 3), num_samples=20, per_view=40, scenes_per_chunk=2)
+#: Household models and the three sensors: seed 2's three scenes are a pile and two packed scenes, one per sensor.
+MIXED = SceneParams(seed=2, scenes=3, views_per_scene=1, objects=(2, 3), num_samples=20, per_view=40,
+                    scenes_per_chunk=3, scene_mix=HOUSEHOLD_MIX, household_share=0.5,
+                    sensor_mix=SENSOR_MIXES["mixed"])
 
 
 @pytest.fixture(scope="module")
@@ -61,6 +73,36 @@ def test_an_interrupted_run_resumes_from_its_chunks(tiny: Path, tmp_path: Path) 
     assert resumed["dataset_sha256"] == manifest["dataset_sha256"]
     with pytest.raises(FileExistsError):
         generate_scene_dataset(again, TINY, workers=1)
+
+
+def test_scenes_draw_household_models_and_sensors_only_when_asked() -> None:
+    plain_parts = TINY.object_parts()
+    plain = [scene_spec(i, TINY, plain_parts) for i in range(50)]
+    assert {s["sensor"] for s in plain} == {"kinect"}
+    assert not any(household.is_household_id(i) for s in plain for i in s["objects"])
+    parts = MIXED.object_parts()
+    mixed = [scene_spec(i, MIXED, parts) for i in range(300)]
+    sensors = [s["sensor"] for s in mixed]
+    assert all(60 < sensors.count(k) < 140 for k in ("kinect", "stereo", "tof"))
+    ids = [i for s in mixed for i in s["objects"]]
+    share = np.mean([household.is_household_id(i) for i in ids])
+    assert 0.35 < share < 0.65
+    held = {household.household_id(n) for n in household.HELD_OUT}
+    assert not held & set(ids) and not held & set().union(*map(set, parts.values()))
+
+
+def test_training_scenes_refuse_held_out_household_models() -> None:
+    with pytest.raises(HeldOutObjectError):
+        scene_views("pile", [household.household_id(household.HELD_OUT[0])], 0, 1, TINY.hand, TINY.noise)
+
+
+def test_scene_data_with_household_models_and_mixed_sensors_is_the_same_for_a_seed(tmp_path: Path) -> None:
+    a = generate_scene_dataset(tmp_path / "a", MIXED, workers=1)
+    b = generate_scene_dataset(tmp_path / "b", MIXED, workers=1)
+    assert a["dataset_sha256"] == b["dataset_sha256"] and a["counts"]["total"] > 0
+    assert {s["sensor"] for s in a["objects"]} == {"kinect", "stereo", "tof"}
+    assert {v["sensor"] for v in a["views"]} == {"kinect", "stereo", "tof"}
+    assert any(household.is_household_id(i) for s in a["objects"] for i in s["objects"])
 
 
 def test_precision_at_k_counts_the_first_k_returned() -> None:
