@@ -69,7 +69,8 @@ def instance_upload(mesh_path: str | Path, name: str, category: str | None, hand
 
 #: Content types of the files POST /detect takes, by suffix (the server also recognises them by their bytes).
 FILE_TYPES = {".pcd": "application/x-pcd", ".ply": "application/ply", ".npy": "application/x-npy",
-              ".npz": "application/x-npz", ".png": "image/png"}
+              ".npz": "application/x-npz", ".png": "image/png", ".mcap": "application/x-mcap",
+              ".bag": "application/x-rosbag"}
 
 
 def file_upload(data: bytes | str | Path, content_type: str | None, params: Mapping[str, Any]
@@ -170,9 +171,10 @@ class GraspClient:
 
     def detect_file(self, data: bytes | str | Path, *, content_type: str | None = None, **params: Any) -> Grasps:
         """Grasps for a file (its bytes or its path): .pcd, .ply, .npy ((N,3) points or (H,W,3) organised), .npz
-        (points, optional viewpoints, camera_source, normals, camera_poses).  params are the upload's query
-        parameters: viewpoint, camera_pose (one or a list; with points_frame "camera" or "robot"), num_samples,
-        model, ... (Python values: wire.upload_params writes them)."""
+        (points, optional viewpoints, camera_source, normals, camera_poses), a ROS bag (.mcap, ROS 1 .bag; with
+        topic, index, info_topic, frame).  params are the upload's query parameters: viewpoint, camera_pose (one or
+        a list; with points_frame "camera" or "robot"), num_samples, model, ... (Python values: wire.upload_params
+        writes them)."""
         return parse_grasps(self._request("POST", "/detect", **file_upload(data, content_type, params)))
 
     def detect_depth(self, depth: ArrayLike | bytes, intrinsics: Mapping[str, float] | Sequence[float], *,
