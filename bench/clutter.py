@@ -8,6 +8,9 @@ chart and a JSON file (with the git commit) into bench/results/.  A setting is D
              of selection), gpd-cluster (same, GPD's cluster-sum ranking instead of the default),
              gpd-rep15 / gpd-rep12 / gpd-rep3 (the first model in models/ of that representation)
   scenes:    pour-passive, pour-active (10 objects poured into a tray), pile-side, packed-side (5 objects)
+  objects:   --object-set scaled (default: random_urdfs 900-999 scaled to the hand, graspd's default hand) or
+             household (the held-out household models at their true size, a Panda-like hand: 7.5 cm opening;
+             graspd_lab.sim.object_sets)
 
 The gpd detectors call the detector exactly as a robot does: plain POST /detect requests through
 graspd_client to a graspd service (started on a free local port unless --service names one), with the
@@ -18,6 +21,9 @@ Every finished round is appended to <tag>.rounds.jsonl; rerunning the same comma
 Examples:
   PYTHONPATH=service:client .venv/bin/python bench/clutter.py --rounds 5 --settings baseline@pour-passive
   PYTHONPATH=service:client .venv/bin/python bench/clutter.py --rounds 30 --settings gpd@pile-side --tag pile
+  ... --object-set household --precision --settings gpd@pile-side baseline@pile-side --tag clutter-household-pile
+                                        (--precision: P@1/P@5 of each round's first detection, as
+                                         bench/containers.py checks them against the true meshes)
   ... --service http://127.0.0.1:8000   (use a running service instead of starting one)
   ... --in-process                      (developer runs: GraspDetector in this process, no HTTP)
   ... --jobs 2 --ray                    (rounds as Ray tasks on this machine; graspd-lab[cluster])
@@ -55,6 +61,8 @@ from graspd_client import GraspClient  # noqa: E402
 from graspd_lab.cluster import RayMissingError, imap, runner_from_args  # noqa: E402
 from graspd_lab.cluster import add_arguments as add_cluster_arguments  # noqa: E402
 from graspd_lab.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, TopDownBaseline  # noqa: E402
+from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
+from graspd_lab.sim.object_sets import describe as describe_objects  # noqa: E402
 from graspd_lab.sim.protocol import RoundResult, Setting, Summary, cameras_for, run_round, summarize  # noqa: E402
 from graspd_lab.sim.sensing import observe, render_rgb  # noqa: E402
 from graspd_lab.sim.world import build_scene  # noqa: E402
@@ -122,13 +130,21 @@ def make_detector(detector: str, model: str | None, service: str | None) -> SimD
     return InProcessGPD(name=detector, classifier=classifier, options=options)
 
 
-def _one_round(args: tuple[str, str | None, str | None, Setting, int]) -> RoundResult:
-    detector, model, service, setting, seed = args
-    return run_round(make_detector(detector, model, service), setting, seed)
+def _one_round(args: tuple[str, str | None, str | None, Setting, int, bool]
+               ) -> tuple[RoundResult, dict[str, Any] | None]:
+    detector_name, model, service, setting, seed, precision = args
+    detector = make_detector(detector_name, model, service)
+    check = None
+    if precision:
+        from containers import scene_precision  # noqa: PLC0415  (bench/containers.py imports this module)
+
+        check = scene_precision(detector, setting, seed)
+    return run_round(detector, setting, seed), check
 
 
 def _setting_key(spec: str, setting: Setting) -> str:
-    return f"{spec}/{setting.num_objects}"
+    key = f"{spec}/{setting.num_objects}"
+    return key if setting.objects == "scaled" else f"{key}/{setting.objects}"
 
 
 def load_rows(log: Path, spec: str, setting: Setting) -> dict[int, dict[str, Any]]:
@@ -204,13 +220,21 @@ def markdown(summaries: dict[str, Summary], meta: dict[str, Any]) -> str:
         "",
         f"- command: `{meta['command']}`",
         f"- commit: `{meta['commit']}`, date: {meta['date']}, {meta['cpus']} CPUs, jobs: {meta['jobs']}",
-        "- objects: pybullet_data random_urdfs 900-999 (held out from training), scaled to the hand",
+        f"- objects: {describe_objects(meta.get('object_set', 'scaled'))}",
         "- models: " + (", ".join(f"{k}: {v}" for k, v in meta["models"].items() if v) or "none"),
         "",
         "| | " + " | ".join(names) + " |",
         "|---|" + "---|" * len(names),
     ]
     lines += ["| " + label + " | " + " | ".join(fn(summaries[n]) for n in names) + " |" for label, fn in rows]
+    precision = meta.get("precision") or {}
+    if precision:
+        lines += ["| P@1 / P@5 (first detection, true meshes) | " + " | ".join(
+            f"{pct(precision[n]['p@1'])} / {pct(precision[n]['p@5'])}" if n in precision else "" for n in names)
+            + " |"]
+        lines += ["| Top-5 failures (first detection) | " + " | ".join(
+            ", ".join(f"{k} {v}" for k, v in precision[n]["top5"].items() if k != "ok") + f", no grasp "
+            f"{precision[n]['no_grasp']}" if n in precision else "" for n in names) + " |"]
     lines += ["", "Targets (issue 10, service defaults): piles success >= 90% and cleared >= 95%; trays of 10"
               " success >= 90% and cleared >= 85%.  CIs: percentile bootstrap over rounds."]
     return "\n".join(lines) + "\n"
@@ -319,6 +343,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=30, help="rounds per setting (seeds seed..seed+rounds-1)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--objects", type=int, default=None, help="objects per round (default: 10 pour, 5 pile)")
+    ap.add_argument("--object-set", choices=OBJECT_SETS, default="scaled", help="scaled: random_urdfs 900-999 "
+                    "scaled to the hand (default hand); household: the held-out household models at true size "
+                    "(Panda-like hand, 7.5 cm opening)")
+    ap.add_argument("--precision", action="store_true", help="also check the top 5 of each round's first "
+                    "detection against the true meshes (P@1/P@5, bench/containers.py's check)")
     ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes (Ray CPUs with --ray)")
     add_cluster_arguments(ap)
     ap.add_argument("--model", default=None, help="classifier for gpd / gpd-noselect (default: first in models/)")
@@ -360,6 +389,8 @@ def main(argv: list[str] | None = None) -> int:
         "runner": runner.describe(),
         "service": service,
         "models": dict(models),
+        "object_set": args.object_set,
+        "precision": {},
     }
     md = ""
     log = args.out / f"{args.tag}.rounds.jsonl"
@@ -370,25 +401,35 @@ def main(argv: list[str] | None = None) -> int:
         scene_pictures(args.out / f"{args.tag}-scenes.png", args.seed)
     try:
         for spec, (det, scene) in zip(args.settings, parsed, strict=True):
-            setting = SCENES[scene]
+            setting = replace(SCENES[scene], objects=args.object_set, hand=object_set_hand(args.object_set))
             if args.objects is not None:
                 setting = replace(setting, num_objects=args.objects)
             seeds = [args.seed + i for i in range(args.rounds)]
-            done = {} if args.fresh else load_rounds(log, spec, setting)
-            jobs = [(det, models[spec], service, setting, s) for s in seeds if s not in done]
+            rows = {} if args.fresh else load_rows(log, spec, setting)
+            if args.precision:
+                rows = {s: r for s, r in rows.items() if r.get("precision") is not None}
+            done = {s: RoundResult(**r["round"]) for s, r in rows.items()}
+            checks = {s: r.get("precision") for s, r in rows.items()}
+            jobs = [(det, models[spec], service, setting, s, args.precision) for s in seeds if s not in done]
             t0 = time.perf_counter()
             if done:
                 print(f"{spec}: resuming, {len(seeds) - len(jobs)} of {len(seeds)} rounds recorded", flush=True)
             succeeded = attempted = 0
             # rounds come back as they finish (a pool or Ray tasks: graspd_lab.cluster), each logged at once
             with Progress(len(jobs), spec, "round") as bar:  # a bar on a terminal, a line a minute in a log
-                for r in imap(_one_round, jobs, runner):
-                    done[r.seed] = record_round(log, spec, setting, r)
+                for r, check in imap(_one_round, jobs, runner):
+                    done[r.seed] = record_round(log, spec, setting, r, **({"precision": check} if check else {}))
+                    checks[r.seed] = check
                     succeeded, attempted = succeeded + r.successes, attempted + r.attempts
                     bar.update(1, grasps=f"{succeeded}/{attempted} succeeded")
             results = [done[s] for s in seeds]
             summaries[spec] = summarize(results)
-            rounds[spec] = [r.to_dict() for r in results]
+            rounds[spec] = [{**r.to_dict(), **({"precision": checks[r.seed]} if checks.get(r.seed) else {})}
+                            for r in results]
+            if args.precision:
+                from containers import precision_summary  # noqa: PLC0415
+
+                meta["precision"][spec] = precision_summary([c for c in (checks[s] for s in seeds) if c is not None])
             s = summaries[spec]
             print(f"{spec:28s} success {pct(s.success_rate)}{ci(s.success_ci)}  cleared {pct(s.cleared_rate)}"
                   f"{ci(s.cleared_ci)}  attempts {s.attempts}  failures {s.failures}  "

@@ -31,6 +31,8 @@ containers-<tag>.rounds.jsonl; rerunning the same command resumes from it.
 Examples:
   PYTHONPATH=service:client .venv/bin/python bench/containers.py --rounds 30 --tag heldout
   ... --rounds 2 --in-process --tag smoke
+  ... --object-set household --rounds 30 --tag household   (8 held-out household models at true size per
+                                       scene, Panda-like hand: graspd_lab.sim.object_sets)
   ... --split training --styles tray tote --rounds 10 --tag tuned   (training styles and ranges: "tuned on")
   ... --jobs 2 --ray                  (rounds as Ray tasks on this machine; graspd-lab[cluster]; --address: a
                                        cluster, with --in-process or a --service URL the nodes reach)
@@ -72,6 +74,8 @@ from graspd_lab.sim.containers import (  # noqa: E402
     scene_container,
 )
 from graspd_lab.sim.detectors import SimDetector  # noqa: E402
+from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
+from graspd_lab.sim.object_sets import describe as describe_objects  # noqa: E402
 from graspd_lab.sim.protocol import (  # noqa: E402
     SENSINGS,
     RoundResult,
@@ -152,8 +156,8 @@ def scene_precision(detector: SimDetector, setting: Setting, seed: int) -> dict[
     world, _, grasps, _ = first_detection(detector, setting, seed)
     try:
         verdicts = check_grasps(world, grasps[:TOP_K], setting.hand)
-        assert world.container is not None
-        return {"container": world.container.to_dict(), "returned": len(grasps), "verdicts": verdicts}
+        container = None if world.container is None else world.container.to_dict()
+        return {"container": container, "returned": len(grasps), "verdicts": verdicts}
     finally:
         world.close()
 
@@ -211,7 +215,8 @@ def markdown(per_style: dict[str, dict[str, tuple[Summary, dict[str, Any]]]],
                                             or "none"),
         f"- split: {meta['split']} parameter ranges (graspd_lab.sim.containers.RANGES); held-out styles "
         f"{', '.join(HELD_OUT_STYLES)}; training styles {', '.join(TRAINING_STYLES)} are marked \"tuned on\"",
-        f"- scenes: {meta['objects']} held-out objects (random_urdfs 900-999) dropped into each round's container, "
+        f"- scenes: {meta['objects']} of {describe_objects(meta.get('object_set', 'scaled'))}, dropped into each "
+        "round's container, "
         f"{meta['sensing']} cameras, benchmark depth noise; workspace = container + 5 cm of table",
         "- P@k: the top 5 of each scene's first detection checked against the true meshes (label_grasps with the "
         "training labels; a hand that touches a container or support fails); mean over scenes with grasps",
@@ -315,7 +320,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--styles", nargs="+", default=None, help=f"container styles {STYLES} (default: the held-out "
                     "styles; with --split training, the training styles)")
     ap.add_argument("--detectors", default="gpd,baseline", help=f"comma-separated, of {DETECTORS}")
-    ap.add_argument("--objects", type=int, default=5, help="objects per scene")
+    ap.add_argument("--objects", type=int, default=None, help="objects per scene (default: 5; 8 with "
+                    "--object-set household)")
+    ap.add_argument("--object-set", choices=OBJECT_SETS, default="scaled", help="scaled: random_urdfs 900-999 "
+                    "scaled to the hand (default hand); household: the held-out household models at true size "
+                    "(Panda-like hand, 7.5 cm opening)")
     ap.add_argument("--sensing", choices=SENSINGS, default="passive")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes (Ray CPUs with --ray)")
@@ -336,11 +345,14 @@ def main(argv: list[str] | None = None) -> int:
     if bad or not detectors:
         ap.error(f"--detectors must name some of {DETECTORS}, got {args.detectors!r}")
     styles = args.styles or list(HELD_OUT_STYLES if args.split == "held_out" else TRAINING_STYLES)
+    if args.objects is None:
+        args.objects = 8 if args.object_set == "household" else 5
     settings: dict[str, Setting] = {}
     for style in styles:
         try:
             settings[style] = Setting(scene="container", container=style, container_split=args.split,
-                                      num_objects=args.objects, sensing=args.sensing)
+                                      num_objects=args.objects, sensing=args.sensing, objects=args.object_set,
+                                      hand=object_set_hand(args.object_set))
         except ValueError as exc:
             ap.error(f"--styles {style}: {exc}")
     if args.in_process and args.service:
@@ -361,7 +373,8 @@ def main(argv: list[str] | None = None) -> int:
         "commit": git_commit(), "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "cpus": os.cpu_count(),
         "jobs": args.jobs, "runner": runner.describe(),
         "gpd": "in-process GraspDetector" if args.in_process else f"POST /detect to {service}",
-        "models": dict(models), "split": args.split, "objects": args.objects, "sensing": args.sensing,
+        "models": dict(models), "split": args.split, "objects": args.objects, "object_set": args.object_set,
+        "sensing": args.sensing,
         "styles": styles, "headline_styles": [s for s in styles if s in HELD_OUT_STYLES],
         "containers": {s: [scene_container(s, args.seed + i, args.split).to_dict() for i in range(args.rounds)]
                        for s in styles},

@@ -9,29 +9,36 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
 from graspd.core.camera import Camera, sensing_cameras
+from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd_lab.sim.containers import scene_container, style_ranges
 from graspd_lab.sim.detectors import SimDetector, Workspace
 from graspd_lab.sim.gripper import Attempt, ExecutionParams, Gripper, Outcome
+from graspd_lab.sim.object_sets import object_set_ids
 from graspd_lab.sim.sensing import observe
 from graspd_lab.sim.world import SimWorld, build_scene
 from graspd_lab.world.noise import DepthNoise
 
 SENSINGS = ("passive", "active", "side")
+#: Called before each executed grasp with the world, the cloud the detector saw, its grasps and the index picked
+#: (diagnostics: bench/approach.py); it must leave the world as it found it.
+Probe = Callable[[SimWorld, ViewpointCloud, GraspSet, int], None]
 
 
 @dataclass(frozen=True)
 class Setting:
     """One benchmark configuration: scene kind and size, sensing, grasp choice and hand.  Scene "container"
     names a container style (graspd_lab.sim.containers.STYLES) and the split whose parameter ranges it is drawn
-    from ("held_out" or "training"); each round's container follows from its seed (scene_container)."""
+    from ("held_out" or "training"); each round's container follows from its seed (scene_container).  objects
+    names the held-out object set the scenes draw from (graspd_lab.sim.object_sets)."""
 
     scene: str = "pour"
     num_objects: int = 10
@@ -43,8 +50,10 @@ class Setting:
     hand: HandGeometry = field(default_factory=HandGeometry)
     container: str | None = None
     container_split: str = "held_out"
+    objects: str = "scaled"  # the object set (graspd_lab.sim.object_sets): "scaled" or "household"
 
     def __post_init__(self) -> None:
+        object_set_ids(self.objects)  # raises for an unknown set
         if (self.scene == "container") != (self.container is not None):
             raise ValueError("scene 'container' needs a container style, and only it takes one")
         if self.container is not None:
@@ -116,12 +125,14 @@ def setting_scene(setting: Setting, seed: int) -> SimWorld:
     """The settled scene of a setting's round `seed` (its container, if any, drawn from the seed too)."""
     container = None if setting.container is None else scene_container(setting.container, seed,
                                                                          setting.container_split)
-    return build_scene(setting.scene, setting.num_objects, seed, setting.hand, container=container)
+    return build_scene(setting.scene, setting.num_objects, seed, setting.hand,
+                       object_ids=object_set_ids(setting.objects), container=container)
 
 
 def run_round(detector: SimDetector, setting: Setting, seed: int,
-              execution: ExecutionParams | None = None) -> RoundResult:
-    """One round of the protocol with scene, noise and choices all drawn from seed."""
+              execution: ExecutionParams | None = None, probe: Probe | None = None) -> RoundResult:
+    """One round of the protocol with scene, noise and choices all drawn from seed; probe (if any) looks at
+    each executed grasp first."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed + 1_000_003)
     world = setting_scene(setting, seed)
@@ -150,6 +161,8 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
                 attempt = Attempt(Outcome.NO_GRASP, None)
             else:
                 pick = int(ok[0] if setting.choice == "best" else rng.choice(ok))
+                if probe is not None:
+                    probe(world, cloud, grasps, pick)
                 attempt = gripper.execute(grasps, pick)
                 result.attempts += 1
                 world.remove_outside()

@@ -6,6 +6,11 @@ from pathlib import Path
 
 import pytest
 
+from graspd_lab.sim.object_sets import object_set_hand, object_set_ids
+from graspd_lab.sim.objects import TEST_OBJECT_IDS
+from graspd_lab.sim.world import SimWorld
+from graspd_lab.world import household
+
 BENCH = Path(__file__).resolve().parents[3] / "bench" / "clutter.py"
 
 
@@ -35,3 +40,33 @@ def test_unknown_setting_is_named() -> None:
         bench.main(["--settings", "magic@pour-passive"])
     with pytest.raises(ValueError, match="scene"):
         bench.parse_setting("baseline@shelf")
+
+
+def test_household_option_loads_only_held_out_household_models(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    loaded: list[int] = []
+    add = SimWorld.add_object
+
+    def spy(self: SimWorld, object_id: int, *args: object) -> int:
+        loaded.append(int(object_id))
+        return add(self, object_id, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(SimWorld, "add_object", spy)
+    bench = _bench()
+    assert bench.main(["--rounds", "2", "--settings", "baseline@pile-side", "baseline@packed-side",
+                       "--object-set", "household", "--out", str(tmp_path), "--tag", "h"]) == 0
+    held_out = {household.household_id(n) for n in household.HELD_OUT}
+    assert len(loaded) >= 10 and set(loaded) <= held_out
+    assert all(household.household_name(i) in household.HELD_OUT for i in loaded)
+    assert "held-out household models" in (tmp_path / "h.md").read_text()
+    rows = [json.loads(line) for line in (tmp_path / "h.rounds.jsonl").read_text().splitlines()]
+    assert {r["setting"] for r in rows} == {"baseline@pile-side/5/household", "baseline@packed-side/5/household"}
+
+
+def test_object_sets_are_held_out_and_household_gets_the_panda_like_hand() -> None:
+    assert object_set_ids("scaled") == TEST_OBJECT_IDS
+    names = {household.household_name(i) for i in object_set_ids("household")}
+    assert names == set(household.HELD_OUT) and not names & set(household.training_names())
+    assert object_set_hand("household").max_aperture == pytest.approx(0.075)
+    with pytest.raises(ValueError, match="object set"):
+        object_set_ids("ycb")

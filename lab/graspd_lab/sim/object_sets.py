@@ -1,0 +1,44 @@
+"""The benchmark's object sets by name, with the hand each is benchmarked with.
+
+- "scaled": the held-out random_urdfs 900-999, scaled so each fits the hand (the benchmarks' objects so far),
+  with graspd's default hand;
+- "household": the held-out household models (graspd_lab.world.household.HELD_OUT) at their true size, with a
+  Panda-like hand (7.5 cm opening; the simulated fingers press with ExecutionParams.finger_force, 40 N), as the
+  outside clutter benchmarks use.
+Only held-out objects are ever in a set: benchmarks never see a training object.
+"""
+
+from __future__ import annotations
+
+from graspd.core.hand import HandGeometry, hand_preset
+from graspd_lab.sim.objects import TEST_OBJECT_IDS
+from graspd_lab.world import household
+
+OBJECT_SETS = ("scaled", "household")
+
+#: A Panda-like hand: the panda preset's fingers (45 mm reach, 10 mm thick) and 60 mm body behind the finger
+#: roots, opening 75 mm (outer faces 95 mm apart).
+PANDA_LIKE = hand_preset("panda").with_overrides(hand_outer_diameter=0.095)
+
+
+def object_set_ids(name: str) -> tuple[int, ...]:
+    """The simulator object ids of a set (ValueError for an unknown name)."""
+    if name == "scaled":
+        return TEST_OBJECT_IDS
+    if name == "household":
+        return tuple(household.household_id(n) for n in household.HELD_OUT)
+    raise ValueError(f"object set must be one of {OBJECT_SETS}, got {name!r}")
+
+
+def object_set_hand(name: str) -> HandGeometry:
+    """The hand a set is benchmarked with (ValueError for an unknown name)."""
+    object_set_ids(name)
+    return PANDA_LIKE if name == "household" else HandGeometry()
+
+
+def describe(name: str) -> str:
+    """One line for a results file: what the set's objects are."""
+    if name == "household":
+        return (f"the {len(household.HELD_OUT)} held-out household models (graspd_lab.world.household.HELD_OUT) "
+                "at their true size, with a Panda-like hand (7.5 cm opening, 40 N per finger)")
+    return "pybullet_data random_urdfs 900-999 (held out from training), scaled to the hand"
