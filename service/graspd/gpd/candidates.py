@@ -339,14 +339,21 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     bj = best_j[si, pi]
     t_star, cand, elem, hx, hy, ymin, ymax = closing_region(bj)
     if p.centre_on_object and m:
-        # A gripper closes symmetrically: move each hand to the valid placement nearest the middle of what lies
-        # between its fingers, so the object is not pushed sideways (a neighbour's collision keeps it put).
+        # A gripper closes symmetrically: move each hand to the placement nearest the middle of what lies between
+        # its fingers, so the object is not pushed sideways; only to placements with room to spare (the
+        # placements a grid step to either side are collision-free too), so a finger never ends up grazing a
+        # neighbour, and only as deep as the middle placement reaches.
         middle = s_grid[bj] + np.where(np.isfinite(ymin), (ymin + ymax) / 2.0, 0.0)
+        roomy = valid[si, pi].copy()
+        roomy[:, 1:-1] &= valid[si, pi][:, :-2] & valid[si, pi][:, 2:]
+        roomy[:, [0, -1]] = False
+        roomy &= tip[si, pi] >= t_star[:, None].astype(np.float32) - 1e-3  # and no shallower: as much bite
+        roomy[np.arange(m), bj] = True  # the middle placement stays a choice
         # nearest to 0.1 mm (float noise cannot flip a tie), then nearest the middle placement: the same hand
         # whichever way the cloud is rotated
         gap = np.round(np.abs(s_grid[None, :] - middle[:, None]) / 1e-4) * len(s_grid)
         gap += np.abs(np.arange(len(s_grid))[None, :] - bj[:, None])
-        centred = np.argmin(np.where(valid[si, pi], gap, np.inf), axis=1)
+        centred = np.argmin(np.where(roomy, gap, np.inf), axis=1)
         if (centred != bj).any():
             bj = centred
             t_star, cand, elem, hx, hy, ymin, ymax = closing_region(bj)
