@@ -1,8 +1,9 @@
 """Targets and the covering top list on held-out tabletop scenes, judged against the meshes.
 
 Each scene is a table of --objects held-out objects (random_urdfs 900-999: evaluation only, never training or
-tuning; graspd_lab.world.scenes.random_tabletop(held_out=True)), rendered with depth noise by two cameras
-(graspd_lab.world.render.render_scene_with_ids, which also says which mesh each point is on).  The detector runs
+tuning; graspd_lab.world.scenes.random_tabletop(held_out=True)) or, with --tuning, of training objects (what
+defaults such as max_per_object are chosen on: bench/results/targets-tuning.md), rendered with depth noise by two
+cameras (graspd_lab.world.render.render_scene_with_ids, which also says which mesh each point is on).  The detector runs
 in this process with the default model and the service's defaults.
 
 - With a target (each object seen with at least --min-points points, named by its rows: target.indices): P@1 on
@@ -15,7 +16,8 @@ in this process with the default model and the service's defaults.
   and COCO RLE) or indices against the same request without one.
 
   PYTHONPATH=service:client:lab .venv/bin/python bench/targets.py --scenes 12 --objects 8
-Writes bench/results/targets.md and targets.json.
+  PYTHONPATH=service:client:lab .venv/bin/python bench/targets.py --scenes 12 --objects 8 --tuning --seed 100
+Writes bench/results/targets.md and targets.json (targets-tuning.* with --tuning).
 """
 
 from __future__ import annotations
@@ -111,9 +113,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     parse_png: list[float] = []
     parse_rle: list[float] = []
     parse_idx: list[float] = []
-    for s in range(args.scenes):
-        seed = args.seed + s
-        meshes = random_tabletop(args.objects, seed=seed, held_out=True, hand=hand)
+    s, seed = 0, args.seed - 1
+    while s < args.scenes:
+        seed += 1
+        try:
+            meshes = random_tabletop(args.objects, seed=seed, held_out=not args.tuning, hand=hand)
+        except ValueError:  # the objects do not fit on the table: the next seed
+            continue
+        s += 1
         truth = MeshScene(meshes)
         cams = tabletop_cameras(2, distance=0.75, elevation_deg=55.0, azimuth_deg=float(37 * s % 360),
                                 width=320, height=240)
@@ -156,7 +163,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 touched = grasp_meshes(points, ids, d.grasps[:10], hand)
                 entry["touch_other"] = float(np.mean([bool(m - {k}) for m in touched]))
             targeted.append(entry)
-        if s < args.timing_scenes:
+        if s <= args.timing_scenes:
             img_pts, img_ids = organised(points, ids, 320)
             k = int(np.bincount(ids[ids >= 1]).argmax())
             mask = (img_ids == k).reshape(-1, 320)
@@ -190,10 +197,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 def markdown(result: dict[str, Any], meta: dict[str, Any]) -> str:
     s = result["summary"]
     lines = [
-        "# Targets and the covering top list (held-out scenes)",
+        f"# Targets and the covering top list ({meta['object_set']} objects)",
         "",
-        f"`{meta['command']}` at commit `{meta['commit']}`: {s['scenes']} tables of {meta['objects']} held-out objects "
-        "(random_urdfs 900-999), two noisy 320x240 cameras, the default model in process, "
+        f"`{meta['command']}` at commit `{meta['commit']}`: {s['scenes']} tables of {meta['objects']} objects "
+        f"({meta['object_set']}), two noisy 320x240 cameras, the default model in process, "
         f"{meta['samples']} samples.  Labels against the meshes (bench/targets.py).",
         "",
         "## With a target (target.indices: the object's rows)",
@@ -232,12 +239,17 @@ def main() -> None:
     ap.add_argument("--min-points", type=int, default=150, help="objects seen with fewer points are not targeted")
     ap.add_argument("--timing-scenes", type=int, default=4)
     ap.add_argument("--repeats", type=int, default=9)
-    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "targets")
+    ap.add_argument("--tuning", action="store_true", help="scenes of training objects (procedural and random_urdfs "
+                    "000-899), for choosing defaults such as max_per_object; the report uses held-out ones")
+    ap.add_argument("--out", type=Path, default=None, help="default bench/results/targets (targets-tuning)")
     args = ap.parse_args()
+    if args.out is None:
+        args.out = REPO / "bench" / "results" / ("targets-tuning" if args.tuning else "targets")
     result = run(args)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout
     meta = {"command": "python bench/targets.py " + " ".join(sys.argv[1:]), "commit": commit.strip(),
-            "objects": args.objects, "samples": args.samples}
+            "objects": args.objects, "samples": args.samples,
+            "object_set": "training (tuning)" if args.tuning else "held-out (random_urdfs 900-999)"}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps({**meta, **result}, indent=1))
     args.out.with_suffix(".md").write_text(markdown(result, meta))

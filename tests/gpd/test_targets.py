@@ -12,7 +12,7 @@ from graspd.core.hand import HandGeometry
 from graspd.gpd.classifier import default_model_name, load_model
 from graspd.gpd.detector import Detection, DetectionParams, GraspDetector
 from graspd.gpd.scene import closing_region_points
-from graspd.gpd.selection import cover_order
+from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT, cover_order
 from graspd.gpd.target import OrientedBox, Target, TargetError
 from target_scene import NEIGHBOUR, NINE, SIX, OrganisedScene, finite, render_table
 
@@ -146,7 +146,7 @@ def test_the_default_top_ten_covers_the_table(detector: GraspDetector) -> None:
     top = {int(o) for o in covering.grasps.object_ids[:10]}
     assert len(top) >= 4, f"the top 10 cover objects {sorted(top)}"
     assert np.allclose(covering.grasps.positions[0], ranked.grasps.positions[0])
-    assert covering.max_per_object == 2 and ranked.max_per_object == 0
+    assert covering.max_per_object == DEFAULT_MAX_PER_OBJECT and ranked.max_per_object == 0
 
 
 def test_cover_order_takes_rounds_of_each_object_best_first() -> None:

@@ -15,6 +15,7 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from graspd.core.masks import rle_decode, rle_string_counts
+from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT
 from graspd.server.requests import parse_request
 from graspd_client.wire import build_detect_request, rle_counts
 from target_scene import HEIGHT, WIDTH, OrganisedScene, render_table
@@ -60,7 +61,7 @@ def _positions(answer: dict[str, Any]) -> np.ndarray:
 
 def test_one_object_named_six_ways_gets_the_same_grasps(scored_client: TestClient, six: OrganisedScene) -> None:
     plain = scored_client.post("/detect", json=_body(six)).json()
-    assert len(plain["objects"]) == 6 and plain["max_per_object"] == 2
+    assert len(plain["objects"]) == 6 and plain["max_per_object"] == DEFAULT_MAX_PER_OBJECT
     for g in plain["grasps"]:
         assert g["object"] is None or g["id"] and plain["grasps"].index(g) in plain["objects"][g["object"]]["grasps"]
     k = 5
