@@ -136,7 +136,6 @@ def test_sample_points_target_samples_there(detector: GraspDetector, six: Organi
     assert len(det.grasps) and np.linalg.norm(det.grasps.samples - centre, axis=1).max() < 0.011
 
 
-@pytest.mark.slow
 def test_the_default_top_ten_covers_the_table(detector: GraspDetector) -> None:
     nine = render_table(NINE)
     covering = _detect(detector, nine, num_samples=1000)
