@@ -82,7 +82,8 @@ def test_http_answers_validate_against_the_declared_model(client: TestClient, bo
 def test_upload_query_parameters_come_from_detect_request(client: TestClient) -> None:
     objects = {"cloud", "approach", "crops", "target"}  # no query form: nested objects (target: its own params)
     assert set(QUERY_PARAMS) == set(CLOUD_PARAMS) | set(DetectRequest.model_fields) - objects | set(TARGET_PARAMS)
-    assert set(CLOUD_PARAMS) == {"viewpoint", "camera_pose", "points_frame", "intrinsics", "depth_scale"}
+    assert set(CLOUD_PARAMS) == {"viewpoint", "camera_pose", "points_frame", "intrinsics", "depth_scale", "topic",
+                                 "index", "info_topic", "frame"}  # the file's own: a depth image's, a bag's
     documented = client.get("/openapi.json").json()["paths"]["/detect"]["post"]["parameters"]
     assert documented == openapi_parameters()
     limits = {p["name"]: p["schema"] for p in documented}

@@ -263,7 +263,7 @@ def _checked(detection: Detection, cloud: ViewpointCloud, params: DetectionParam
 
     card = getattr(classifier, "card", None)
     fits = None if card is None else card_fits_hand(dict(card), detection.hand.to_dict())
-    detection = detection.warned(*check_detection(detection, cloud.points, cloud.viewpoints, params.workspace, fits))
+    detection = detection.warned(*check_detection(detection, cloud, params.workspace, params.range_window, fits))
     for w in detection.warnings:
         print(f"warning {w.code}: {w.message}", file=sys.stderr)
     return detection

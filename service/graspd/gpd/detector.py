@@ -27,7 +27,7 @@ from graspd.gpd.environment import Environment, EnvironmentParams, Label, hand_h
 from graspd.gpd.images import encode_batches
 from graspd.gpd.objects import SceneObject, Segmentation, segment_objects
 from graspd.gpd.occlusion import MAX_UNKNOWN_SHARE, UNKNOWN_SPACE_MODES, UnknownSpace, unknown_share
-from graspd.gpd.preprocess import PreprocessParams, Workspace, preprocess, support_plane_mask
+from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW, PreprocessParams, Workspace, preprocess, support_plane_mask
 from graspd.gpd.scene import ClosingRegionPoints, Scene
 from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT, SelectionParams, Vec3, feasible_mask, select
 from graspd.gpd.target import MIN_TARGET_POINTS, Target, TargetError, target_mask
@@ -44,7 +44,9 @@ class Scorer(Protocol):
 
 @dataclass(frozen=True)
 class DetectionParams:
-    """Per-request knobs (metres, degrees).  workspace crops the cloud and the grasp positions.
+    """Per-request knobs (metres, degrees).  workspace crops the cloud and the grasp positions; without one,
+    range_window (m, 0 = off) keeps the points at most this far beyond the nearest surface the cameras see
+    (preprocess.region_mask).
 
     environment: how objects are told from what holds them (default "auto": support plane and walls found
     in the cloud); "none" is the pipeline without an environment model.  approach_distance: the pre-grasp
@@ -80,6 +82,7 @@ class DetectionParams:
     seed: int | None = 0
     voxel_size: float = 0.003
     remove_outliers: bool = False
+    range_window: float = DEFAULT_RANGE_WINDOW
     exclude_support_plane: bool | None = None
     environment: EnvironmentParams = field(default_factory=EnvironmentParams)
     approach_distance: float = 0.05
@@ -292,7 +295,8 @@ class GraspDetector:
     def prepare(self, cloud: ViewpointCloud, p: DetectionParams, h: HandGeometry,
                 lap: Callable[[str], None] | None = None) -> Prepared:
         """Preprocess, model the environment and build the scene of a request: everything before sampling."""
-        pre = PreprocessParams(voxel_size=p.voxel_size, workspace=p.workspace, remove_outliers=p.remove_outliers)
+        pre = PreprocessParams(voxel_size=p.voxel_size, workspace=p.workspace, remove_outliers=p.remove_outliers,
+                               range_window=p.range_window)
         prepared = preprocess(cloud, pre)
         if lap is not None:
             lap("preprocess")

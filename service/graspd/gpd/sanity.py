@@ -3,6 +3,8 @@ with a DetectionWarning, what looks wrong and what to do (graspd.core.warning). 
 
 - viewpoint_warning: the viewpoints could not have seen the cloud (a camera behind the surface: normals, which
   preprocessing turns toward the cameras, then face the wrong way and the grasps come from the wrong side);
+- range_window_warning: with no workspace, points far beyond the nearest surface were left out (how many, from
+  what range, and how to choose the region instead);
 - few_points_warning: too few points left after the workspace crop;
 - model_hand_warning: the model was not trained for the requested hand;
 - no_candidates_warning: no candidate survived, naming the stage that removed them.
@@ -11,12 +13,15 @@ with a DetectionWarning, what looks wrong and what to do (graspd.core.warning). 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+from graspd.core.cloud import ViewpointCloud
 from graspd.core.warning import DetectionWarning
+from graspd.gpd.preprocess import Workspace, range_limit, region_mask
 
 if TYPE_CHECKING:  # no import at run time: the detector may call these checks itself
     from graspd.gpd.detector import Detection
@@ -106,6 +111,43 @@ def viewpoint_warning(points: NDArray[np.floating], viewpoints: NDArray[np.float
         f"points_frame), with camera_source when several cameras' points are merged.")
 
 
+@dataclass(frozen=True)
+class RegionCheck:
+    """What the request-level checks know of the region a detection worked on (preprocess.region_mask): the
+    hidden_share of its points, how many finite points the range window left out (0 with a workspace) and the
+    range (m) from which it did."""
+
+    hidden: float
+    left_out: int = 0
+    far: float = float("inf")
+
+
+def region_check(cloud: ViewpointCloud, workspace: Workspace | None, range_window: float) -> RegionCheck:
+    """RegionCheck of a request's cloud (its frame, m): the region preprocess keeps, its hidden share, and what the
+    range window left out."""
+    region = region_mask(cloud, workspace, range_window)
+    left_out, far = 0, float("inf")
+    if workspace is None and range_window > 0.0:
+        finite = np.asarray(np.isfinite(cloud.points).all(axis=1), bool)
+        left_out = int(finite.sum() - region.sum())
+        if left_out:
+            idx = np.flatnonzero(finite)
+            far = range_limit(cloud.points[idx], cloud.camera_source[idx], cloud.viewpoints, range_window)[1]
+    return RegionCheck(hidden_share(cloud.points[region], cloud.viewpoints), left_out, far)
+
+
+def range_window_warning(check: RegionCheck, total: int, range_window: float) -> DetectionWarning | None:
+    """range_window when the request gave no workspace and the range window left points out of total."""
+    if check.left_out == 0:
+        return None
+    return DetectionWarning(
+        "range_window",
+        f"no workspace was given, so the {check.left_out} of {total} points more than {range_window:g} m beyond the "
+        f"nearest surface the cameras see (farther than {check.far:.2f} m from their camera) were left out: depth "
+        f"noise grows with range and a hand rarely reaches that far.  Give a workspace to choose the region "
+        f"yourself, or range_window 0 to keep every point")
+
+
 def few_points_warning(num_points: int, cropped: bool, limit: int = FEW_POINTS) -> DetectionWarning | None:
     """few_points when fewer than `limit` points are left after preprocessing (cropped: a workspace was set)."""
     if num_points >= limit:
@@ -162,17 +204,17 @@ def in_workspace(points: NDArray[np.floating], workspace: Sequence[float] | None
     return points[((points >= lo) & (points <= hi)).all(axis=1)]
 
 
-def check_detection(det: Detection, points: NDArray[np.floating], viewpoints: NDArray[np.floating],
-                    workspace: Sequence[float] | None, model_fits_hand: bool | None,
-                    hidden: float | None = None) -> list[DetectionWarning]:
-    """The request-level warnings of a GPD detection, in this order: viewpoint_flipped, few_points,
-    model_hand_mismatch, no_candidates.  points, viewpoints and workspace: the cloud and crop the detector was
-    given, in its frame (m); model_fits_hand: whether the model was made for the hand (None: not known); hidden:
-    hidden_share of those points if already known (the service computes it beside the detection)."""
-    if hidden is None:
-        hidden = hidden_share(in_workspace(np.asarray(points), workspace), viewpoints)
+def check_detection(det: Detection, cloud: ViewpointCloud, workspace: Workspace | None, range_window: float,
+                    model_fits_hand: bool | None, region: RegionCheck | None = None) -> list[DetectionWarning]:
+    """The request-level warnings of a GPD detection, in this order: viewpoint_flipped, range_window, few_points,
+    model_hand_mismatch, no_candidates.  cloud, workspace and range_window: the cloud and region the detector was
+    given, in its frame (m); model_fits_hand: whether the model was made for the hand (None: not known); region:
+    region_check of them if already known (the service computes it beside the detection)."""
+    if region is None:
+        region = region_check(cloud, workspace, range_window)
     found = [
-        viewpoint_warning(points, viewpoints, share=hidden),
+        viewpoint_warning(cloud.points, cloud.viewpoints, share=region.hidden),
+        range_window_warning(region, len(cloud), range_window),
         few_points_warning(det.num_points, workspace is not None),
         model_hand_warning(det.model, model_fits_hand, det.hand.to_dict()),
         no_candidates_warning(det.num_points, det.num_candidates, len(det.grasps),

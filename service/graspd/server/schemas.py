@@ -49,6 +49,7 @@ from graspd.core.masks import rle_decode, rle_string_counts
 from graspd.core.warning import WARNING_CODES, DetectionWarning
 from graspd.gpd.detector import Detection, DetectionParams
 from graspd.gpd.environment import Box, EnvironmentParams, Plane
+from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW
 from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT
 from graspd.gpd.target import OrientedBox, Target, TargetKind
 from graspd.io.inputs import CloudInput, apply_frames, finite_rows, keep_finite
@@ -618,6 +619,11 @@ class DetectRequest(BaseModel):
     workspace: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
         None, min_length=6, max_length=6,
         description="[xmin, xmax, ymin, ymax, zmin, zmax] (m, cloud frame): crop points and grasp positions")
+    range_window: float = Field(
+        DEFAULT_RANGE_WINDOW, ge=0.0, le=MAX_COORDINATE, allow_inf_nan=False,
+        description="with no workspace: keep the points at most this far (m) beyond the nearest surface the "
+        "cameras see (depth noise grows with range; a room behind the table is sparse and noisy, and a hand "
+        "rarely reaches it); the answer warns `range_window` when it left points out.  0: keep every point")
     hand: Hand | None = Field(None, description="hand geometry; a plain string is read as {\"preset\": string}")
     model: str | None = Field(None, max_length=200, description="classifier name (GET /models); default: the "
                               "server's default model, if any")
@@ -749,6 +755,7 @@ class DetectRequest(BaseModel):
             return DetectionParams(
                 num_samples=self.num_samples,
                 workspace=self.workspace_bounds(),
+                range_window=self.range_window,
                 max_grasps=self.max_grasps,
                 min_score=self.min_score,
                 approach_direction=None if approach is None else (approach.direction[0], approach.direction[1],

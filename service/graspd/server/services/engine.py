@@ -24,7 +24,7 @@ from graspd.core.hand import HandGeometry
 from graspd.core.parallel import THREADS
 from graspd.gpd.blas import set_blas_threads
 from graspd.gpd.detector import Detection, DetectionParams
-from graspd.gpd.sanity import check_detection, hidden_share, in_workspace
+from graspd.gpd.sanity import check_detection, region_check
 from graspd.gpd.target import TargetError
 from graspd.io.png import encode_png_b64
 from graspd.server.logs import current_request
@@ -183,8 +183,8 @@ class DetectionEngine:
                                           hand or HandGeometry())
             det: Detection | TemplateDetection
             ctx = current_request()
-            hidden = None if req.method == "templates" else self._checks.submit(
-                hidden_share, in_workspace(cloud.points, params.workspace), cloud.viewpoints)
+            region = None if req.method == "templates" else self._checks.submit(
+                region_check, cloud, params.workspace, params.range_window)
             try:
                 with THREADS.request():  # concurrent requests share the cores (graspd.core.parallel)
                     det = self._detect(req, cloud, params, hand, model)
@@ -221,8 +221,8 @@ class DetectionEngine:
             self.metrics.points.observe(det.num_points)
             fits = None if isinstance(det, TemplateDetection) else self.registry.fits(det.model, used_hand)
             if isinstance(det, Detection):  # the request-level checks (graspd.gpd.sanity), after the detector's own
-                det = det.warned(*check_detection(det, cloud.points, cloud.viewpoints, params.workspace, fits,
-                                                  None if hidden is None else hidden.result()))
+                det = det.warned(*check_detection(det, cloud, params.workspace, params.range_window, fits,
+                                                  None if region is None else region.result()))
             timings["total"] = time.perf_counter() - enqueued + before
             self.metrics.observe_timings(timings)
             return DetectResponse.from_detection(det, request_id=request_id, timings=timings, hand=used_hand,
