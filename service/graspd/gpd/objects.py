@@ -24,6 +24,10 @@ I64 = NDArray[np.int64]
 OBJECT_GAP = 0.006
 #: Fewer points than this are a speck (noise, a sliver seen at a grazing angle), not an object.
 MIN_OBJECT_POINTS = 20
+#: A group no longer than this (m) in every direction is a blob of sensor artefacts (stereo speckle, mixed pixels
+#: at a silhouette), not an object: it joins no object and no hand is sampled on it.  Smaller than anything a
+#: two-finger hand is asked to pick (the household set's smallest largest extent is 4 cm).
+MIN_OBJECT_EXTENT = 0.02
 #: Centres are compared to this resolution (m) when ids are ordered, so that float noise cannot swap two ids.
 ORDER_RESOLUTION = 1e-3
 
@@ -72,11 +76,12 @@ class Segmentation:
 
 
 def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_], gap: float = OBJECT_GAP,
-                    min_points: int = MIN_OBJECT_POINTS) -> Segmentation:
+                    min_points: int = MIN_OBJECT_POINTS, min_extent: float = MIN_OBJECT_EXTENT) -> Segmentation:
     """The objects among points (N,3, m) where object_mask holds: groups of points linked by steps of at most gap
-    (m), at least min_points each.  Smaller groups (specks: strips of a side seen at a grazing angle, noise) join
-    the nearest object, so that every object point belongs to one; an object's centre and extent are those of its
-    own group.  Ids are ordered by the position of the objects' centres (x, then y, then z)."""
+    (m), at least min_points each and longer than min_extent (m) in some direction.  Smaller groups (specks: strips
+    of a side seen at a grazing angle, noise) join the nearest object; blobs (enough points, but shorter than
+    min_extent every way: sensor artefacts) belong to none (label -1).  An object's centre and extent are those of
+    its own group.  Ids are ordered by the position of the objects' centres (x, then y, then z)."""
     n = len(points)
     idx = np.flatnonzero(object_mask)
     if len(idx) < min_points:
@@ -84,7 +89,11 @@ def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_]
     pts = np.asarray(points, np.float64)[idx]
     group = eps_clusters(pts, gap)
     sizes = np.bincount(group)
-    keep = np.flatnonzero(sizes >= min_points)
+    by_group = np.argsort(group, kind="stable")
+    first = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    spans = np.maximum.reduceat(pts[by_group], first, axis=0) - np.minimum.reduceat(pts[by_group], first, axis=0)
+    blob = (sizes >= min_points) & (spans.max(axis=1) < min_extent)
+    keep = np.flatnonzero((sizes >= min_points) & ~blob)
     if len(keep) == 0:
         return Segmentation.empty(n)
     kept = np.full(len(sizes), -1, np.int64)
@@ -100,12 +109,13 @@ def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_]
     order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
     new_id = np.empty(len(keep), np.int64)
     new_id[order] = np.arange(len(keep))
-    specks = np.flatnonzero(label < 0)
+    specks = np.flatnonzero((label < 0) & ~blob[group])
     if len(specks):
         label[specks] = label[solid[cKDTree(pts[solid]).query(pts[specks])[1]]]
-    counts = np.bincount(label, minlength=len(keep))
+    on = label >= 0
+    counts = np.bincount(label[on], minlength=len(keep))
     labels = np.full(n, -1, np.int64)
-    labels[idx] = new_id[label]
+    labels[idx[on]] = new_id[label[on]]
     objects = tuple(SceneObject(id=i, centre=centres[j], extent=hi[j] - lo[j], num_points=int(counts[j]))
                     for i, j in enumerate(order))
     return Segmentation(labels, objects)
