@@ -13,7 +13,8 @@ with no workspace entry (krylon.pcd: a lone can, no table) counts every point as
 
 Per capture and row: of the top 10 grasps, how many are on objects and how many objects they cover, the top 5's
 share, the warnings' codes, and the request's time (warm: the second of two identical requests).  A picture of
-the top grasps over the capture per row goes to bench/results/real/ (graspd.viz.plot).
+the top grasps over the region the service worked on per row goes to bench/results/real/ (graspd.viz.plot; the
+bench's objects blue, the rest as support).
 
   PYTHONPATH=service:client .venv/bin/python bench/real.py [--folder DIR] [--out bench/results/real.md]
 """
@@ -38,6 +39,8 @@ from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.core.points import eps_clusters, ransac_plane, voxel_groups  # noqa: E402
+from graspd.gpd.environment import Label  # noqa: E402
+from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW, region_mask  # noqa: E402
 from graspd.io.cloud_files import read_input  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -150,10 +153,14 @@ def main(argv: list[str] | None = None) -> int:
                              "objects_in_scene": int(labels.max() + 1), "warnings": codes, "seconds": seconds,
                              "points": int(np.isfinite(cloud.points).all(axis=1).sum())})
                 picture = pictures / f"{path.stem}-{row.replace(' ', '-')}.png"
-                shown = ViewpointCloud(points=cloud.points[np.isfinite(cloud.points).all(axis=1)][::3],
-                                       viewpoints=cloud.viewpoints)
+                # the region the service worked on (the workspace, else its range window), the bench's objects
+                # drawn as objects and the rest as support
+                shown_rows = np.flatnonzero(region_mask(cloud, None if workspace is None else tuple(workspace),
+                                                        DEFAULT_RANGE_WINDOW))[::2]
+                shown = ViewpointCloud(points=cloud.points[shown_rows], viewpoints=cloud.viewpoints)
+                drawn = np.where(labels[shown_rows] >= 0, int(Label.OBJECT), int(Label.SUPPORT))
                 plot_grasps(shown, grasps, hand, picture, top=TOP, title=f"{path.name}: {row}",
-                            warnings=body["warnings"])
+                            labels=drawn, warnings=body["warnings"])
                 print(rows[-1], flush=True)
     load = os.getloadavg()
     lines = ["# Real captures: where the top grasps go", "",
