@@ -7,7 +7,11 @@ pushed forward along its approach until a finger or the palm touches the cloud, 
 fingertips reach at least init_bite past p (so the closing region holds p).
 
 Collision checks are binned along the closing direction at a resolution of a quarter finger width:
-a point within one bin of a finger counts as touching it, a conservative margin for sensor noise.
+a point within one bin of a finger counts as touching it, a conservative margin for sensor noise.  With a
+clearance, the hand's outline is grown by it wherever it may not touch: the fingertips and the palm stop that
+short of the first point ahead, the fingers' outer faces and the hand's top and bottom faces keep that far from
+points beside them (the inner faces are where the object goes): a true surface lies a millimetre or two beyond
+the points seen of it, and a hand placed flush against them grazes it on the way in.
 Per (sample, orientation) the middle of the collision-free finger placements is taken, as GPD does, then the
 hand moves to the collision-free placement nearest the middle of what lies between its fingers: a gripper
 closes symmetrically, and an object off the middle would be pushed sideways.
@@ -43,7 +47,8 @@ class SamplingParams:
     stops each hand support_clearance (m) short of the plane in closed form, so the support's points need not
     be among the obstacles (most of a tabletop cloud is table).  centre_on_object: each hand moves to the
     collision-free finger placement nearest the middle of the points between its fingers (False: the middle
-    of the collision-free placements, GPD's choice)."""
+    of the collision-free placements, GPD's choice).  clearance (m): how far the hand's outline keeps from the
+    obstacle points, except across its inner finger faces (0: flush against them, as GPD)."""
 
     num_samples: int = 1000
     num_orientations: int = 8
@@ -57,6 +62,7 @@ class SamplingParams:
     support: Plane | None = None
     support_clearance: float = 0.0
     centre_on_object: bool = True
+    clearance: float = 0.0
 
 
 def darboux_frames(scene: Scene, sample_idx: NDArray[np.int64], radius: float
@@ -248,22 +254,25 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     s_grid = finger_offsets(hand, p.num_finger_placements)
     phis = orientations(p.num_orientations)
     od, fw, hd, hh = hand.hand_outer_diameter, hand.finger_width, hand.hand_depth, hand.hand_height
-    y_max = float(np.abs(s_grid).max()) + od / 2.0
+    clear = p.clearance
+    y_max = float(np.abs(s_grid).max()) + od / 2.0 + clear
     samples = scene.points[sample_idx]
 
-    # Neighbours that can touch any hand of this sample, in the sample frame, within the hand's height; pairs
-    # ordered by sample, then by point.
+    # Neighbours that can touch any hand of this sample (its outline grown by the clearance), in the sample frame,
+    # within the hand's height; pairs ordered by sample, then by point.
     behind = 0.0 if p.clear_behind is None else p.clear_behind
-    reach = float(np.sqrt(y_max**2 + (hd + behind) ** 2 + (hh / 2) ** 2))
+    half_h = hh / 2.0 + clear
+    reach = float(np.sqrt(y_max**2 + (hd + behind) ** 2 + half_h**2))
     fr = frames.astype(np.float32)
     axes = [np.ascontiguousarray(fr[:, :, k]) for k in range(3)]
-    sid, idx = slab_pairs(obstacles, samples, axes[2], reach, hh / 2.0)
+    sid, idx = slab_pairs(obstacles, samples, axes[2], reach, half_h)
     d = obstacles.points[idx] - samples[sid]
     if obstacles.index is not None:
         idx = obstacles.index[idx]
     z = np.einsum("tj,tj->t", d, axes[2][sid])
-    slab = np.abs(z) <= hh / 2.0
+    slab = np.abs(z) <= half_h
     sid, idx, d, z = sid[slab], idx[slab], d[slab], z[slab]
+    within_height = np.abs(z) <= hh / 2.0  # the hand's own height: what its closing region holds
     local_x = np.einsum("tj,tj->t", d, axes[0][sid])
     local_y = np.einsum("tj,tj->t", d, axes[1][sid])
 
@@ -275,9 +284,9 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     x_phi = cos * local_x[None, :] + sin * local_y[None, :]  # (Phi, T) depth along the rotated approach
     y_phi = -sin * local_x[None, :] + cos * local_y[None, :]
     bins = np.floor((y_phi + y_max) / bin_w).astype(np.int64)
-    # a point at least hand_depth ahead stops no finger short of hand_depth, the most a fingertip reaches (below):
-    # leaving it out changes no fingertip depth
-    inside = np.flatnonzero((bins >= 0) & (bins < n_bins) & (x_phi < hd))
+    # a point at least hand_depth + clearance ahead stops no finger short of hand_depth, the most a fingertip
+    # reaches (below): leaving it out changes no fingertip depth
+    inside = np.flatnonzero((bins >= 0) & (bins < n_bins) & (x_phi < hd + clear))
     hand_key = sid[None, :] * n_phi + np.arange(n_phi)[:, None]  # (Phi, T): flat (sample, orientation) ids
     keys = hand_key.reshape(-1)[inside] * n_bins + bins.reshape(-1)[inside]
     flat_min = np.full(n_s * n_phi * n_bins, np.inf, np.float32)
@@ -290,10 +299,10 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
 
     tip = np.empty((n_s, n_phi, len(s_grid)), np.float32)
     for j, s in enumerate(s_grid):
-        left = depth_min[:, :, bin_range(s - od / 2, s - od / 2 + fw)].min(axis=2)
-        right = depth_min[:, :, bin_range(s + od / 2 - fw, s + od / 2)].min(axis=2)
-        palm = depth_min[:, :, bin_range(s - od / 2, s + od / 2)].min(axis=2) + hd
-        tip[:, :, j] = np.minimum(np.minimum(left, right), palm)
+        left = depth_min[:, :, bin_range(s - od / 2 - clear, s - od / 2 + fw)].min(axis=2)
+        right = depth_min[:, :, bin_range(s + od / 2 - fw, s + od / 2 + clear)].min(axis=2)
+        palm = depth_min[:, :, bin_range(s - od / 2 - clear, s + od / 2 + clear)].min(axis=2) + hd
+        tip[:, :, j] = np.minimum(np.minimum(left, right), palm) - np.float32(clear)
     # the palm never passes the sample (it is always an obstacle when the obstacles hold it)
     np.minimum(tip, hd, out=tip)
     if p.support is not None:
@@ -327,7 +336,7 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
         key = hand_key.reshape(-1)[flat]
         hx = x_phi.reshape(-1)[flat] - shift.reshape(-1)[key]  # float64, as (x - (t* - hd)) per hand
         hy = y_phi.reshape(-1)[flat] - across.reshape(-1)[key]
-        order = np.flatnonzero((hx >= 0.0) & (hx <= hd) & (np.abs(hy) <= half_w))
+        order = np.flatnonzero((hx >= 0.0) & (hx <= hd) & (np.abs(hy) <= half_w) & within_height[flat % len(sid)])
         order = order[np.argsort(cand[order], kind="stable")]  # by hand, each hand's points in slab order
         elem, cand, hx, hy = flat[order] % len(sid), cand[order], hx[order], hy[order]
         ymin = np.full(m, np.inf)

@@ -26,11 +26,22 @@ from graspd.gpd.candidates import SamplingParams, search_hands
 from graspd.gpd.environment import Environment, EnvironmentParams, Label, hand_hits_environment, model_environment
 from graspd.gpd.images import encode_batches
 from graspd.gpd.objects import SceneObject, Segmentation, segment_objects
-from graspd.gpd.occlusion import MAX_UNKNOWN_SHARE, UNKNOWN_SPACE_MODES, UnknownSpace, unknown_share
+from graspd.gpd.occlusion import (
+    MAX_UNKNOWN_SHARE,
+    UNKNOWN_SPACE_MODES,
+    UnknownSpace,
+    hand_shadow_length,
+    unknown_share,
+)
 from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW, PreprocessParams, Workspace, preprocess, support_plane_mask
 from graspd.gpd.scene import ClosingRegionPoints, Scene
 from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT, SelectionParams, Vec3, feasible_mask, select
 from graspd.gpd.target import MIN_TARGET_POINTS, Target, TargetError, target_mask
+
+#: Default clearance (m) of the hand's outline from the cloud's points (DetectionParams.clearance): the true
+#: surface lies a millimetre or two beyond the points seen of it (noise, voxels, grazing views), and hands placed
+#: flush against the points grazed it on the way in, by 1-3 mm (bench/approach.py).
+HAND_CLEARANCE = 0.003
 
 
 class Scorer(Protocol):
@@ -64,7 +75,10 @@ class DetectionParams:
     seen surface from every camera) is treated as colliding; "allow" checks the seen points only, as GPD does.
     target (graspd.gpd.target): sample on it only and keep the hands whose closing region holds no object point
     outside it; a target of sample points replaces sample_points.  max_per_object (0 = off): the ranked list gives
-    no object more than this many grasps before every other object with a grasp has one (selection.cover_order)."""
+    no object more than this many grasps before every other object with a grasp has one (selection.cover_order).
+    clearance (m): how far the open hand's outline, at the pre-grasp pose, along its path and at the grasp, keeps
+    from the cloud's points except across its inner finger faces (candidates.SamplingParams.clearance; 0 places
+    it flush against them, as GPD does)."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -101,6 +115,7 @@ class DetectionParams:
     sample_points: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
     target: Target | None = field(default=None, compare=False, repr=False)
     max_per_object: int = DEFAULT_MAX_PER_OBJECT
+    clearance: float = HAND_CLEARANCE
 
     def __post_init__(self) -> None:
         if self.max_per_object < 0:
@@ -124,6 +139,8 @@ class DetectionParams:
             raise ValueError(f"unknown_space must be one of {UNKNOWN_SPACE_MODES}, got {self.unknown_space!r}")
         if not 0.0 <= self.max_unknown <= 1.0:
             raise ValueError(f"max_unknown must be in [0, 1], got {self.max_unknown}")
+        if not 0.0 <= self.clearance <= 0.02:
+            raise ValueError(f"clearance must be in [0, 0.02] m, got {self.clearance}")
         if not 0.0 <= self.width_margin <= 0.1:
             raise ValueError(f"width_margin must be in [0, 0.1] m, got {self.width_margin}")
 
@@ -268,7 +285,8 @@ class GraspDetector:
         warnings = list(env.warnings)
         if p.unknown_space == "allow" and len(grasps):
             top = grasps[:10]
-            share = unknown_share(scene.unobserved, top.positions, top.rotations, h, p.approach_distance)
+            share = unknown_share(scene.unobserved_within(hand_shadow_length(h, p.approach_distance)), top.positions,
+                                  top.rotations, h, p.approach_distance)
             if (share > p.max_unknown).any():
                 warnings.append(DetectionWarning(
                     "unknown_space", f"{int((share > p.max_unknown).sum())} of the top {len(top)} grasps put "
@@ -330,9 +348,9 @@ class GraspDetector:
         sampling = SamplingParams(num_samples=p.num_samples, num_orientations=p.num_orientations,
                                   num_finger_placements=p.num_finger_placements, frame_radius=p.frame_radius,
                                   seed=p.seed, sample_pool=pool, sample_indices=_nearest(scene, p),
-                                  clear_behind=h.palm_depth + p.approach_distance if modelled else None,
+                                  clear_behind=h.palm_depth + p.approach_distance,
                                   obstacles=None if plane is None else ~env.closed_form_mask(prepared.points),
-                                  support=plane, support_clearance=env.clearance)
+                                  support=plane, support_clearance=env.clearance, clearance=p.clearance)
         return Prepared(cloud=prepared, environment=env, scene=scene, sampling=sampling,
                         selection=p.selection(h, env), segmentation=segmentation, target=target)
 
@@ -352,7 +370,8 @@ class GraspDetector:
                                                         p.approach_distance)
         if p.unknown_space == "avoid" and feasible.any():
             share = np.full(len(cands), np.nan)
-            share[feasible] = unknown_share(prep.scene.unobserved, cands.positions[feasible],
+            unseen = prep.scene.unobserved_within(hand_shadow_length(h, p.approach_distance))
+            share[feasible] = unknown_share(unseen, cands.positions[feasible],
                                             cands.rotations[feasible], h, p.approach_distance)
             feasible &= ~(share > p.max_unknown)
             cands = cands.with_unknown(share)

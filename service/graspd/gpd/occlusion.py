@@ -1,11 +1,12 @@
 """Space no camera saw is not free: the share of each hand (and its approach path) that lies in it.
 
 The collision check of the hand search is right about what the cameras saw, but a neighbour seen only in part
-goes on behind its visible surface.  Scene.unobserved is the IJRR paper's unobserved volume (voxels behind the
-surface from every camera that saw the cloud, within the hand's reach); here each open hand is sampled on a
-grid over its fingers, its palm and the path back along the approach, shrunk by a margin (sensor noise; the
-fingers touch the object they grasp), and each sample is looked up in that volume.  All in the cloud frame,
-metres; vectorised over hands.
+goes on behind its visible surface.  The unobserved volume (Scene.unobserved_within: voxels behind the surface
+from every camera that saw the cloud, holding no point) is marked as deep behind the surface as the open hand
+and its path reach (hand_shadow_length: a real object can hide that far behind what was seen of it); each open
+hand is sampled on a grid at most SAMPLE_SPACING apart over the real outline of its fingers, its palm and their
+path back from the pre-grasp pose, shrunk by a margin (sensor noise; the fingers touch the object they grasp),
+and each sample is looked up in that volume.  All in the cloud frame, metres; vectorised over hands.
 """
 
 from __future__ import annotations
@@ -27,21 +28,36 @@ UNKNOWN_SPACE_MODES: tuple[str, ...] = ("avoid", "allow")
 MAX_UNKNOWN_SHARE = 0.0
 #: Default distance (m) the hand's samples keep inside its faces: unseen space closer than this is tolerated.
 UNKNOWN_MARGIN = 0.004
+#: Most distance (m) between neighbouring samples of a hand along each of its axes: under a shadow voxel and a
+#: half, so a hidden surface cannot pass between them (a finger is sampled across its width, the palm everywhere).
+SAMPLE_SPACING = 0.006
 
 
-def hand_samples(hand: HandGeometry, approach_distance: float, margin: float = UNKNOWN_MARGIN) -> F64:
+def hand_shadow_length(hand: HandGeometry, approach_distance: float) -> float:
+    """How deep (m) behind a seen surface the unseen-space check looks: as far as the open hand reaches along its
+    approach, fingers, palm and path from the pre-grasp pose (hand_depth + palm_depth + approach_distance), and
+    at least the opening (the images' shadow).  Shorter, the far side of an object larger than the opening reads
+    as free, and a pre-grasp pose inside its hidden part passes."""
+    return max(hand.hand_depth + hand.palm_depth + approach_distance, hand.max_aperture)
+
+
+def hand_samples(hand: HandGeometry, approach_distance: float, margin: float = UNKNOWN_MARGIN,
+                 spacing: float = SAMPLE_SPACING) -> F64:
     """Points (P,3) in the hand frame filling the open fingers, the palm and the path back along -approach by
-    approach_distance (m), each box shrunk by margin (m) on every side (a box thinner than 2 x margin is
-    sampled on its mid-plane).  The closing region between the fingers is not sampled: the object is there."""
+    approach_distance (m) (the pre-grasp pose's outline and everything it sweeps), each box shrunk by margin (m)
+    on every side (a box thinner than 2 x margin is sampled on its mid-plane), on a grid at most spacing (m)
+    apart along each axis, its faces included.  The closing region between the fingers is not sampled: the
+    object is there."""
     boxes = hand.swept_boxes(approach_distance)  # (3, 2, 3): left finger, right finger, palm
     out = []
-    # about 2 cm apart along the approach, one column per finger (1 cm wide), 2 layers across the hand's height
-    for (lo, hi), steps in zip(boxes, ((6, 1, 2), (6, 1, 2), (3, 5, 2)), strict=True):
+    for lo, hi in boxes:
         lo_m, hi_m = lo + margin, hi - margin
         mid = (lo + hi) / 2.0
-        lo_m = np.where(lo_m > hi_m, mid, lo_m)
-        hi_m = np.where(lo_m > hi_m, mid, hi_m)
-        axes = [np.linspace(a, b, k) for a, b, k in zip(lo_m, hi_m, steps, strict=True)]
+        thin = lo_m > hi_m
+        lo_m, hi_m = np.where(thin, mid, lo_m), np.where(thin, mid, hi_m)
+        steps = np.maximum(np.ceil((hi_m - lo_m) / spacing).astype(np.int64) + 1, 1)
+        steps = np.where(hi_m > lo_m, np.maximum(steps, 2), 1)
+        axes = [np.linspace(a, b, int(k)) for a, b, k in zip(lo_m, hi_m, steps, strict=True)]
         out.append(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3))
     return np.concatenate(out)
 

@@ -69,12 +69,16 @@ class Scene:
 
     @property
     def unobserved(self) -> VoxelGrid:
-        """Space behind the surface from every camera (computed once)."""
-        if "unobserved" not in self._cache:
-            self._cache["unobserved"] = unobserved_grid(
-                self.cloud.points, self.cloud.viewpoints, self.shadow_voxel, self.shadow_length
-            )
-        return self._cache["unobserved"]
+        """Space within shadow_length behind the surface from every camera (computed once): the images' volume."""
+        return self.unobserved_within(self.shadow_length)
+
+    def unobserved_within(self, length: float) -> VoxelGrid:
+        """Space within length (m) behind the surface from every camera (computed once per length): the hand
+        checks look deeper than the images (graspd.gpd.occlusion.hand_shadow_length)."""
+        key = "unobserved" if length == self.shadow_length else f"unobserved@{length:.6f}"
+        if key not in self._cache:
+            self._cache[key] = unobserved_grid(self.cloud.points, self.cloud.viewpoints, self.shadow_voxel, length)
+        return self._cache[key]
 
     @staticmethod
     def build(cloud: ViewpointCloud, hand: HandGeometry | None = None, shadow_voxel: float = 0.004,
