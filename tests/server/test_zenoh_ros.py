@@ -216,10 +216,14 @@ def test_pointcloud2_stream_to_ros_outputs(session: Any, krylon: ViewpointCloud)
 @pytest.mark.parametrize("kind", ["indexed", "samples"])
 def test_indexed_and_samples_restrict_where_hands_are_sampled(session: Any, krylon: ViewpointCloud,
                                                               kind: str) -> None:
-    """Every grasp's sample lies at (within a voxel of) one of the points the message names."""
+    """Every grasp's sample lies at (within a voxel of) one of the points the message names: a CloudIndexed's
+    indices are a target (a patch of the can), a CloudSamples' samples sample points."""
     pts, vps = sources_of(krylon)
     rng = np.random.default_rng(3)
-    idx = rng.choice(len(pts), 12, replace=False)
+    if kind == "indexed":
+        idx = np.flatnonzero(np.linalg.norm(pts - np.median(pts, axis=0), axis=1) < 0.05)
+    else:
+        idx = rng.choice(len(pts), 12, replace=False)
     chosen = pts[idx].astype(np.float64)
     payload = (encode_cloud_indexed(pts, vps, idx, header=HEADER) if kind == "indexed"
                else encode_cloud_samples(pts, vps, chosen, header=HEADER))

@@ -26,15 +26,16 @@ SHARED_ROS = Path(__file__).resolve().parents[4] / "shared" / "ros" / "gpd_ros"
 
 @lru_cache(maxsize=1)
 def peer_types() -> Typestore:
-    """A ROS 2 node's view: Jazzy types plus gpd_ros from the upstream .msg files (shared/ros) and the moveit
-    messages the node ships."""
+    """A ROS 2 node's view: Jazzy types plus gpd_ros from the upstream .msg files (shared/ros) and the moveit and
+    vision_msgs messages the node ships."""
     store = get_typestore(Stores.ROS2_JAZZY)
     node = ros_types("jazzy")
     types: dict[str, Any] = {}
     for name in ("CloudSources", "CloudIndexed", "CloudSamples", "GraspConfig", "GraspConfigList"):
         types.update(get_types_from_msg((SHARED_ROS / "msg" / f"{name}.msg").read_text(), f"gpd_ros/msg/{name}"))
     store.register(types)
-    extra = {k: v for k, v in node.fielddefs.items() if k.split("/")[0] in ("moveit_msgs", "object_recognition_msgs")}
+    extra = {k: v for k, v in node.fielddefs.items()
+             if k.split("/")[0] in ("moveit_msgs", "object_recognition_msgs", "vision_msgs")}
     store.register(extra)
     return store
 

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 from graspd.io.ros import Header, encode_cloud_indexed, encode_pointcloud2
 from graspd.server.ros2.dds import latched_qos
 
-from .conftest import NUM_SAMPLES, Collector, Decode, RosPeer, peer_types
+from .conftest import Collector, Decode, RosPeer, peer_types
 
 HEADER = Header("camera_depth_optical_frame", (1712345678, 123456789))
 GCL, STRING = "gpd_ros/msg/GraspConfigList", "std_msgs/msg/String"
@@ -114,13 +114,16 @@ def test_detect_grasps_answers_an_rmw_cyclonedds_request(peer: RosPeer, outputs:
                                                          mug_points: np.ndarray, decode: Decode) -> None:
     client = peer.client("/graspd/detect_grasps", "gpd_ros/srv/DetectGrasps")
     client.wait_for_service()
-    indices = np.random.default_rng(1).choice(len(mug_points), NUM_SAMPLES, replace=False)
+    centre = np.median(mug_points, axis=0)  # the indices name the points within 6 cm of the scene's middle
+    indices = np.flatnonzero(np.linalg.norm(mug_points - centre, axis=1) < 0.06)
     request = encode_cloud_indexed(mug_points, [[0.0, 0.0, 0.0]], indices, header=HEADER)
     guid, seq, reply = client.call(request)
     assert guid == client.guid and seq >= 1
     gcl = decode(reply, GCL)  # DetectGrasps_Response is one GraspConfigList
     assert gcl.header.frame_id == HEADER.frame_id and gcl.header.stamp.nanosec == HEADER.stamp[1]
     assert 0 < len(gcl.grasps) <= 6
+    samples = np.array([[g.sample.x, g.sample.y, g.sample.z] for g in gcl.grasps])
+    assert cKDTree(mug_points[indices]).query(samples)[0].max() < 0.005  # sampled on the indexed points
     # a request lying about its indices: an empty answer to the same request, and the error on /graspd/errors
     outputs["errors"].clear()
     bad = encode_cloud_indexed(mug_points[:10], [[0.0, 0.0, 0.0]], [3, 99], header=HEADER)
@@ -221,4 +224,5 @@ def test_the_graph_sees_the_node_its_type_names_and_qos(peer: RosPeer, decode: D
     assert (node.node_name, node.node_namespace) == ("graspd", "/")
     ours = {bytes(s.key.bytes) for s in subs.values() if s.participant_key.bytes == bytes(info.gid.data[:16])}
     assert {bytes(g.data[:16]) for g in node.reader_gid_seq} == ours
-    assert len(node.writer_gid_seq) == 8  # 6 outputs + 2 service replies
+    assert len(node.writer_gid_seq) == 9  # 7 outputs + 2 service replies
+    assert pubs["rt/graspd/objects"].type_name == "vision_msgs::msg::dds_::Detection3DArray_"

@@ -8,9 +8,11 @@ from __future__ import annotations
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Any
 
 import pytest
 from rosbags.typesys import get_types_from_msg
+from rosbags.typesys.base import Nodetype
 
 from graspd.server.ros2.interfaces import dds_type_name, idl_type, ros_types
 
@@ -56,3 +58,36 @@ def test_the_launch_file_starts_graspd_serve_ros2() -> None:
     text = (PACKAGE / "launch" / "graspd.launch.py").read_text()
     assert '"graspd", "serve", "--ros2"' in text and "def generate_launch_description" in text
     compile(text, "graspd.launch.py", "exec")
+
+
+#: vision_msgs 4.1 (ROS 2 Humble to Kilted; Jazzy's): the fields of the messages of graspd/objects, in order.
+VISION_MSGS = {
+    "Detection3DArray": [("header", "std_msgs/msg/Header"), ("detections", "vision_msgs/msg/Detection3D[]")],
+    "Detection3D": [("header", "std_msgs/msg/Header"), ("results", "vision_msgs/msg/ObjectHypothesisWithPose[]"),
+                    ("bbox", "vision_msgs/msg/BoundingBox3D"), ("id", "string")],
+    "ObjectHypothesisWithPose": [("hypothesis", "vision_msgs/msg/ObjectHypothesis"),
+                                 ("pose", "geometry_msgs/msg/PoseWithCovariance")],
+    "ObjectHypothesis": [("class_id", "string"), ("score", "float64")],
+    "BoundingBox3D": [("center", "geometry_msgs/msg/Pose"), ("size", "geometry_msgs/msg/Vector3")],
+}
+
+
+def _type_of(desc: Any) -> str:
+    kind, detail = desc
+    if kind == Nodetype.BASE:
+        return str(detail[0])
+    if kind == Nodetype.NAME:
+        return str(detail)
+    return _type_of(detail[0]) + "[]"
+
+
+@pytest.mark.parametrize("distro", ["humble", "jazzy"])
+def test_the_objects_topic_speaks_vision_msgs_as_jazzy_defines_it(distro: str) -> None:
+    store = ros_types(distro)
+    for name, expected in VISION_MSGS.items():
+        got = [(f, _type_of(d)) for f, d in store.fielddefs[f"vision_msgs/msg/{name}"][1]]
+        assert got == expected, name
+    assert idl_type("vision_msgs/msg/Detection3DArray", distro).__idl_typename__ == \
+        "vision_msgs::msg::dds_::Detection3DArray_"
+    root = ET.parse(PACKAGE / "package.xml").getroot()
+    assert "vision_msgs" in {e.text for e in root if e.tag == "exec_depend"}  # the type comes with ROS

@@ -1,9 +1,10 @@
 """plan_grasps bounded like HTTP: a GraspPlanning target is read from its sequence lengths first (60k primitives or
 1.7M vertices are refused by count, in milliseconds, without building anything), a mesh within the limits is
-read as its vertex bounds on a view of the message, the box test is vectorised and stops at the deadline, a
-stale cloud is answered before the target is read, the message counts against the memory budget, and service
-calls hold at most all but one detect worker.  The hostile payloads are built by
-graspd.io.ros.encode.encode_grasp_planning (hostile_primitives, hostile_meshes below), as bench/hostile.py can."""
+read as its vertex bounds on a view of the message, the target is one box (one shape's, or the union of its
+shapes in the object's frame) built vectorised, a stale cloud is answered before the target is read, the message
+counts against the memory budget, and service calls hold at most all but one detect worker.  The hostile payloads
+are built by graspd.io.ros.encode.encode_grasp_planning (hostile_primitives, hostile_meshes below), as
+bench/hostile.py can."""
 
 from __future__ import annotations
 
@@ -101,28 +102,44 @@ def test_a_truncated_target_names_the_field() -> None:
 
 
 # ------------------------------------------------------------------------------------------------ the geometry
-def test_the_vectorised_box_test_finds_the_points_one_box_at_a_time_finds() -> None:
-    rng = np.random.default_rng(3)
-    points = rng.uniform(-1, 1, (20_000, 3))
-    poses = np.concatenate([rng.uniform(-0.8, 0.8, (40, 3)), rng.normal(size=(40, 4))], axis=1)
-    boxes = moveit.Boxes(moveit.pose_matrices(poses), rng.uniform(0.01, 0.2, (40, 3)))
-    to_points = moveit.pose_matrices(np.array([0.1, -0.2, 0.05, 0.2, 0.1, -0.3, 0.9]))[0]
-    expected = np.zeros(len(points), bool)
-    for pose, half in zip(boxes.poses, boxes.halves, strict=True):  # the test as it was: one box at a time
-        m = to_points @ pose
-        expected |= (np.abs((points - m[:3, 3]) @ m[:3, :3]) <= half + moveit.TARGET_MARGIN_M).all(axis=1)
-    got = moveit.points_in_boxes(points, boxes, to_points)
-    assert 0 < len(got) < len(points) and np.array_equal(got, np.flatnonzero(expected))
-    some = moveit.points_in_boxes(points, boxes, to_points, enough=50)
-    assert len(some) >= 50 and expected[some].all()
+def _target(pose: Any = (0, 0, 0, 0, 0, 0, 1), centres: Any = (), sizes: Any = (), meshes: Any = ()) -> Any:
+    return decode_plan_target(encode_grasp_planning(HEADER, pose, box_centres=centres, box_sizes=sizes,
+                                                    meshes=meshes))
 
 
-def test_the_geometry_test_stops_at_the_deadline() -> None:
-    points = np.random.default_rng(4).random((10_000, 3))
-    boxes = moveit.Boxes(np.eye(4)[None], np.full((1, 3), 0.5))
+def test_one_shape_is_its_own_box_moved_into_the_detection_frame() -> None:
+    yaw = np.pi / 6  # the object turned 30 degrees about z, at (0.1, 0.2, 0.3)
+    pose = (0.1, 0.2, 0.3, 0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))
+    to_detection = moveit.pose_matrices(np.array([0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0]))[0]  # a half turn about x
+    box = moveit.target_box(_target(pose, [[0.02, 0.0, 0.0]], [[0.04, 0.06, 0.08]]), to_detection, margin=0.0)
+    rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    flip = np.diag([1.0, -1.0, -1.0])
+    assert np.allclose(box.rotation, flip @ rz) and np.allclose(box.half_extents, [0.02, 0.03, 0.04])
+    assert np.allclose(box.centre, flip @ (np.array([0.1, 0.2, 0.3]) + rz @ [0.02, 0.0, 0.0]) + [0, 0, 1])
+    inside = box.centre + box.rotation @ [0.019, -0.029, 0.039]
+    outside = box.centre + box.rotation @ [0.021, 0.0, 0.0]
+    assert box.contains(np.array([inside, outside])).tolist() == [True, False]
+    sized = moveit.target_box(_target(pose, [[0.0, 0.0, 0.0]], [[0.04, 0.06, 0.08]]), np.eye(4))
+    assert np.allclose(sized.half_extents, [0.02 + moveit.TARGET_MARGIN_M, 0.03 + moveit.TARGET_MARGIN_M,
+                                            0.04 + moveit.TARGET_MARGIN_M])
+
+
+def test_several_shapes_are_their_union_in_the_object_frame() -> None:
+    yaw = np.pi / 2
+    pose = (1.0, 0.0, 0.0, 0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))
+    mesh = (np.array([[0.0, 0.0, 0.1], [0.01, 0.02, 0.15]]), np.zeros((1, 3), int))  # a handle above the boxes
+    box = moveit.target_box(_target(pose, [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]], [[0.02, 0.02, 0.02]] * 2, (mesh,)),
+                            np.eye(4), margin=0.0)
+    # in the object frame: x from -0.01 to 0.11, y from -0.01 to 0.02, z from -0.01 to 0.15
+    assert np.allclose(box.half_extents, [0.06, 0.015, 0.08])
+    assert np.allclose(box.rotation, [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
+    assert np.allclose(box.centre, [1.0 - 0.005, 0.05, 0.07])
+
+
+def test_a_target_without_geometry_is_refused() -> None:
     with pytest.raises(moveit.PlanningError) as err:
-        moveit.points_in_boxes(points, boxes, np.eye(4), deadline=time.perf_counter() - 1)
-    assert err.value.code == moveit.TIMED_OUT
+        moveit.target_box(_target(), np.eye(4))
+    assert err.value.code == moveit.INVALID_OBJECT_NAME
 
 
 def test_a_message_over_the_memory_budget_is_refused_naming_it() -> None:

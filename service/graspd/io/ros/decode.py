@@ -17,14 +17,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from graspd.core.cloud import CloudError, ViewpointCloud
-from graspd.core.limits import MAX_NUM_SAMPLES, MAX_POINTS
+from graspd.core.limits import MAX_NUM_SAMPLES, MAX_POINTS, MAX_TARGET_INDICES
 from graspd.io.inputs import finite_rows
 from graspd.io.ros.types import CLOUD_INDEXED, CLOUD_SAMPLES, CLOUD_SOURCES, POINTCLOUD2, Header
 
 #: Most camera positions (view_points) a CloudSources may carry.
 MAX_VIEWPOINTS = 1024
-#: Most sample points of a CloudSamples or indices of a CloudIndexed.
+#: Most sample points of a CloudSamples; most indices of a CloudIndexed (the rows of a target, as over HTTP).
 MAX_SAMPLES = MAX_NUM_SAMPLES
+MAX_INDICES = MAX_TARGET_INDICES
 #: Most PointField entries, and longest frame_id / field name (bytes).
 MAX_FIELDS = 64
 MAX_STRING = 4096
@@ -45,28 +46,18 @@ class RosDecodeError(ValueError):
 @dataclass(frozen=True)
 class CloudMessage:
     """A decoded input: the cloud (points, per-point camera index, viewpoints, normals when the message has
-    normal_x/y/z) in header.frame_id (m), its header, and where to sample (both None: the detector chooses)."""
+    normal_x/y/z) in header.frame_id (m), its header, and what to grasp (both None: any object; the server makes
+    them a request's target, graspd.server.services.ros_stream.message_target)."""
 
     cloud: ViewpointCloud
     header: Header
-    sample_indices: NDArray[np.int64] | None = None  # (K,) rows of cloud.points (CloudIndexed)
+    sample_indices: NDArray[np.int64] | None = None  # (K,) rows of cloud.points: the target's (CloudIndexed)
     samples: NDArray[np.float64] | None = None  # (K, 3) positions in header.frame_id, m (CloudSamples)
     msg_type: str = POINTCLOUD2
     #: Rows the message declared (width x height, an organised cloud's NaN pixels included) and how many of them
     #: were dropped for a NaN or infinite coordinate or normal (graspd.io.inputs: the warning non_finite_dropped).
     received: int = 0
     dropped: int = 0
-
-    @property
-    def sample_points(self) -> NDArray[np.float64] | None:
-        """Where to sample hands (K, 3; header.frame_id, m): the samples of a CloudSamples, or the cloud points at
-        the indices of a CloudIndexed; None: the detector chooses (graspd.gpd.detector.DetectionParams.sample_points
-        samples at the preprocessed point nearest each)."""
-        if self.samples is not None:
-            return self.samples
-        if self.sample_indices is not None:
-            return np.asarray(self.cloud.points[self.sample_indices], np.float64).reshape(-1, 3)
-        return None
 
 
 class CdrReader:
@@ -312,12 +303,12 @@ def decode_cloud_sources(payload: bytes | bytearray | memoryview) -> CloudMessag
 
 
 def decode_cloud_indexed(payload: bytes | bytearray | memoryview) -> CloudMessage:
-    """A CDR gpd_ros/CloudIndexed -> the cloud of cloud_sources plus sample_indices: rows of cloud.points to
-    sample at (indices into the message's cloud, renumbered after non-finite points are dropped; indices of
-    dropped points are left out)."""
+    """A CDR gpd_ros/CloudIndexed -> the cloud of cloud_sources plus sample_indices: the rows of cloud.points the
+    indices name (the target's points; indices into the message's cloud, renumbered after non-finite points are
+    dropped; indices of dropped points are left out).  Up to MAX_INDICES, counted before they are read."""
     r = CdrReader(payload)
     raw, src, vps = _read_cloud_sources(r, "cloud_sources.")
-    nidx = r.count("indices", MAX_SAMPLES, 8)
+    nidx = r.count("indices", MAX_INDICES, 8)
     indices = r.array("i8", nidx, "indices").astype(np.int64)
     n = len(raw.points)
     if nidx and (int(indices.min()) < 0 or int(indices.max()) >= n):

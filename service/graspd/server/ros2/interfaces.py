@@ -2,8 +2,9 @@
 
 One rosbags typestore per ROS distribution (the wire differs in two places: rmw_dds_common/Gid is 24 bytes in
 Humble, 16 from Iron on; moveit_msgs/MoveItErrorCodes gained `message` and `source` in Jazzy) with gpd_ros,
-moveit_msgs Grasp / CollisionObject / GraspPlanning and object_recognition_msgs/ObjectType registered from the
-field lists shipped beside this module (interfaces/) and graspd/ros/msg/.  Service parts are registered as
+moveit_msgs Grasp / CollisionObject / GraspPlanning, object_recognition_msgs/ObjectType and vision_msgs'
+Detection3DArray (vision_msgs 4.1, as Humble to Kilted ship it: not in rosbags' stores) registered from the field
+lists shipped beside this module (interfaces/) and graspd/ros/msg/.  Service parts are registered as
 "pkg/srv/Name_Request" and "pkg/srv/Name_Response".
 
 The DDS side: ROS names -> DDS names (type "pkg::msg::dds_::Name_", topic "rt/<name>", service topics
@@ -35,10 +36,16 @@ STRING = "std_msgs/msg/String"
 PARTICIPANT_ENTITIES_INFO = "rmw_dds_common/msg/ParticipantEntitiesInfo"
 DETECT_GRASPS = "gpd_ros/srv/DetectGrasps"
 GRASP_PLANNING = "moveit_msgs/srv/GraspPlanning"
+DETECTION3D_ARRAY = "vision_msgs/msg/Detection3DArray"
 #: Field lists shipped beside this module: (package, kind, name), dependencies first.
 EXTRA_MESSAGES: tuple[tuple[str, str], ...] = (("object_recognition_msgs", "ObjectType"),
                                                ("moveit_msgs", "CollisionObject"),
-                                               ("moveit_msgs", "MoveItErrorCodes"))
+                                               ("moveit_msgs", "MoveItErrorCodes"),
+                                               ("vision_msgs", "ObjectHypothesis"),
+                                               ("vision_msgs", "ObjectHypothesisWithPose"),
+                                               ("vision_msgs", "BoundingBox3D"),
+                                               ("vision_msgs", "Detection3D"),
+                                               ("vision_msgs", "Detection3DArray"))
 SERVICES: tuple[str, ...] = (DETECT_GRASPS, GRASP_PLANNING)
 #: The request header rmw_cyclonedds puts before the fields of every request and reply sample (serdata.hpp
 #: cdds_request_header_t): the client's request-writer instance handle and the request's sequence number.

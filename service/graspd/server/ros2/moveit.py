@@ -6,32 +6,35 @@ mimic grippers driven by one joint, most parallel-jaw grippers in MoveIt): pre_g
 aperture (hand_outer_diameter - 2 finger_width), grasp_posture closes to the grasp's width less a squeeze, both
 as one trajectory point reached after POSTURE_TIME_S.  Metres; joint names from the settings.
 
-GraspPlanning: a CollisionObject names the target (primitives and meshes posed in target.header.frame_id);
-graspd samples hands at the points of the newest cloud that lie within the target's bounding boxes (the rest of
-the cloud stays: the table and neighbours still stop hands that would collide), and answers in the target's
-frame (target.header.frame_id): the detection frame itself, or the camera frame of a camera-frame cloud moved by
-the configured camera pose.  support_surfaces, candidate_grasps and movable_obstacles are not used.  The target
-comes bounded (graspd.io.ros.planning: counts within core.limits, a mesh as its vertex bounds); its boxes are
-built and tested vectorised, in chunks of bounded size, until enough points are found or the deadline passes.
+GraspPlanning: a CollisionObject names the target (primitives and meshes posed in target.header.frame_id).
+graspd makes it one oriented box, the request's target box (graspd.gpd.target): with one shape, that shape's
+bounding box (a box primitive itself; a sphere, cylinder or cone its enclosing box; a mesh the bounds of its
+vertices in the mesh frame); with several, the bounds of all their boxes in the object's own frame
+(CollisionObject.pose).  TARGET_MARGIN_M is added on every side (depth noise, a model posed a little off).
+Hands are sampled on the object points within it and close on no object point outside it; the rest of the cloud
+stays (the table and neighbours still stop hands that would collide).  A target without such geometry (only an
+id, planes, prisms) is refused: graspd has no planning scene to look it up in.  The answer is in the target's frame
+(target.header.frame_id): the detection frame itself, or the camera frame of a camera-frame cloud moved by the
+configured camera pose; each grasp's id is "<target.id>/<rank>".  support_surfaces, candidate_grasps and
+movable_obstacles are not used.  The target comes bounded (graspd.io.ros.planning: counts within core.limits, a
+mesh as its vertex bounds) and its box is built vectorised.
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from graspd.gpd.target import OrientedBox
 from graspd.io.ros.planning import PlanTarget
 
 #: Seconds after which a posture is reached (trajectory point time_from_start).
 POSTURE_TIME_S = 0.5
-#: Margin around the target's bounding boxes within which cloud points count as the target's (m).
+#: Margin added on every side of the target's box (m): cloud points that far outside still count as its.
 TARGET_MARGIN_M = 0.01
-#: Most point-box pairs tested at once (bounds the work arrays: ~24 bytes each, a few alive at a time).
-TEST_CHUNK = 1 << 20
 #: moveit_msgs/MoveItErrorCodes values used here.
 SUCCESS, PLANNING_FAILED, UNABLE_TO_ACQUIRE_SENSOR_DATA, SENSOR_INFO_STALE = 1, -1, -5, -24
 FRAME_TRANSFORM_FAILURE, INVALID_OBJECT_NAME, FAILURE, TIMED_OUT = -21, -19, 99999, -6
@@ -146,61 +149,26 @@ def target_boxes(target: PlanTarget) -> Boxes:
     return Boxes(np.concatenate(poses).reshape(-1, 4, 4), np.concatenate(halves).reshape(-1, 3))
 
 
-def _check_deadline(deadline: float | None) -> None:
-    if deadline is not None and time.perf_counter() > deadline:
-        raise PlanningError(TIMED_OUT, "the deadline passed while testing the cloud against the target's geometry")
-
-
-def points_in_boxes(points: NDArray[np.floating], boxes: Boxes, to_points_frame: F64,
-                    margin: float = TARGET_MARGIN_M, *, enough: int | None = None, seed: int = 0,
-                    deadline: float | None = None) -> NDArray[np.intp]:
-    """Rows of points (N, 3, detection frame) within margin (m) of any box (posed in the target frame;
-    to_points_frame maps the target frame into the detection frame), sorted.  Bounded: only the points within
-    the boxes' common axis-aligned bounds are tested, in a random order (seed), all boxes at once in chunks of
-    at most TEST_CHUNK point-box pairs; with enough, it stops once that many are found (a uniform random
-    subset of the points within); deadline (time.perf_counter()) is checked between chunks: PlanningError
-    TIMED_OUT when it passes."""
-    pts = np.asarray(points)
-    if not len(boxes) or not len(pts):
-        return np.zeros(0, np.intp)
-    m = to_points_frame @ boxes.poses
-    rot, centre = m[:, :3, :3], m[:, :3, 3]
-    ext = boxes.halves + margin
-    reach = np.einsum("bij,bj->bi", np.abs(rot), ext)  # each box's axis-aligned half extents
-    lo, hi = (centre - reach).min(axis=0), (centre + reach).max(axis=0)
-    near = np.flatnonzero(((pts >= lo) & (pts <= hi)).all(axis=1))
-    if enough is not None and len(near) > enough:
-        near = np.random.default_rng(seed).permutation(near)
-    step = max(1, TEST_CHUNK // len(boxes))
-    found: list[NDArray[np.intp]] = []
-    count = 0
-    for start in range(0, len(near), step):
-        _check_deadline(deadline)
-        rows = near[start:start + step]
-        local = np.einsum("nbi,bij->nbj", pts[rows, None, :] - centre[None], rot)
-        inside = rows[(np.abs(local) <= ext).all(axis=2).any(axis=1)]
-        found.append(inside)
-        count += len(inside)
-        if enough is not None and count >= enough:
-            break
-    return np.sort(np.concatenate(found)) if found else np.zeros(0, np.intp)
-
-
-def sample_points_on_target(points: NDArray[np.floating], target: PlanTarget, to_points_frame: F64,
-                            num_samples: int, seed: int = 0, deadline: float | None = None) -> F64 | None:
-    """Where to sample hands for a GraspPlanning target: up to num_samples cloud points (detection frame, m)
-    within its boxes, chosen at random, or None when the target has no geometry (the detector chooses on the
-    whole cloud).  PlanningError when the geometry covers no point of the cloud, or TIMED_OUT past deadline."""
+def target_box(target: PlanTarget, to_detection: F64, margin: float = TARGET_MARGIN_M) -> OrientedBox:
+    """The one oriented box of a GraspPlanning target in the detection frame (to_detection maps the target's
+    frame into it): its one shape's box, or the bounds of all its shapes' boxes in the object's frame, grown by
+    margin (m) on every side.  PlanningError INVALID_OBJECT_NAME when the target has no shape with a size."""
     boxes = target_boxes(target)
     if not len(boxes):
-        return None
-    inside = points_in_boxes(points, boxes, to_points_frame, enough=num_samples, seed=seed, deadline=deadline)
-    if len(inside) == 0:
-        raise PlanningError(PLANNING_FAILED, f"no point of the newest cloud lies within the geometry of target "
-                            f"{target.id!r} (check its pose and header.frame_id)")
-    if len(inside) > num_samples:
-        inside = np.sort(np.random.default_rng(seed).choice(inside, num_samples, replace=False))
-    return np.asarray(points, np.float64)[inside]
+        raise PlanningError(INVALID_OBJECT_NAME, f"target {target.id!r} has no box, sphere, cylinder, cone or mesh "
+                            "with vertices: graspd needs its geometry (it has no planning scene to look it up in)")
+    if len(boxes) == 1:
+        pose, half = boxes.poses[0], boxes.halves[0]
+    else:
+        frame = pose_matrices(target.pose)[0]
+        local = np.linalg.inv(frame) @ boxes.poses  # each box in the object's frame
+        reach = np.einsum("bij,bj->bi", np.abs(local[:, :3, :3]), boxes.halves)  # their axis-aligned half sizes
+        lo, hi = (local[:, :3, 3] - reach).min(axis=0), (local[:, :3, 3] + reach).max(axis=0)
+        pose = frame.copy()
+        pose[:3, 3] = frame[:3, :3] @ ((lo + hi) / 2) + frame[:3, 3]
+        half = (hi - lo) / 2
+    m = np.asarray(to_detection, np.float64) @ pose
+    return OrientedBox(centre=m[:3, 3].copy(), rotation=m[:3, :3].copy(), half_extents=np.abs(half) + margin)
 
 
 def frame_transform(requested: str, detection_frame: str, cloud_frame: str, camera_poses: F64 | None,

@@ -4,8 +4,9 @@ names (a relative name goes under the node's namespace, as rclcpp resolves it; "
 Inputs (sensor-data QoS): pointcloud2 sensor_msgs/PointCloud2 on graspd/cloud, cloud_sources / cloud_indexed /
 cloud_samples the gpd_ros messages.  Outputs (reliable): grasp_config_list gpd_ros/GraspConfigList, pose_array
 geometry_msgs/PoseArray, moveit_grasps one moveit_msgs/Grasp per grasp (best first), marker_array
-visualization_msgs/MarkerArray, json std_msgs/String (the /detect answer: timings, warnings, frame), errors
-std_msgs/String (a JSON error body naming the field).  Services: detect_grasps gpd_ros/srv/DetectGrasps,
+visualization_msgs/MarkerArray, objects vision_msgs/Detection3DArray (the scene's objects, ids as the answer's),
+json std_msgs/String (the /detect answer: timings, warnings, frame), errors std_msgs/String (a JSON error body
+naming the field).  Services: detect_grasps gpd_ros/srv/DetectGrasps,
 plan_grasps moveit_msgs/srv/GraspPlanning.
 """
 
@@ -27,6 +28,7 @@ OUTPUTS: dict[str, tuple[str, str]] = {
     "pose_array": ("graspd/grasp_poses", "geometry_msgs/msg/PoseArray"),
     "moveit_grasps": ("graspd/moveit_grasps", "moveit_msgs/msg/Grasp"),
     "marker_array": ("graspd/grasp_markers", "visualization_msgs/msg/MarkerArray"),
+    "objects": ("graspd/objects", "vision_msgs/msg/Detection3DArray"),
     "json": ("graspd/detections", "std_msgs/msg/String"),
     "errors": ("graspd/errors", "std_msgs/msg/String"),
 }

@@ -5,15 +5,20 @@ decoding, options, camera poses, outputs).
 
 Clouds: the four input topics keep only the newest cloud (a robot wants grasps for what it sees now; a cloud
 replaced before detection is counted in graspd_stream_dropped); one thread detects it and publishes, each with
-the cloud's header: GraspConfigList, PoseArray, one moveit_msgs/Grasp per grasp with finger postures and
-MarkerArray as soon as the grasps are known (from the worker), then the JSON answer.  A sample over
+the cloud's header: GraspConfigList, PoseArray, one moveit_msgs/Grasp per grasp with finger postures, the scene's
+objects (vision_msgs/Detection3DArray on graspd/objects) and MarkerArray as soon as the grasps are known (from the
+worker), then the JSON answer.  A CloudIndexed's indices and a CloudSamples' samples are the request's target
+(graspd.server.services.ros_stream.message_target), as target.indices and target.points are over HTTP.  A sample over
 GRASPD_MAX_BODY_BYTES, malformed, lying about its sizes, with no finite point or beyond the coordinate bound is
 dropped with a JSON error body (status, error, field, topic) on graspd/errors; the node keeps serving.
 
 Services: each request takes a place in the engine's queue on arrival (a full queue answers at once); decoding
 and detection run on a worker; the reply carries the request's rmw_cyclonedds header.  detect_grasps answers a
 GraspConfigList (empty, with the error on graspd/errors, when the request is refused); plan_grasps answers
-moveit_msgs/Grasp[] in the target's frame and a MoveItErrorCodes.
+moveit_msgs/Grasp[] on its target's box (graspd.server.ros2.moveit) in the target's frame and a MoveItErrorCodes.
+Both publish the detection's objects on graspd/objects.  A target that selects nothing is refused like other bad
+input: the error on graspd/errors naming the ROS field (indices, samples, target) and an empty answer (plan_grasps:
+PLANNING_FAILED with the reason).
 
 Frames: a cloud is in its header.frame_id; with camera_poses and points_frame "camera" in the options (stream
 options laid over by GRASPD_ROS2_OPTIONS) it is moved into the robot frame (robot_frame_id, default base_link)
@@ -30,13 +35,15 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd.gpd.objects import SceneObject
+from graspd.gpd.target import Target
 from graspd.io.ros import CloudMessage, Header, RosDecodeError, encode_grasp_config_list
 from graspd.io.ros.encode import moveit_grasp_messages
 from graspd.io.ros.planning import decode_plan_target
@@ -54,6 +61,7 @@ from graspd.server.services.ros_stream import (
     decode_input,
     parse_options,
     ros_outputs,
+    ros_problem,
     stream_request,
 )
 from graspd.server.settings import Settings
@@ -75,6 +83,7 @@ from .dds import (
 )
 from .interfaces import PARTICIPANT_ENTITIES_INFO, STRING, ros_types, service_topics, topic_name
 from .names import INPUTS, OUTPUTS, SERVICES, resolve_names
+from .objects import encode_objects
 from .wire import (
     REQUEST_HEADER_BYTES,
     RequestId,
@@ -92,8 +101,11 @@ MOVEIT_DEPTH = 256
 #: Headroom of DDS's own sample-size cap over GRASPD_MAX_BODY_BYTES: samples up to it arrive and are refused
 #: with a 413 on graspd/errors; larger ones DDS drops itself (with a warning in its log).
 DDS_SIZE_HEADROOM = 2
-#: MiB of work arrays a GraspPlanning request's geometry test holds at most (moveit.TEST_CHUNK point-box pairs).
+#: MiB of work a GraspPlanning request holds while it is read, beyond the message (its target's bounds and the
+#: newest cloud's decode).
 PLAN_WORK_MB = 64.0
+#: Request fields -> the GraspPlanning request's (a target error names the CollisionObject).
+PLAN_FIELDS = {"target.box": "target"}
 
 
 def domain_config(settings: Settings) -> DomainConfig:
@@ -124,16 +136,20 @@ def domain_config(settings: Settings) -> DomainConfig:
 
 @dataclass
 class _Caught(Captured):
-    """Captured plus the detection's "up" (environment stage; cloud frame, unit), for the retreat direction, and
-    then(self) called on the worker as soon as the grasps are known: the ROS outputs go out before the engine's
-    request-level checks and JSON answer (they add warnings, never change the grasps), ~10-30 ms sooner at
-    300k points."""
+    """Captured plus the detection's "up" (environment stage; cloud frame, unit), for the retreat direction, its
+    objects (graspd.gpd.objects), why a target got no grasp (warnings), and then(self) called on the worker as
+    soon as the grasps are known: the ROS outputs go out before the engine's request-level checks and JSON answer
+    (they add warnings, never change the grasps), ~10-30 ms sooner at 300k points."""
 
     up: np.ndarray | None = None
+    objects: tuple[SceneObject, ...] = ()
+    warnings: tuple[str, ...] = ()
     then: Callable[[_Caught], None] | None = None
 
     def __call__(self, det: Any, cloud: Any, hand: Any) -> None:
         super().__call__(det, cloud, hand)
+        self.objects = tuple(getattr(det, "objects", ()))
+        self.warnings = tuple(w.message for w in getattr(det, "warnings", ()) if w.code == "target_too_small")
         env = getattr(det, "environment", None)
         self.up = None if env is None or env.up is None else np.asarray(env.up, np.float64)
         if self.then is not None:
@@ -297,7 +313,7 @@ class Ros2Node:
                                         on_detection=caught)
             self._write("json", self._string(body.decode()))
         except Problem as exc:
-            self.publish_error(exc, self.names[entry], ctx.id)
+            self.publish_error(ros_problem(exc), self.names[entry], ctx.id)
             outcome = "invalid" if exc.status < 500 else "error"
         except Exception:  # keep serving whatever one frame did
             log.exception("ros2 detect failed", extra={"request_id": ctx.id})
@@ -318,15 +334,22 @@ class Ros2Node:
             store = typestore()
             for msg in self.moveit_messages(caught, header, req.approach_distance, np.eye(4)):
                 self._write("moveit_grasps", bytes(store.serialize_cdr(msg, MOVEIT_GRASP)))
+        self.publish_objects(caught, header)
         for entry, message in ros_outputs(grasps, header, hand, req.approach_distance,
                                           {"marker_array"} & set(self.writers)):
             self._write(entry, message)
 
+    def publish_objects(self, caught: _Caught, header: Header) -> None:
+        """The detection's objects as a vision_msgs/Detection3DArray with header (the detection's frame) on
+        graspd/objects."""
+        if "objects" in self.writers and caught.grasps is not None:
+            self._write("objects", encode_objects(self.store, caught.objects, header))
+
     def moveit_messages(self, caught: _Caught, header: Header, approach_distance: float,
-                        to_output: np.ndarray) -> list[Any]:
+                        to_output: np.ndarray, id_prefix: str = "graspd") -> list[Any]:
         """moveit_msgs/Grasp messages of a detection, moved by to_output (4x4, detection frame -> header's
-        frame): finger postures from each grasp's width, retreat along "up" when the detection found it, else
-        back along the approach."""
+        frame), ids "<id_prefix>/<rank>": finger postures from each grasp's width, retreat along "up" when the
+        detection found it, else back along the approach."""
         grasps = caught.grasps
         assert grasps is not None
         rot, shift = to_output[:3, :3], to_output[:3, 3]
@@ -334,7 +357,7 @@ class Ros2Node:
         up = None if caught.up is None else rot @ caught.up
         widths = grasps.widths.tolist()
         store = typestore()
-        options: dict[str, Any] = {"approach_distance": approach_distance,
+        options: dict[str, Any] = {"approach_distance": approach_distance, "id_prefix": id_prefix,
                                    "postures": lambda i: self.postures.messages(store, widths[i])}
         if up is not None:
             options["retreat_direction"] = up
@@ -348,11 +371,14 @@ class Ros2Node:
     # ---- services --------------------------------------------------------------------------------------------
     def _service_call(self, data: bytes, entry: str, prepare: Callable[[bytes, dict[str, Any]], DetectRequest],
                       finish: Callable[[RequestId, dict[str, Any], _Caught], bytes],
-                      refuse: Callable[[RequestId, Problem | moveit.PlanningError], bytes]) -> None:
+                      refuse: Callable[[RequestId, Problem | moveit.PlanningError], bytes],
+                      fields: dict[str, str] | None = None) -> None:
         """On Cyclone's listener thread: read the request header, take a place in the engine's queue (a refusal
         is answered at once), and queue the work: prepare(sample, state) decodes the request into a
         DetectRequest on a worker (state keeps what finish needs), the engine detects, finish(request id, state,
-        detection) builds the reply, written from the worker; a refusal or failure is answered by refuse()."""
+        detection) builds the reply, written from the worker, and the objects go out on graspd/objects; a
+        refusal or failure is answered by refuse(), its field named as the request names it (fields: request
+        field -> ROS field, ros_stream.ros_problem)."""
         ctx = begin_request()
         where = self.names[entry]
         try:
@@ -394,11 +420,13 @@ class Ros2Node:
                     exc = Problem(504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline")
                 if exc is None:
                     self._write(entry, finish(rid, state, caught))
+                    self.publish_objects(caught, state["msg"].header)
                     return
                 if not isinstance(exc, Problem | moveit.PlanningError):
                     log.error("ros2 service failed", exc_info=exc, extra={"request_id": ctx.id})
                     exc = Problem(500, f"internal error (request {ctx.id}; the server log has the details)")
                 if isinstance(exc, Problem):
+                    exc = ros_problem(exc, fields) if fields is not None else ros_problem(exc)
                     self.publish_error(exc, where, ctx.id)
                 outcome = "invalid"
                 self._write(entry, refuse(rid, exc))
@@ -437,14 +465,15 @@ class Ros2Node:
 
     # plan_grasps: moveit_msgs/srv/GraspPlanning (CollisionObject target -> Grasp[] in its frame)
     def _on_plan_request(self, data: bytes) -> None:
-        self._service_call(data, "plan_grasps", self._plan_prepare, self._plan_finish, self._plan_refused)
+        self._service_call(data, "plan_grasps", self._plan_prepare, self._plan_finish, self._plan_refused,
+                           PLAN_FIELDS)
 
     def _plan_prepare(self, data: bytes, state: dict[str, Any]) -> DetectRequest:
-        """The target of a GraspPlanning request on the newest cloud: samples within its geometry, the map from
-        its frame into the detection frame (moveit.frame_transform); PlanningError when that cannot be.  In that
-        order, each before any cost of the next: the newest cloud's age, the message's memory (the engine's
-        budget), the target's counts (core.limits, read from the message's sequence lengths), the cloud, the
-        geometry test (bounded, stopped by the deadline)."""
+        """The newest cloud with the GraspPlanning request's target as a box (moveit.target_box, in the detection
+        frame) and the map from the target's frame into the detection frame (moveit.frame_transform);
+        PlanningError when that cannot be.  In that order, each before any cost of the next: the newest cloud's
+        age, the message's memory (the engine's budget), the target's counts (core.limits, read from the
+        message's sequence lengths), the cloud, the box."""
         last = self._last_cloud
         if last is None:
             raise moveit.PlanningError(moveit.UNABLE_TO_ACQUIRE_SENSOR_DATA, "no cloud received yet on "
@@ -468,23 +497,23 @@ class Ros2Node:
             opts = self.options
             to_detection = moveit.frame_transform(target.header.frame_id, msg.header.frame_id,
                                                   opts.camera_frame_id or "", opts.camera_poses, opts.points_frame)
-            samples = moveit.sample_points_on_target(msg.cloud.points, target, to_detection,
-                                                     opts.request.num_samples, deadline=deadline)
+            box = moveit.target_box(target, to_detection)
         finally:
             budget.give(held)
-        if samples is not None:
-            msg = replace(msg, samples=samples, sample_indices=None)
-        state.update(msg=msg, frame=target.header.frame_id or msg.header.frame_id, to_detection=to_detection)
-        return stream_request(msg, opts)
+        state.update(msg=msg, frame=target.header.frame_id or msg.header.frame_id, to_detection=to_detection,
+                     target_id=target.id)
+        return stream_request(msg, opts, Target("box", box=box))
 
     def _plan_finish(self, rid: RequestId, state: dict[str, Any], caught: _Caught) -> bytes:
         if caught.grasps is None:
             return self._plan_reply(rid, [], moveit.PLANNING_FAILED, "the detection gave no grasps")
         header = Header(state["frame"], state["msg"].header.stamp)
         grasps = self.moveit_messages(caught, header, self.options.request.approach_distance,
-                                      np.linalg.inv(state["to_detection"]))
+                                      np.linalg.inv(state["to_detection"]), state["target_id"] or "graspd")
         if not grasps:
-            return self._plan_reply(rid, [], moveit.PLANNING_FAILED, "no grasp found on the target")
+            why = "; ".join(caught.warnings)
+            return self._plan_reply(rid, [], moveit.PLANNING_FAILED,
+                                    "no grasp found on the target" + (f" ({why})" if why else ""))
         return self._plan_reply(rid, grasps, moveit.SUCCESS, "")
 
     def _plan_reply(self, rid: RequestId, grasps: list[Any], code: int, message: str) -> bytes:
@@ -497,7 +526,7 @@ class Ros2Node:
             return self._plan_reply(rid, [], error.code, error.message)
         code = moveit.TIMED_OUT if error.status == 504 else (
             moveit.PLANNING_FAILED if error.status < 500 else moveit.FAILURE)
-        return self._plan_reply(rid, [], code, f"{error.status}: {error.message}")
+        return self._plan_reply(rid, [], code, f"{error.status}: {error}")
 
 
 def _json_header(header: Header) -> dict[str, Any]:

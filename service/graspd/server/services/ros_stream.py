@@ -9,6 +9,10 @@ GraspConfigList, pose_array geometry_msgs PoseArray, moveit_grasps one moveit_ms
 marker_array visualization_msgs MarkerArray (last: the slowest), errors (JSON error bodies).  A key "" turns one
 off; a key starting with "/" is absolute (the prefix is not added).  Decoding is graspd.io.ros; only the mapping of
 messages to requests is here.
+
+Targets (graspd.gpd.target): a CloudIndexed's indices are a target of rows (as DetectRequest.target.indices: hands
+are sampled on them only and close on no other object's points), a CloudSamples' samples a target of points (as
+target.points: hands at the cloud points nearest them); a target error names the ROS field (indices, samples).
 """
 
 from __future__ import annotations
@@ -28,7 +32,8 @@ from graspd.core.frames import camera_positions, check_camera_source, frame_name
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.core.limits import MAX_COORDINATE
-from graspd.gpd.detector import Detection, DetectionParams
+from graspd.gpd.detector import Detection
+from graspd.gpd.target import Target
 from graspd.io.inputs import CloudInput, apply_frames, no_finite_point
 from graspd.io.ros import (
     CloudMessage,
@@ -62,8 +67,13 @@ DEFAULT_OUTPUT_KEYS: dict[str, str] = {"json": "grasps", "grasp_config_list": "g
                                        "marker_array": "grasp_markers", "errors": "errors"}
 #: Most bytes a config put or query may carry (a DetectRequest's options are a few hundred bytes).
 MAX_CONFIG_BYTES = 64 << 10
-#: DetectRequest fields that are not stream options: the cloud comes in the message, crops need an image.
-NOT_OPTIONS = ("cloud", "crops")
+#: DetectRequest fields that are not stream options and why: the cloud (and what to grasp in it) comes with each
+#: message, crops need an image.
+NOT_OPTIONS = {"cloud": "the cloud comes in the message",
+               "crops": "the cloud comes in the message",
+               "target": "a target names rows of one cloud: send a gpd_ros CloudIndexed or CloudSamples"}
+#: The request's target fields -> the ROS fields that carry them (a target error names the field the sender set).
+TARGET_FIELDS = {"target.indices": "indices", "target.points": "samples"}
 _PLACEHOLDER_POINTS = [[0.0, 0.0, 1.0]]
 _DECODERS: dict[str, Callable[[bytes], CloudMessage]] = {
     "cloud_sources": decode_cloud_sources, "cloud_indexed": decode_cloud_indexed,
@@ -127,18 +137,13 @@ def resolve_keys(prefix: str, given: Mapping[str, str], defaults: Mapping[str, s
 
 class StreamRequest(DetectRequest):
     """A DetectRequest whose cloud was decoded from a ROS message: the engine runs it like any other, on the
-    decoded ViewpointCloud (normals kept; in the robot frame with camera poses) and sampling at the message's
-    sample points when it has them."""
+    decoded ViewpointCloud (normals kept; in the robot frame with camera poses) with the message's target (its
+    rows or sample points, or a GraspPlanning target's box) set on it."""
 
     _decoded: CloudInput | None = PrivateAttr(default=None)
-    _sample_points: NDArray[np.float64] | None = PrivateAttr(default=None)
 
     def to_input(self) -> CloudInput:
         return self._decoded if self._decoded is not None else super().to_input()
-
-    def to_params(self) -> DetectionParams:
-        params = super().to_params()
-        return params if self._sample_points is None else replace(params, sample_points=self._sample_points)
 
 
 #: Stream options that are not DetectRequest fields: where a PointCloud2's camera is (viewpoints, or camera_poses
@@ -187,9 +192,9 @@ def parse_options(payload: bytes | str | dict[str, Any], base: Mapping[str, Any]
         if size > MAX_CONFIG_BYTES:
             raise Problem(413, f"config of {size} bytes exceeds the limit of {MAX_CONFIG_BYTES}", "payload")
     obj = json_object(payload)
-    for name in NOT_OPTIONS:
+    for name, why in NOT_OPTIONS.items():
         if name in obj:
-            raise Problem(422, f"{name!r} is not a stream option (the cloud comes in the message)", name)
+            raise Problem(422, f"{name!r} is not a stream option ({why})", name)
     merged = {k: v for k, v in {**base, **obj}.items() if not (k in CLOUD_OPTIONS[1:] and v is None)}
     source = dict(merged)
     ids: dict[str, str] = {}
@@ -276,17 +281,45 @@ def in_robot_frame(msg: CloudMessage, options: StreamOptions) -> CloudMessage:
     return replace(msg, cloud=cloud, samples=samples, header=header)
 
 
-def stream_request(msg: CloudMessage, options: StreamOptions) -> StreamRequest:
+def message_target(msg: CloudMessage) -> Target | None:
+    """The target a message names (None: grasps anywhere): a CloudIndexed's indices as rows of its decoded cloud,
+    a CloudSamples' samples as points (header frame, m).  Problem 422 naming indices or samples when they select
+    nothing (none given, or only rows dropped for a non-finite coordinate)."""
+    if msg.sample_indices is not None:
+        if not len(msg.sample_indices):
+            raise Problem(422, "selects no row of the cloud with finite coordinates" if msg.dropped else
+                          "selects no row (empty): name the target's rows, or send a CloudSources", "indices")
+        rows = np.zeros(len(msg.cloud), bool)
+        rows[msg.sample_indices] = True
+        return Target("indices", rows=rows)
+    if msg.samples is not None:
+        if not len(msg.samples):
+            raise Problem(422, "no sample point given (empty): give points, or send a CloudSources", "samples")
+        return Target("points", points=np.asarray(msg.samples, np.float64))
+    return None
+
+
+def stream_request(msg: CloudMessage, options: StreamOptions, target: Target | None = None) -> StreamRequest:
     """The engine request for a decoded message under the stream options (no revalidation of the points:
-    the decoder bounded them, decode_input checked them as the JSON cloud is checked)."""
+    the decoder bounded them, decode_input checked them as the JSON cloud is checked), with target, else the
+    message's own (message_target)."""
     cloud = msg.cloud
     fields = {name: getattr(options.request, name) for name in DetectRequest.model_fields}
     fields["cloud"] = Cloud.model_construct(points=cloud.points, viewpoints=cloud.viewpoints.astype(np.float64),
                                             camera_source=cloud.camera_source)
     req = StreamRequest.model_construct(_fields_set=options.request.model_fields_set, **fields)
     req._decoded = CloudInput(cloud, frame_name(options.camera_poses), msg.dropped, msg.received)
-    req._sample_points = msg.sample_points
+    req._target = target if target is not None else message_target(msg)
     return req
+
+
+def ros_problem(problem: Problem, fields: Mapping[str, str] = TARGET_FIELDS) -> Problem:
+    """problem naming the ROS field a request field came from (fields: request field -> ROS field), e.g. a
+    detector's target error on target.indices as one on the CloudIndexed's indices; others unchanged."""
+    field = problem.field
+    if field is None or field not in fields:
+        return problem
+    return Problem(problem.status, problem.message, fields[field], problem.retry_after)
 
 
 def ros_header(header: Header) -> dict[str, Any]:
