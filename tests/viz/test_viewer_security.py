@@ -102,7 +102,7 @@ def test_the_viewer_page_has_filters_and_warnings(mug: tuple[ViewpointCloud, Det
     assert '<ul id="warnings"><li><b>no_support</b>: no table seen</li></ul>' in page
     for control in ('id="min-score"', 'id="top-k"', 'id="object"', 'max="20" value="20"'):
         assert control in page
-    assert re.search(r'<option value="0">object 1 \(\d+ grasps\)</option>', page)
+    assert re.search(r'<option value="0">object 0 \(\d+ grasps\)</option>', page)
     assert '"scores":[' in page and '"objects":[' in page
 
 

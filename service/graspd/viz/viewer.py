@@ -1,10 +1,13 @@
 """The interactive 3D view: one self-contained HTML page (a small hand-written WebGL viewer, no library, nothing
 fetched at view time) showing the cloud coloured by environment.Label, the environment (support outline, wall and
 declared boxes) and the ranked grippers as wireframes (palm and fingers), coloured by score on plot.py's colour
-map, with a side list (rank, score, width) whose rows highlight their gripper.  Drag orbits, the wheel zooms,
-right- or shift-drag pans; it opens from camera 0 with "up" up.  Without WebGL it draws once on a 2D canvas.
-Everything is in the cloud frame, metres.  `graspd detect --view out.html` writes it; the service's GET /viewer
-serves drop_page_html() and answers the dropped cloud with viewer_html().
+map, with a side list (rank, score, width) whose rows highlight their gripper.  The scene's objects (the
+answer's objects: graspd.gpd.objects) are drawn as boxes of a colour each, listed with their grasps (each grasp's
+object is the answer's), and one can be picked: in the service's drop page the view asks it (postMessage) to send
+the cloud again with target.object (the query parameter target_object); a saved page says how to ask.  Drag
+orbits, the wheel zooms, right- or shift-drag pans; it opens from camera 0 with "up" up.  Without WebGL it draws
+once on a 2D canvas.  Everything is in the cloud frame, metres.  `graspd detect --view out.html` writes it; the
+service's GET /viewer serves drop_page_html() and answers the dropped cloud with viewer_html().
 """
 
 from __future__ import annotations
@@ -25,7 +28,8 @@ from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.core.points import eps_clusters, voxel_downsample
 from graspd.gpd.detector import Detection
-from graspd.gpd.environment import Label
+from graspd.gpd.environment import Box, Label
+from graspd.gpd.objects import SceneObject
 from graspd.viz.plot import (
     DECLARED_EDGE,
     LABEL_STYLE,
@@ -43,6 +47,11 @@ from graspd.viz.plot import (
 PLOT_ID = "graspd-view"
 #: How many rank numbers are written next to their grippers in the scene (all are in the side list).
 LABELLED_RANKS = 20
+#: The colours of the scene's objects, by id in turn (tab10 without its reds and yellows, which the grippers use).
+OBJECT_COLOURS = ("#1f77b4", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#7f7f7f", "#3b5b92",
+                  "#006d5b", "#6a3d9a")
+#: Most objects listed and drawn (the rest are counted).
+MAX_LISTED_OBJECTS = 100
 
 
 def _b64(a: NDArray[Any], dtype: str) -> str:
@@ -100,9 +109,54 @@ def grasp_objects(points: NDArray[np.floating], labels: NDArray[np.integer], sam
     return np.where(dist <= reach, found, -1).astype(np.int16)
 
 
+def object_colour(object_id: int) -> str:
+    """The colour ('#rrggbb') of a scene object by its id."""
+    return OBJECT_COLOURS[object_id % len(OBJECT_COLOURS)]
+
+
+def object_box(obj: SceneObject) -> Box:
+    """The axis-aligned box of an object's points (cloud frame, m)."""
+    return Box(centre=np.asarray(obj.centre, np.float64), rotation=np.eye(3),
+               half_extents=np.asarray(obj.extent, np.float64) / 2)
+
+
+def targeted_object(detection: Detection, object_id: int | None, targeted: bool) -> int | None:
+    """The object a request's target is on, for the view and the plot to mark: the id it named (target.object),
+    else, for a target of another kind (targeted), the object of the best grasp; None without either."""
+    if object_id is not None:
+        return int(object_id)
+    ids = detection.grasps.object_ids
+    return int(ids[0]) if targeted and len(ids) and ids[0] >= 0 else None
+
+
+def _object_rows(objects: Sequence[SceneObject], grasp_objects_: NDArray[np.integer], picked: int | None) -> str:
+    """The objects list of the panel (HTML): per object its colour, id, points and grasps shown, and a button
+    that picks it (data-pick: the id); the picked one marked."""
+    if not objects:
+        return ""
+    counts = np.bincount(np.asarray(grasp_objects_, np.int64)[np.asarray(grasp_objects_) >= 0],
+                         minlength=len(objects)) if len(grasp_objects_) else np.zeros(len(objects), np.int64)
+    rows = []
+    for obj in objects[:MAX_LISTED_OBJECTS]:
+        k = int(obj.id)
+        mark = ' class="picked"' if picked == k else ""
+        rows.append(f'<li data-object="{k}"{mark}><span class="dot" style="background:{object_colour(k)}"></span>'
+                    f"object {k}: {int(counts[k]) if k < len(counts) else 0} grasps, {int(obj.num_points):,} "
+                    f'points <button type="button" data-pick="{k}">grasp this</button></li>')
+    more = len(objects) - MAX_LISTED_OBJECTS
+    if more > 0:
+        rows.append(f"<li>and {more} more objects</li>")
+    title = "objects (target: object " + str(picked) + ")" if picked is not None else "objects"
+    back = '<button type="button" data-pick="-1">all objects</button>' if picked is not None else ""
+    return (f'<div id="objects"><b>{html.escape(title)}</b> {back}<ul>{"".join(rows)}</ul>'
+            '<div id="ask" class="help"></div></div>')
+
+
 def _scene(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | None, top: int, max_points: int,
-           gravity: tuple[float, float, float] | None) -> tuple[dict[str, Any], list[str], list[str]]:
-    """(the page's data: points, lines, camera; legend rows (HTML); grasp rows (HTML)) of viewer_html."""
+           gravity: tuple[float, float, float] | None, picked: int | None = None
+           ) -> tuple[dict[str, Any], list[str], list[str]]:
+    """(the page's data: points, lines, camera; legend rows (HTML); grasp rows (HTML)) of viewer_html; the
+    picked object's box drawn thicker (twice)."""
     h = hand or detection.hand
     env = detection.environment
     labelled = env is not None and len(env.labels) == len(cloud)
@@ -142,6 +196,13 @@ def _scene(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | Non
                 add(np.concatenate([box_edges(b) for b in boxes]), _rgb(colour), -1)
                 legend.append(f'<li><span class="bar" style="border-top:2px solid {colour}"></span>{name}es '
                               f"({len(boxes)})</li>")
+    listed = detection.objects[:MAX_LISTED_OBJECTS]
+    for obj in listed:
+        edges = box_edges(object_box(obj))
+        add(np.concatenate([edges, edges]) if picked == obj.id else edges, _rgb(object_colour(obj.id)), -1)
+    if listed:
+        legend.append(f'<li><span class="bar" style="border-top:2px solid {object_colour(0)}"></span>object boxes '
+                      f"({len(detection.objects)}, a colour each)</li>")
     g = detection.grasps[: max(top, 0)]
     rows: list[str] = []
     bar: dict[str, Any] = {}
@@ -156,14 +217,18 @@ def _scene(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | Non
             np.repeat(order.astype(np.int16), wire.shape[1]))
         tags = g.positions - (h.palm_depth + 0.01) * g.approach - centre  # rank numbers behind the palms
         bar = {"label": bar_label, "lo": vmin, "hi": vmax}
-        objects = grasp_objects(cloud.points, labels, g.samples) if labelled else np.full(len(g), -1, np.int16)
+        objects = g.object_ids.astype(np.int16) if detection.objects else (
+            grasp_objects(cloud.points, labels, g.samples) if labelled else np.full(len(g), -1, np.int16))
         for k in range(len(g)):
             score = "unscored" if np.isnan(g.scores[k]) else f"{g.scores[k]:.3f}"
             width = f"{1000 * g.widths[k]:.0f}"
             r, gg, b = (int(c) for c in rgb[k])
-            rows.append(f'<tr data-rank="{k}" title="#{k + 1}: score {score}, width {width} mm">'
-                        f'<td><span class="dot" style="background:rgb({r},{gg},{b})"></span>{k + 1}</td>'
-                        f"<td>{'-' if score == 'unscored' else score}</td><td>{width}</td></tr>")
+            oid = int(objects[k])
+            on = "-" if oid < 0 else f'<span class="dot" style="background:{object_colour(oid)}"></span>{oid}'
+            rows.append(f'<tr data-rank="{k}" title="#{k + 1}: score {score}, width {width} mm, object '
+                        f'{"none" if oid < 0 else oid}"><td><span class="dot" style="background:rgb({r},{gg},{b})">'
+                        f"</span>{k + 1}</td><td>{'-' if score == 'unscored' else score}</td><td>{width}</td>"
+                        f"<td>{on}</td></tr>")
     seg = np.concatenate(segs) - centre if segs else np.zeros((0, 2, 3))
     data = {
         "n": len(pts), "points": _b64(pts, "<f4"), "labels": _b64(lab, "u1"),
@@ -176,7 +241,8 @@ def _scene(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | Non
         "eye": (frames.eye - centre).tolist(), "up": frames.up.tolist(), "across": frames.across.tolist(),
         "extent": max(extent, 1e-3), "bar": bar,
         "scores": [None if np.isnan(v) else round(float(v), 6) for v in g.scores],  # per rank, for the filters
-        "objects": objects.tolist(),  # per rank: the object (grasp_objects) or -1
+        "objects": objects.tolist(),  # per rank: the object (the answer's ids; else grasp_objects) or -1
+        "sceneObjects": [int(o.id) for o in listed],
     }
     return data, legend, rows
 
@@ -184,7 +250,7 @@ def _scene(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | Non
 def viewer_html(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry | None = None, *,
                 top: int = 50, max_points: int = 150_000, title: str = "",
                 gravity: tuple[float, float, float] | None = None,
-                warnings: Sequence[Mapping[str, Any]] = ()) -> str:
+                warnings: Sequence[Mapping[str, Any]] = (), picked: int | None = None) -> str:
     """One self-contained HTML page drawing cloud (the preprocessed cloud detection.environment labelled, cloud
     frame, m) coloured by label, the environment and the top ranked grasps of detection as gripper wireframes, with
     a side list of them (rank, score, width; hover or click a row to highlight its gripper).  At most max_points
@@ -192,30 +258,32 @@ def viewer_html(cloud: ViewpointCloud, detection: Detection, hand: HandGeometry 
     file:// or served.  warnings (each {code, message}, the response's) are listed above the grasps; the filters
     (least score, top k, object) hide grippers and rows in the page.  Its script runs under VIEWER_CSP (a meta
     tag in the page; the service also sends it as a header): every text in it is escaped, only the hashed
-    script runs."""
-    data, legend, rows = _scene(cloud, detection, hand, top, max_points, gravity)
+    script runs.  The scene's objects (detection.objects) are boxes of a colour each, listed with their grasps and
+    a button that picks one (the drop page sends the cloud again with that target.object; a saved page says how
+    to ask); picked: the object the request targeted, marked."""
+    data, legend, rows = _scene(cloud, detection, hand, top, max_points, gravity, picked)
     n = len(detection.grasps[: max(top, 0)])
     bar = data["bar"]
     bar_html = "" if not bar else (
         f'<div class="cbar"></div><div class="ticks"><span>{bar["lo"]:.3g}</span><span>{html.escape(bar["label"])}'
         f'</span><span>{bar["hi"]:.3g}</span></div>')
     table = "" if not rows else (
-        '<table id="grasps"><thead><tr><th>#</th><th>score</th><th>mm</th></tr></thead><tbody>'
+        '<table id="grasps"><thead><tr><th>#</th><th>score</th><th>mm</th><th>obj</th></tr></thead><tbody>'
         + "".join(rows) + "</tbody></table>")
     notes = "".join(f'<li><b>{html.escape(str(w.get("code", "")))}</b>: {html.escape(str(w.get("message", "")))}'
                     "</li>" for w in warnings)
-    n_objects = max(data["objects"], default=-1) + 1
+    ids = data["sceneObjects"] or list(range(max(data["objects"], default=-1) + 1))
     filters = "" if not n else (
         '<div id="filters"><label>least score <input id="min-score" type="number" min="0" max="1" step="0.05" '
         f'value=""></label><label>top <input id="top-k" type="number" min="1" max="{n}" value="{n}"></label>'
         '<label>object <select id="object"><option value="-1">all</option>'
-        + "".join(f'<option value="{k}">object {k + 1} ({data["objects"].count(k)} grasps)</option>'
-                  for k in range(n_objects))
+        + "".join(f'<option value="{k}">object {k} ({data["objects"].count(k)} grasps)</option>' for k in ids)
         + '</select></label><div id="shown"></div></div>')
     parts = {
         "CSP": VIEWER_CSP_META,
         "WARNINGS": f'<ul id="warnings">{notes}</ul>' if notes else "",
         "FILTERS": filters,
+        "OBJECTS": _object_rows(detection.objects, np.asarray(data["objects"], np.int64), picked),
         "TITLE": html.escape(title or f"{len(detection.grasps)} grasps"),
         "ID": PLOT_ID,
         "LEGEND": "".join(legend)
@@ -277,6 +345,9 @@ button { font-size: 11px; margin-bottom: 4px; }
 #filters label { display: block; font-size: 11px; margin: 2px 0; }
 #filters input, #filters select { width: 70px; font-size: 11px; }
 #shown { font-size: 10px; color: #666; margin: 2px 0 6px; }
+#objects ul { margin: 2px 0 4px; }
+#objects li.picked { font-weight: bold; }
+#objects button { margin: 0 0 0 2px; padding: 0 3px; }
 #tip { position: absolute; display: none; pointer-events: none; background: rgba(255,255,255,0.9);
   border: 1px solid #999; padding: 2px 4px; font-size: 11px; }
 </style></head>
@@ -284,7 +355,7 @@ button { font-size: 11px; margin-bottom: 4px; }
 <div id="panel"><h1>@@TITLE@@</h1>
 <button id="reset" type="button">reset view</button>
 <div class="help">drag: orbit; wheel: zoom; right- or shift-drag: pan</div>
-@@WARNINGS@@<ul>@@LEGEND@@</ul>@@BAR@@@@FILTERS@@@@TABLE@@</div>
+@@WARNINGS@@<ul>@@LEGEND@@</ul>@@BAR@@@@OBJECTS@@@@FILTERS@@@@TABLE@@</div>
 <div id="scene"><canvas id="@@ID@@"></canvas><canvas id="labels"></canvas><div id="tip"></div></div>
 <script type="application/json" id="graspd-data">@@DATA@@</script>
 <script>
@@ -582,6 +653,21 @@ document.getElementById("reset").addEventListener("click", () => {
   cam = home(); pinned = -1; highlight(-1); redraw();
 });
 window.addEventListener("resize", redraw);
+// picking an object: in the service's drop page (a frame) the page there sends the cloud again with
+// target.object; a page of its own says how to ask (nothing is sent from here)
+const ask = document.getElementById("ask");
+document.querySelectorAll("#objects button[data-pick]").forEach(b => {
+  b.addEventListener("click", () => {
+    const k = parseInt(b.dataset.pick, 10);
+    if (window.parent !== window) {
+      window.parent.postMessage({ graspdTarget: k }, "*");
+      if (ask) ask.textContent = k < 0 ? "asking again for every object ..." : "asking again for object " + k + " ...";
+    } else if (ask) {
+      ask.textContent = k < 0 ? "ask again without a target" :
+        "ask again with target {\"object\": " + k + "} (graspd detect --target-object " + k + ")";
+    }
+  });
+});
 applyFilters();
 })();
 </script>
@@ -639,16 +725,22 @@ function showWarnings(list) {
     warnList.appendChild(li);
   }
 }
-async function send(file) {
-  say("detecting grasps in " + file.name + " ...");
+const view = document.getElementById("view");
+let lastFile = null;
+async function send(file, target) {
+  const picked = Number.isInteger(target) && target >= 0;
+  say("detecting grasps in " + file.name + (picked ? " on object " + target : "") + " ...");
   showWarnings([]);
+  lastFile = file;
   const form = new FormData();
   form.append("file", file, file.name);
   const headers = {};
   if (token.value) headers["Authorization"] = "Bearer " + token.value;
+  const url = new URL(postUrl, window.location.href);
+  if (picked) url.searchParams.set("target_object", String(target));
   try {
-    const reply = await fetch(postUrl, { method: "POST", body: form, headers: headers, credentials: "omit",
-                                         referrerPolicy: "no-referrer" });
+    const reply = await fetch(url.toString(), { method: "POST", body: form, headers: headers, credentials: "omit",
+                                                referrerPolicy: "no-referrer" });
     const text = await reply.text();
     if (!reply.ok) {
       let why = text.slice(0, 400);
@@ -663,8 +755,8 @@ async function send(file) {
     try { warnings = JSON.parse(reply.headers.get("X-Graspd-Warnings") || "[]"); } catch (err) { warnings = []; }
     showWarnings(Array.isArray(warnings) ? warnings : []);
     // the answer is shown in a sandboxed frame: its own opaque origin, no access to this page or the token
-    document.getElementById("view").srcdoc = text;
-    say(file.name);
+    view.srcdoc = text;
+    say(file.name + (picked ? ": object " + target : ""));
   } catch (err) { say("failed: " + err); }
 }
 drop.addEventListener("dragover", e => { e.preventDefault(); drop.classList.add("over"); });
@@ -675,6 +767,13 @@ drop.addEventListener("drop", e => {
 });
 document.getElementById("pick").addEventListener("change", e => {
   if (e.target.files.length) send(e.target.files[0]);
+});
+// the view in the frame picked an object (or every object: -1): send the same file again with that target
+window.addEventListener("message", e => {
+  if (e.source !== view.contentWindow || !lastFile || !e.data || typeof e.data !== "object") return;
+  const k = e.data.graspdTarget;
+  if (!Number.isInteger(k) || k < -1 || k > 100000) return;
+  send(lastFile, k);
 });
 document.body.setAttribute("data-ready", "1");
 })();
@@ -699,5 +798,7 @@ def drop_page_html(post_url: str = "/viewer") -> str:
     header) and drops (or picks) a .pcd / .ply / .npz cloud; it is POSTed as the multipart field "file" to
     post_url, and the answer (a viewer_html page) is shown in a sandboxed frame (allow-scripts only: an opaque
     origin that cannot reach this page, its token or the service), with the response's warnings listed above.
+    When the view picks an object it posts {graspdTarget: id} to this page, which (only from its own frame, only
+    an integer id) sends the same file again with the query parameter target_object (-1: none).
     Its only script is constant (the URL is an escaped attribute), so DROP_CSP holds its hash."""
     return _DROP_PAGE.replace("@@POST@@", html.escape(post_url, quote=True))

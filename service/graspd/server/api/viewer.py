@@ -1,6 +1,8 @@
 """GET /viewer: a page to drop a PCD/PLY cloud on; POST /viewer: that cloud (multipart field "file", options as
-the query parameters of a /detect upload) detected by the engine and answered as the interactive 3D view
-(graspd.viz.viewer.viewer_html: the cloud coloured by environment label, the environment, the ranked grippers)."""
+the query parameters of a /detect upload, target_object among them) detected by the engine and answered as the
+interactive 3D view (graspd.viz.viewer.viewer_html: the cloud coloured by environment label, the environment, the
+scene's objects a colour each with the targeted one marked, the ranked grippers).  Picking an object in the view
+makes the drop page POST the same file again with target_object."""
 
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ from graspd.server.requests import parse_body
 from graspd.server.schemas import DetectRequest, ErrorBody
 from graspd.server.uploads import openapi_parameters
 from graspd.templates import TemplateDetection
-from graspd.viz.viewer import DROP_CSP, VIEWER_CSP, drop_page_html, security_headers, viewer_html
+from graspd.viz.viewer import DROP_CSP, VIEWER_CSP, drop_page_html, security_headers, targeted_object, viewer_html
 
 router = APIRouter(tags=["viewer"])
 log = logging.getLogger("graspd.server")
@@ -73,8 +75,10 @@ def _page(captured: dict[str, Any], name: str, warnings: list[dict[str, Any]]) -
     shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
     title = (f"{name}: {len(det.grasps)} grasps from {det.num_candidates} candidates, "
              f"model {det.model or 'none (unscored)'}")
+    target = req.target
+    picked = targeted_object(det, None if target is None else target.object, target is not None)
     return viewer_html(shown, det, hand, top=VIEW_TOP, max_points=VIEW_MAX_POINTS, title=title,
-                       gravity=params.gravity, warnings=warnings)
+                       gravity=params.gravity, warnings=warnings, picked=picked)
 
 
 def _warnings(answer: bytes) -> list[dict[str, Any]]:
@@ -104,7 +108,8 @@ async def viewer_page() -> HTMLResponse:
     summary="The interactive 3D view of a cloud's grasps",
     description="multipart/form-data with a field \"file\" (PCD or PLY); options as the query parameters of a "
                 "/detect upload.  Answers a self-contained HTML page (a small WebGL viewer, nothing fetched) of "
-                "the cloud coloured by environment label, the environment and the top 50 grippers coloured by score.",
+                "the cloud coloured by environment label, the environment, the scene's objects (a colour each; "
+                "target_object=K draws K's grasps only and marks it) and the top 50 grippers coloured by score.",
     responses={200: {"content": {"text/html": {}}}, 400: {"model": ErrorBody}, 401: {"model": ErrorBody},
                408: {"model": ErrorBody}, 413: {"model": ErrorBody}, 415: {"model": ErrorBody},
                422: {"model": ErrorBody}, 503: {"model": ErrorBody}, 504: {"model": ErrorBody}},
