@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from graspd import __version__
+from graspd.cli.targets import add_target_arguments
 
 if TYPE_CHECKING:
     from graspd.core.cloud import ViewpointCloud
@@ -102,6 +103,9 @@ def _numbered(path: str | None, index: int | None) -> str | None:
 
 
 def _detect(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from graspd.cli.targets import target_spec
     from graspd.core.errors import FieldError
     from graspd.core.hand import HandGeometry, hand_preset
     from graspd.gpd.detector import DetectionParams
@@ -121,6 +125,9 @@ def _detect(args: argparse.Namespace) -> int:
             approach_distance=args.approach_distance,
             seed=args.seed,
         )
+        if args.max_per_object is not None:
+            params = replace(params, max_per_object=args.max_per_object)
+        target = target_spec(args)  # what to grasp, checked against each input's rows as it is detected
         inputs = _inputs(args)
         first = next(inputs)  # the file read (or the bag's first selected message) before any model loads
     except (FieldError, KeyError, ValueError, OSError) as exc:  # FieldError: CloudError, a bad camera pose
@@ -137,7 +144,12 @@ def _detect(args: argparse.Namespace) -> int:
     while True:
         label, given, message = current
         index = None if message is None or args.every is None else message["index"]
-        results.append(_detect_one(args, label, given, message, hand, params, classifier, prefilter, index))
+        try:  # a target that does not fit this input (TargetError, a mask of another size): named, exit 2
+            results.append(_detect_one(args, label, given, message, hand, params, classifier, prefilter, index,
+                                       target))
+        except (FieldError, ValueError) as exc:
+            print(f"graspd detect: {label}: {exc}", file=sys.stderr)
+            return 2
         if message is None or args.every is None:
             break
         try:
@@ -158,14 +170,18 @@ def _detect(args: argparse.Namespace) -> int:
 
 
 def _detect_one(args: argparse.Namespace, label: str, given: Any, message: dict[str, Any] | None, hand: Any,
-                params: Any, classifier: Any, prefilter: Any, index: int | None) -> dict[str, Any]:
-    """One detection on one input, as the service runs it; the answer (with the bag message it came from)."""
+                params: Any, classifier: Any, prefilter: Any, index: int | None,
+                target: dict[str, Any] | None = None) -> dict[str, Any]:
+    """One detection on one input, as the service runs it (target: the request's, cli.targets.target_spec); the
+    answer (with the bag message it came from).  ValueError or TargetError when the target does not fit."""
     from dataclasses import replace
 
+    from graspd.cli.targets import cli_target
     from graspd.gpd.detector import GraspDetector
     from graspd.gpd.preprocess import PreprocessParams, preprocess
 
     cloud = given.cloud
+    params = replace(params, target=cli_target(target, given))
     detection = GraspDetector(classifier, hand, prefilter).detect(cloud, params)
     detection = replace(detection, warnings=(*given.warnings, *detection.warnings))  # the input's first, as served
     detection = _checked(detection, cloud, params, classifier)  # then the request-level checks, as served
@@ -175,19 +191,24 @@ def _detect_one(args: argparse.Namespace, label: str, given: Any, message: dict[
     plot, view = _numbered(args.plot, index), _numbered(args.view, index)
     if plot or view:
         from graspd.viz.plot import plot_grasps  # matplotlib: only when a picture is asked for
-        from graspd.viz.viewer import viewer_html
+        from graspd.viz.viewer import object_box, targeted_object, viewer_html
 
         # the cloud the environment labelled: the detector's preprocessing of the input
         shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
         title = f"{label}: {_drawn(args.top, detection)}"
+        picked = targeted_object(detection, args.target_object, target is not None)  # marked in both
+        marked = object_box(detection.objects[picked]) if picked is not None and picked < len(
+            detection.objects) else None
         if plot:
             plot_grasps(shown, detection.grasps, hand, plot, top=args.top, title=title,
-                        gravity=params.gravity, environment=detection.environment, warnings=detection.warnings)
+                        gravity=params.gravity, environment=detection.environment, warnings=detection.warnings,
+                        marked=marked, marked_label=f"target: object {picked}")
         if view:
             Path(view).parent.mkdir(parents=True, exist_ok=True)
             Path(view).write_text(viewer_html(shown, detection, hand, top=args.view_top,
                                               title=f"{label}: {len(detection.grasps)} grasps, "
-                                                    f"model {detection.model or 'none (unscored)'}"),
+                                                    f"model {detection.model or 'none (unscored)'}",
+                                              picked=picked),
                                   encoding="utf-8")
     t = detection.timings
     print(f"{label}: {len(detection.grasps)} grasps from {detection.num_candidates} candidates on "
@@ -397,6 +418,7 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
     d.add_argument("--top", type=int, default=10, help="grasps to draw in the --plot picture")
     d.add_argument("--view", help="write a self-contained interactive 3D view (HTML, works offline) here")
     d.add_argument("--view-top", type=int, default=50, help="grasps to draw in the --view page")
+    add_target_arguments(d)
     d.set_defaults(func=_detect)
     demo = sub.add_parser("demo", help="detect grasps on a bundled rendered tabletop scene and draw them")
     demo.add_argument("--out", default="out/demo", help="folder for grasps.png and grasps.json")

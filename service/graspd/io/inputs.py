@@ -12,7 +12,7 @@ Metres throughout; frames as graspd.core.frames describes them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -79,6 +79,9 @@ class CloudInput:
     frame: str = FRAME_CLOUD
     dropped: int = 0
     received: int = 0
+    #: Which of the received rows were kept (None: all, or not known), to map rows as given (a target's indices
+    #: or mask) onto the cloud's.
+    kept: NDArray[np.bool_] | None = field(default=None, compare=False, repr=False)
 
     @property
     def warnings(self) -> tuple[DetectionWarning, ...]:
@@ -143,4 +146,4 @@ def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_s
     cloud = ViewpointCloud(points=pts, viewpoints=vps, camera_source=np.zeros(0, np.int32) if src is None else src,
                            normals=nrm)
     moved, frame = apply_frames(cloud, poses, points_frame)
-    return CloudInput(moved, frame, dropped, received)
+    return CloudInput(moved, frame, dropped, received, keep)

@@ -38,6 +38,8 @@ LABEL_STYLE: dict[Label, tuple[str, str]] = {
 #: Outline colours of the environment's geometry.
 SUPPORT_OUTLINE = "#8a6d3b"
 WALL_EDGE = "#5a4a3a"
+#: The box of the object a request targeted.
+TARGET_EDGE = "#00a651"
 DECLARED_EDGE = "#7d3c98"
 #: Score colour map of the grippers: red (lowest shown) to yellow (best); no point label uses these hues.
 SCORE_CMAP = "autumn"
@@ -229,11 +231,13 @@ def _fmt_dir(v: F64) -> str:
 def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, path: str | Path,
                 top: int = 10, title: str = "", gravity: tuple[float, float, float] | None = None,
                 labels: NDArray[np.integer] | None = None, environment: Environment | None = None,
-                max_points: int = 40_000, warnings: Sequence[Any] | None = None) -> Path:
+                max_points: int = 40_000, warnings: Sequence[Any] | None = None,
+                marked: Box | None = None, marked_label: str = "target object") -> Path:
     """Write a PNG of cloud (the preprocessed cloud the environment labelled, cloud frame, m) with the top
     grasps of grasps (ranked best first).  labels (one environment.Label per point) default to environment's;
     up comes from the environment, else against gravity.  At most max_points points are drawn.  warnings: the
-    detection's (warning_lines), written under the title in red, or 'warnings: none' in green; None: not shown."""
+    detection's (warning_lines), written under the title in red, or 'warnings: none' in green; None: not shown.
+    marked: a box to draw in TARGET_EDGE (the targeted object's bounds), named marked_label in the legend."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
@@ -320,11 +324,12 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
         if outline is not None:
             o, ok_o = proj(outline)
             ax.plot(np.where(ok_o, o[:, 0], np.nan), o[:, 1], color=SUPPORT_OUTLINE, lw=1.0, ls="--")
-        for boxes, colour in ((walls, WALL_EDGE), (declared, DECLARED_EDGE)):
+        for boxes, colour, lw in ((walls, WALL_EDGE, 1.0), (declared, DECLARED_EDGE, 1.0),
+                                  (() if marked is None else (marked,), TARGET_EDGE, 1.8)):
             for box in boxes:
                 e, ok_e = proj(box_edges(box))
                 keep_e = ok_e.all(axis=1)
-                ax.add_collection(LineCollection(list(e[keep_e]), colors=colour, linewidths=1.0, linestyles="-"))
+                ax.add_collection(LineCollection(list(e[keep_e]), colors=colour, linewidths=lw, linestyles="-"))
         if len(g):
             s2, ok_s = proj(segs.reshape(-1, 2, 3))
             s2 = s2.reshape(len(g), 4, 2, 2)
@@ -360,6 +365,8 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
         handles.append(Line2D([], [], color=WALL_EDGE, lw=1.0, label=f"environment solids: {named or len(walls)}"))
     if declared:
         handles.append(Line2D([], [], color=DECLARED_EDGE, lw=1.0, label=f"declared boxes ({len(declared)})"))
+    if marked is not None:
+        handles.append(Line2D([], [], color=TARGET_EDGE, lw=1.8, label=marked_label))
     colour_says = "rank" if bar_label == RANK_BAR_LABEL else "score"
     handles.append(Line2D([], [], color=cmap(1.0), lw=1.1, label=f"gripper: number = rank (1 = best),\ncolour = "
                           f"{colour_says} (bar at right)"))
