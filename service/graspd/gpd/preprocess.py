@@ -38,6 +38,8 @@ DEFAULT_RANGE_WINDOW = 1.0
 #: Share of the points (lowest ranges first) whose range defines the near end of the range window: robust to a
 #: few stray points at the lens.
 NEAR_QUANTILE = 0.01
+#: Points whose ranges the near quantile is taken over, at most (every k-th point of a larger cloud).
+RANGE_SAMPLE = 200_000
 
 
 def crop_mask(points: NDArray[np.floating], workspace: Workspace) -> NDArray[np.bool_]:
@@ -50,15 +52,21 @@ def crop_mask(points: NDArray[np.floating], workspace: Workspace) -> NDArray[np.
 
 
 def range_limit(points: NDArray[np.floating], camera_source: NDArray[np.int32], viewpoints: NDArray[np.floating],
-                window: float) -> tuple[NDArray[np.float64], float]:
+                window: float) -> tuple[NDArray[np.floating], float]:
     """Each point's range from the camera that saw it (N,) and the farthest range kept by a range window of
     `window` m beyond the near end of the scene (the NEAR_QUANTILE range): depth noise grows with range, so far,
     sparse points (a room behind the table) are the least reliable, and a hand rarely reaches them."""
-    ranges = np.linalg.norm(np.asarray(points, np.float64) - np.asarray(viewpoints, np.float64)[camera_source], axis=1)
+    pts = np.asarray(points)
+    cams = np.asarray(viewpoints, pts.dtype).reshape(-1, 3)
+    rel = pts - (cams[0] if len(cams) == 1 else cams[camera_source])  # one camera: no (N,3) gather
+    ranges = np.sqrt(np.einsum("ij,ij->i", rel, rel))
     if len(ranges) == 0:
         return ranges, float("inf")
-    near = float(np.quantile(ranges, NEAR_QUANTILE))
-    return ranges, near + window
+    sample = ranges[:: max(1, len(ranges) // RANGE_SAMPLE)]  # the quantile of every k-th point: a 5M cloud is
+    sample = sample[np.isfinite(sample)]  # not sorted whole; non-finite points have no range
+    if len(sample) == 0:
+        return ranges, float("inf")
+    return ranges, float(np.quantile(sample, NEAR_QUANTILE)) + window
 
 
 def region_mask(cloud: ViewpointCloud, workspace: Workspace | None, range_window: float) -> NDArray[np.bool_]:
@@ -68,9 +76,8 @@ def region_mask(cloud: ViewpointCloud, workspace: Workspace | None, range_window
     if workspace is not None:
         return mask & crop_mask(cloud.points, workspace)
     if range_window > 0.0 and mask.any():
-        idx = np.flatnonzero(mask)
-        ranges, far = range_limit(cloud.points[idx], cloud.camera_source[idx], cloud.viewpoints, range_window)
-        mask[idx[ranges > far]] = False
+        ranges, far = range_limit(cloud.points, cloud.camera_source, cloud.viewpoints, range_window)
+        mask &= ranges <= far  # a non-finite point's NaN range compares False
     return mask
 
 

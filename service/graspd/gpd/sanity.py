@@ -125,15 +125,12 @@ class RegionCheck:
 def region_check(cloud: ViewpointCloud, workspace: Workspace | None, range_window: float) -> RegionCheck:
     """RegionCheck of a request's cloud (its frame, m): the region preprocess keeps, its hidden share, and what the
     range window left out."""
-    region = region_mask(cloud, workspace, range_window)
-    left_out, far = 0, float("inf")
-    if workspace is None and range_window > 0.0:
-        finite = np.asarray(np.isfinite(cloud.points).all(axis=1), bool)
-        left_out = int(finite.sum() - region.sum())
-        if left_out:
-            idx = np.flatnonzero(finite)
-            far = range_limit(cloud.points[idx], cloud.camera_source[idx], cloud.viewpoints, range_window)[1]
-    return RegionCheck(hidden_share(cloud.points[region], cloud.viewpoints), left_out, far)
+    if workspace is not None or range_window <= 0.0:
+        return RegionCheck(hidden_share(cloud.points[region_mask(cloud, workspace, 0.0)], cloud.viewpoints))
+    ranges, far = range_limit(cloud.points, cloud.camera_source, cloud.viewpoints, range_window)
+    near = ranges <= far  # NaN ranges (non-finite points) compare False: neither kept nor counted
+    left_out = int(np.count_nonzero(ranges > far))
+    return RegionCheck(hidden_share(cloud.points[near], cloud.viewpoints), left_out, far)
 
 
 def range_window_warning(check: RegionCheck, total: int, range_window: float) -> DetectionWarning | None:
