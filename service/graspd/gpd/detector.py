@@ -336,7 +336,7 @@ class GraspDetector:
         if p.exclude_support_plane is False or (p.exclude_support_plane is None and not modelled):
             pool = None
         elif modelled:
-            pool = env.object_mask & (segmentation.labels >= 0)  # not on blobs of sensor artefacts
+            pool = segmentation.sampleable(env.object_mask)  # not on blobs of sensor artefacts
         else:
             pool = ~support_plane_mask(prepared.points)
         if target is not None:

@@ -49,15 +49,20 @@ class SceneObject:
 
 @dataclass(frozen=True)
 class Segmentation:
-    """The object id of every preprocessed point (N,) (-1: environment, or no object in the scene) and the objects
-    by id."""
+    """The object id of every preprocessed point (N,) (-1: environment, an artefact, or no object in the scene),
+    the objects by id, and which points are sensor artefacts (N,) (blobs: no hand is sampled on them)."""
 
     labels: I64
     objects: tuple[SceneObject, ...] = ()
+    artefacts: NDArray[np.bool_] | None = None
 
     @staticmethod
-    def empty(n: int) -> Segmentation:
-        return Segmentation(np.full(n, -1, np.int64))
+    def empty(n: int, artefacts: NDArray[np.bool_] | None = None) -> Segmentation:
+        return Segmentation(np.full(n, -1, np.int64), artefacts=artefacts)
+
+    def sampleable(self, object_mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """The object points hands may be sampled on: all but the artefacts."""
+        return object_mask if self.artefacts is None else object_mask & ~self.artefacts
 
     def grasp_objects(self, region: ClosingRegionPoints, num_grasps: int) -> I64:
         """The object each of num_grasps hands closes on: the one with most points in its closing region (ties:
@@ -93,9 +98,11 @@ def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_]
     first = np.concatenate([[0], np.cumsum(sizes)[:-1]])
     spans = np.maximum.reduceat(pts[by_group], first, axis=0) - np.minimum.reduceat(pts[by_group], first, axis=0)
     blob = (sizes >= min_points) & (spans.max(axis=1) < min_extent)
+    artefacts = np.zeros(n, bool)
+    artefacts[idx[blob[group]]] = True
     keep = np.flatnonzero((sizes >= min_points) & ~blob)
     if len(keep) == 0:
-        return Segmentation.empty(n)
+        return Segmentation.empty(n, artefacts)
     kept = np.full(len(sizes), -1, np.int64)
     kept[keep] = np.arange(len(keep))
     label = kept[group]
@@ -118,4 +125,4 @@ def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_]
     labels[idx[on]] = new_id[label[on]]
     objects = tuple(SceneObject(id=i, centre=centres[j], extent=hi[j] - lo[j], num_points=int(counts[j]))
                     for i, j in enumerate(order))
-    return Segmentation(labels, objects)
+    return Segmentation(labels, objects, artefacts)
