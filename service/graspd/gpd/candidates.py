@@ -8,10 +8,10 @@ fingertips reach at least init_bite past p (so the closing region holds p).
 
 Collision checks are binned along the closing direction at a resolution of a quarter finger width:
 a point within one bin of a finger counts as touching it, a conservative margin for sensor noise.  With a
-clearance, the hand's outline is grown by it wherever it may not touch: the fingertips and the palm stop that
-short of the first point ahead, the fingers' outer faces and the hand's top and bottom faces keep that far from
-points beside them (the inner faces are where the object goes): a true surface lies a millimetre or two beyond
-the points seen of it, and a hand placed flush against them grazes it on the way in.
+clearance, the hand's outline is grown by it wherever it may not touch: the fingertips stop that short of the
+first point ahead, the fingers' outer faces and the hand's top and bottom faces keep that far from points beside
+them (the inner faces are where the object goes, and the palm may rest on it): a true surface lies a millimetre
+or two beyond the points seen of it, and a hand placed flush against them grazes it on the way in.
 Per (sample, orientation) the middle of the collision-free finger placements is taken, as GPD does, then the
 hand moves to the collision-free placement nearest the middle of what lies between its fingers: a gripper
 closes symmetrically, and an object off the middle would be pushed sideways.
@@ -48,7 +48,7 @@ class SamplingParams:
     be among the obstacles (most of a tabletop cloud is table).  centre_on_object: each hand moves to the
     collision-free finger placement nearest the middle of the points between its fingers (False: the middle
     of the collision-free placements, GPD's choice).  clearance (m): how far the hand's outline keeps from the
-    obstacle points, except across its inner finger faces (0: flush against them, as GPD)."""
+    obstacle points, except across its inner finger faces and its palm's face (0: flush against them, as GPD)."""
 
     num_samples: int = 1000
     num_orientations: int = 8
@@ -302,7 +302,7 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
         left = depth_min[:, :, bin_range(s - od / 2 - clear, s - od / 2 + fw)].min(axis=2)
         right = depth_min[:, :, bin_range(s + od / 2 - fw, s + od / 2 + clear)].min(axis=2)
         palm = depth_min[:, :, bin_range(s - od / 2 - clear, s + od / 2 + clear)].min(axis=2) + hd
-        tip[:, :, j] = np.minimum(np.minimum(left, right), palm) - np.float32(clear)
+        tip[:, :, j] = np.minimum(np.minimum(left, right) - np.float32(clear), palm)
     # the palm never passes the sample (it is always an obstacle when the obstacles hold it)
     np.minimum(tip, hd, out=tip)
     if p.support is not None:

@@ -77,8 +77,8 @@ class DetectionParams:
     outside it; a target of sample points replaces sample_points.  max_per_object (0 = off): the ranked list gives
     no object more than this many grasps before every other object with a grasp has one (selection.cover_order).
     clearance (m): how far the open hand's outline, at the pre-grasp pose, along its path and at the grasp, keeps
-    from the cloud's points except across its inner finger faces (candidates.SamplingParams.clearance; 0 places
-    it flush against them, as GPD does)."""
+    from the cloud's points except across its inner finger faces and its palm's face (what it grasps may touch
+    them; candidates.SamplingParams.clearance; 0 places it flush against them, as GPD does)."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
