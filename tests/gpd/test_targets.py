@@ -70,6 +70,19 @@ def test_each_objects_grasps_close_on_that_object_alone(detector: GraspDetector,
         assert len(set(det.grasps.object_ids.tolist())) == 1  # one scene object: the target's
 
 
+def test_every_tenth_row_of_an_object_targets_that_object(detector: GraspDetector, six: OrganisedScene) -> None:
+    """A sparse row list (gpd_ros CloudIndexed users often send a subsample) selects the object its rows lie on."""
+    k = 2
+    rows = _rows(six, k).rows
+    assert rows is not None
+    sparse = np.zeros_like(rows)
+    sparse[np.flatnonzero(rows)[::10]] = True
+    det = _detect(detector, six, Target("indices", rows=sparse))
+    assert len(det.grasps) >= 5
+    for meshes in _between_fingers(six, det.grasps):
+        assert k in meshes and not meshes - {0, k}, meshes
+
+
 def test_a_neighbour_close_enough_blocks_the_easy_grasp(detector: GraspDetector) -> None:
     alone = render_table(SIX)
     crowded = render_table((*SIX, NEIGHBOUR))

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.errors import FieldError
-from graspd.gpd.objects import Segmentation
+from graspd.gpd.objects import MIN_OBJECT_EXTENT, Segmentation
 from graspd.gpd.preprocess import Workspace, crop_mask
 
 TargetKind = Literal["indices", "mask", "box", "points", "object"]
@@ -119,6 +119,57 @@ def rows_on_prepared(rows: NDArray[np.bool_], cloud: ViewpointCloud, prepared: V
     return out
 
 
+#: A row list flagging fewer than this share of the rows around its own rows is sparse (every 10th row of an
+#: object, as gpd_ros CloudIndexed users often send; a mask flags nearly all): it names the objects its rows lie on.
+SPARSE_ROWS = 0.5
+#: Radius (m) of the neighbourhood row_share looks at, and how many flagged rows it looks around at most.
+SHARE_RADIUS = 0.006
+SHARE_SAMPLES = 200
+
+
+def row_extent(rows: NDArray[np.bool_], cloud: ViewpointCloud) -> float:
+    """The largest side (m) of the flagged rows' bounds: a handful of neighbouring rows is a small patch, not a
+    sparse list over an object."""
+    flagged = cloud.points[rows]
+    flagged = flagged[np.isfinite(flagged).all(axis=1)]
+    return float(np.ptp(flagged, axis=0).max()) if len(flagged) else 0.0
+
+
+def row_share(rows: NDArray[np.bool_], cloud: ViewpointCloud, radius: float = SHARE_RADIUS,
+              samples: int = SHARE_SAMPLES) -> float:
+    """The mean share of flagged rows among the rows within radius (m) of a flagged row (at most `samples` of
+    them, evenly spread): about 1 for a mask, about a tenth for every 10th row."""
+    flagged = np.flatnonzero(rows)
+    flagged = flagged[np.isfinite(cloud.points[flagged]).all(axis=1)]
+    if len(flagged) == 0:
+        return 1.0
+    probe = cloud.points[flagged[:: max(1, len(flagged) // samples)]].astype(np.float64)
+    lo, hi = probe.min(axis=0) - radius, probe.max(axis=0) + radius
+    near = np.flatnonzero(np.all((cloud.points >= lo) & (cloud.points <= hi), axis=1))
+    tree = cKDTree(np.asarray(cloud.points[near], np.float64))
+    shares = [float(rows[near[i]].mean()) for i in tree.query_ball_point(probe, radius) if len(i)]
+    return float(np.mean(shares)) if shares else 1.0
+
+
+def sparse_rows_objects(rows: NDArray[np.bool_], cloud: ViewpointCloud, prepared: ViewpointCloud,
+                        segmentation: Segmentation) -> NDArray[np.bool_]:
+    """The preprocessed points of the scene objects (segmentation) that hold most of the flagged rows' nearest
+    preprocessed points: what a sparse row list points at."""
+    out = np.zeros(len(prepared), bool)
+    flagged = cloud.points[rows]
+    flagged = flagged[np.isfinite(flagged).all(axis=1)]
+    if len(flagged) == 0 or len(prepared) == 0 or not segmentation.objects:
+        return out
+    _, nearest = cKDTree(np.asarray(prepared.points, np.float64)).query(np.asarray(flagged, np.float64))
+    labels = segmentation.labels[nearest]
+    labels = labels[labels >= 0]
+    if len(labels) == 0:
+        return out
+    votes = np.bincount(labels, minlength=len(segmentation.objects))
+    chosen = np.flatnonzero(2 * votes >= votes.max())  # the objects holding at least half as many as the most
+    return np.asarray(np.isin(segmentation.labels, chosen))
+
+
 def target_mask(target: Target, cloud: ViewpointCloud, prepared: ViewpointCloud, voxel_size: float,
                 workspace: Workspace | None, segmentation: Segmentation) -> NDArray[np.bool_] | None:
     """The preprocessed points the target covers (None for sample points, which say where to sample instead).
@@ -140,7 +191,10 @@ def target_mask(target: Target, cloud: ViewpointCloud, prepared: ViewpointCloud,
         return mask
     assert target.rows is not None
     target.check_rows(len(cloud))
-    mask = rows_on_prepared(target.rows, cloud, prepared, voxel_size, workspace)
+    if row_share(target.rows, cloud) < SPARSE_ROWS and row_extent(target.rows, cloud) > MIN_OBJECT_EXTENT:
+        mask = sparse_rows_objects(target.rows, cloud, prepared, segmentation)
+    else:
+        mask = rows_on_prepared(target.rows, cloud, prepared, voxel_size, workspace)
     if not mask.any():
         raise TargetError(target.field, f"its {int(target.rows.sum())} points lie outside the workspace or make "
                           "up no voxel of the cloud")
