@@ -28,8 +28,9 @@ UNKNOWN_SPACE_MODES: tuple[str, ...] = ("avoid", "allow")
 MAX_UNKNOWN_SHARE = 0.0
 #: Default distance (m) the hand's samples keep inside its faces: unseen space closer than this is tolerated.
 UNKNOWN_MARGIN = 0.004
-#: Most distance (m) between neighbouring samples of a hand along each of its axes: under a shadow voxel and a
-#: half, so a hidden surface cannot pass between them (a finger is sampled across its width, the palm everywhere).
+#: Most distance (m) between neighbouring samples of a hand along each of its axes: a shadow voxel and a half, so
+#: a hidden object passes between them only where the volume itself has holes (a finger is sampled across its
+#: width, the palm everywhere).
 SAMPLE_SPACING = 0.006
 
 
@@ -63,7 +64,7 @@ def hand_samples(hand: HandGeometry, approach_distance: float, margin: float = U
 
 
 def unknown_share(grid: VoxelGrid, positions: F64, rotations: F64, hand: HandGeometry, approach_distance: float,
-                  margin: float = UNKNOWN_MARGIN, chunk: int = 1024) -> F64:
+                  margin: float = UNKNOWN_MARGIN, chunk: int = 256, spacing: float = SAMPLE_SPACING) -> F64:
     """The share (M,) in [0, 1] of each hand's samples (hand_samples) that lie in the unobserved volume, for
     hands at positions (M,3) with rotations (M,3,3) (grasp convention, cloud frame).  Chunks of hands run on the
     process's thread budget (graspd.core.parallel; each hand's share depends on that hand alone)."""
@@ -71,12 +72,28 @@ def unknown_share(grid: VoxelGrid, positions: F64, rotations: F64, hand: HandGeo
     out = np.zeros(m)
     if m == 0 or not grid.cells.any():
         return out
-    local = hand_samples(hand, approach_distance, margin).astype(np.float32)
+    # in grid units (voxels from the grid's origin), float32: each hand's samples are its rotation times the local
+    # grid plus its position (elementwise: no BLAS threads beside the process's own), floored, clipped onto the
+    # grid (border cells read False) and looked up by flat index
+    local = (hand_samples(hand, approach_distance, margin, spacing) / grid.voxel).astype(np.float32)  # (P, 3)
+    origin = ((positions - grid.origin) / grid.voxel).astype(np.float32)  # (M, 3)
+    rots = rotations.astype(np.float32)
+    shape = grid.cells.shape
+    cells = grid.cells.reshape(-1)
 
     def share(a: int) -> None:
-        rot = rotations[a : a + chunk].astype(np.float32)
-        world = positions[a : a + chunk, None, :].astype(np.float32) + np.einsum("mij,pj->mpi", rot, local)
-        out[a : a + chunk] = grid.contains(world).mean(axis=1)
+        r, o = rots[a : a + chunk], origin[a : a + chunk]
+        flat: NDArray[np.int32] | None = None
+        for axis in range(3):
+            g = o[:, axis, None] + r[:, axis, 0, None] * local[:, 0]
+            g += r[:, axis, 1, None] * local[:, 1]
+            g += r[:, axis, 2, None] * local[:, 2]
+            np.floor(g, out=g)
+            np.clip(g, 0.0, shape[axis] - 1.0, out=g)
+            gi = g.astype(np.int32)  # at most MAX_GRID_CELLS cells: flat ids fit in int32
+            flat = gi if flat is None else flat * np.int32(shape[axis]) + gi
+        assert flat is not None
+        out[a : a + chunk] = cells[flat].mean(axis=1)
 
     THREADS.map(share, range(0, m, chunk))
     return out
