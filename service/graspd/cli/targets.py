@@ -87,10 +87,9 @@ def cli_target(spec: dict[str, Any] | None, given: CloudInput) -> Target | None:
     ValueError naming the flag and the field when it does not fit the cloud."""
     if spec is None:
         return None
-    from graspd.server.problems import Problem
+    from graspd.server.problems import CALLER_ERRORS, Problem
     from graspd.server.requests import parse_model
     from graspd.server.schemas import TargetSpec
-    from graspd_client.codec import WireError
 
     flag = FLAGS[next(iter(spec))]
     try:
@@ -101,5 +100,5 @@ def cli_target(spec: dict[str, Any] | None, given: CloudInput) -> Target | None:
         return parsed.target(received, given.kept)
     except Problem as exc:
         raise ValueError(f"{flag}: {exc.field or 'target'}: {exc.message}") from None
-    except WireError as exc:
+    except CALLER_ERRORS as exc:  # a value the target's own checks refuse (graspd.server.problems)
         raise ValueError(f"{flag}: target{exc.field}: {exc.message}") from None
