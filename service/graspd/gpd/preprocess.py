@@ -40,6 +40,8 @@ DEFAULT_RANGE_WINDOW = 1.0
 NEAR_QUANTILE = 0.01
 #: Points whose ranges the near quantile is taken over, at most (every k-th point of a larger cloud).
 RANGE_SAMPLE = 200_000
+#: Points whose ranges one block computes.
+RANGE_CHUNK = 262_144
 
 
 def crop_mask(points: NDArray[np.floating], workspace: Workspace) -> NDArray[np.bool_]:
@@ -58,8 +60,10 @@ def range_limit(points: NDArray[np.floating], camera_source: NDArray[np.int32], 
     sparse points (a room behind the table) are the least reliable, and a hand rarely reaches them."""
     pts = np.asarray(points)
     cams = np.asarray(viewpoints, pts.dtype).reshape(-1, 3)
-    rel = pts - (cams[0] if len(cams) == 1 else cams[camera_source])  # one camera: no (N,3) gather
-    ranges = np.sqrt(np.einsum("ij,ij->i", rel, rel))
+    ranges = np.empty(len(pts), pts.dtype if pts.dtype.kind == "f" else np.float64)
+    for a in range(0, len(pts), RANGE_CHUNK):  # in blocks: no (N,3) temporary for a 5M-point cloud
+        rel = pts[a:a + RANGE_CHUNK] - (cams[0] if len(cams) == 1 else cams[camera_source[a:a + RANGE_CHUNK]])
+        ranges[a:a + RANGE_CHUNK] = np.sqrt(np.einsum("ij,ij->i", rel, rel))
     if len(ranges) == 0:
         return ranges, float("inf")
     sample = ranges[:: max(1, len(ranges) // RANGE_SAMPLE)]  # the quantile of every k-th point: a 5M cloud is
