@@ -73,13 +73,24 @@ def range_limit(points: NDArray[np.floating], camera_source: NDArray[np.int32], 
     return ranges, float(np.quantile(sample, NEAR_QUANTILE)) + window
 
 
+def spans_window(points: NDArray[np.floating], window: float) -> bool:
+    """Whether a range window of `window` m could leave any of points (N,3, m) out: only when their bounds'
+    diagonal is longer than it (ranges from any camera differ by at most that); a tabletop cloud never pays for
+    the ranges.  True when the bounds are not finite."""
+    if len(points) == 0:
+        return False
+    lo, hi = np.min(points, axis=0), np.max(points, axis=0)
+    diagonal = float(np.linalg.norm(np.asarray(hi, np.float64) - lo))
+    return not np.isfinite(diagonal) or diagonal > window
+
+
 def region_mask(cloud: ViewpointCloud, workspace: Workspace | None, range_window: float) -> NDArray[np.bool_]:
     """The points (finite ones) a detection works on: those inside the workspace box when one is given, else,
     with range_window > 0, those within the range window (range_limit); else all finite points."""
     mask = np.asarray(np.isfinite(cloud.points).all(axis=1), bool)
     if workspace is not None:
         return mask & crop_mask(cloud.points, workspace)
-    if range_window > 0.0 and mask.any():
+    if range_window > 0.0 and mask.any() and spans_window(cloud.points, range_window):
         ranges, far = range_limit(cloud.points, cloud.camera_source, cloud.viewpoints, range_window)
         mask &= ranges <= far  # a non-finite point's NaN range compares False
     return mask

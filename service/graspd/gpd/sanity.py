@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.warning import DetectionWarning
-from graspd.gpd.preprocess import Workspace, range_limit, region_mask
+from graspd.gpd.preprocess import Workspace, range_limit, region_mask, spans_window
 
 if TYPE_CHECKING:  # no import at run time: the detector may call these checks itself
     from graspd.gpd.detector import Detection
@@ -125,7 +125,7 @@ class RegionCheck:
 def region_check(cloud: ViewpointCloud, workspace: Workspace | None, range_window: float) -> RegionCheck:
     """RegionCheck of a request's cloud (its frame, m): the region preprocess keeps, its hidden share, and what the
     range window left out."""
-    if workspace is not None or range_window <= 0.0:
+    if workspace is not None or range_window <= 0.0 or not spans_window(cloud.points, range_window):
         return RegionCheck(_hidden_share_of(cloud, region_mask(cloud, workspace, 0.0)))
     ranges, far = range_limit(cloud.points, cloud.camera_source, cloud.viewpoints, range_window)
     near = ranges <= far  # NaN ranges (non-finite points) compare False: neither kept nor counted
