@@ -125,18 +125,22 @@ class RegionCheck:
 def region_check(cloud: ViewpointCloud, workspace: Workspace | None, range_window: float) -> RegionCheck:
     """RegionCheck of a request's cloud (its frame, m): the region preprocess keeps, its hidden share, and what the
     range window left out."""
-    if workspace is not None or range_window <= 0.0 or not spans_window(cloud.points, range_window):
+    if workspace is not None:
         return RegionCheck(_hidden_share_of(cloud, region_mask(cloud, workspace, 0.0)))
+    if range_window <= 0.0 or not spans_window(cloud.points, range_window):
+        return RegionCheck(_hidden_share_of(cloud, None))  # every point (hidden_share skips non-finite ones)
     ranges, far = range_limit(cloud.points, cloud.camera_source, cloud.viewpoints, range_window)
     near = ranges <= far  # NaN ranges (non-finite points) compare False: neither kept nor counted
     left_out = int(np.count_nonzero(ranges > far))
     return RegionCheck(_hidden_share_of(cloud, near), left_out, far)
 
 
-def _hidden_share_of(cloud: ViewpointCloud, mask: NDArray[np.bool_]) -> float:
-    """hidden_share of the masked points, every k-th row looked at before any copy (a 5M-point cloud)."""
-    step = max(1, len(mask) // (2 * VISIBILITY_MAX_POINTS))
-    return hidden_share(cloud.points[np.flatnonzero(mask[::step]) * step], cloud.viewpoints)
+def _hidden_share_of(cloud: ViewpointCloud, mask: NDArray[np.bool_] | None) -> float:
+    """hidden_share of the masked points (None: all), every k-th row looked at before any copy (a 5M-point
+    cloud)."""
+    step = max(1, len(cloud) // (2 * VISIBILITY_MAX_POINTS))
+    rows = cloud.points[::step] if mask is None else cloud.points[np.flatnonzero(mask[::step]) * step]
+    return hidden_share(rows, cloud.viewpoints)
 
 
 def range_window_warning(check: RegionCheck, total: int, range_window: float) -> DetectionWarning | None:
