@@ -323,10 +323,13 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     flat = np.flatnonzero(cand_all >= 0)  # in (orientation, point) order
     half_w = hand.closing_half_width
 
-    def closing_region(bj: NDArray[np.intp]) -> tuple[F64, NDArray[np.int64], NDArray[np.int64], F64, F64, F64, F64]:
+    def closing_region(bj: NDArray[np.intp], pairs: NDArray[np.intp] = flat
+                       ) -> tuple[F64, NDArray[np.int64], NDArray[np.int64], F64, F64, F64, F64]:
         """The closing-region points of each hand at finger placement bj, from its sample's slab (same axis
-        for every orientation): every (orientation, slab point) pair tested at once against its hand; the
-        hands' depths, their points' (hand, slab element, x, y) and each hand's y bounds of its points."""
+        for every orientation): every (orientation, slab point) pair of pairs (default: all) tested at once
+        against its hand; the hands' depths, their points' (hand, slab element, x, y) and each hand's y bounds of
+        its points (inf for a hand without pairs)."""
+        flat = pairs
         t_star = tip[si, pi, bj].astype(np.float64)
         shift = np.zeros((n_s, n_phi))  # hand base along the rotated approach, past the sample (m)
         shift[si, pi] = t_star - hd
@@ -363,9 +366,16 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
         gap = np.round(np.abs(s_grid[None, :] - middle[:, None]) / 1e-4) * len(s_grid)
         gap += np.abs(np.arange(len(s_grid))[None, :] - bj[:, None])
         centred = np.argmin(np.where(roomy, gap, np.inf), axis=1)
-        if (centred != bj).any():
+        moved = centred != bj
+        if moved.any():  # the closing regions of the hands that moved, the others' kept
+            pairs = flat[moved[cand_all.reshape(-1)[flat]]]
+            t_star, c2, e2, x2, y2, lo2, hi2 = closing_region(centred, pairs)
+            stay = ~moved[cand]
+            order = np.argsort(np.concatenate([cand[stay], c2]), kind="stable")
+            cand, elem, hx, hy = (np.concatenate([a[stay], b])[order] for a, b in ((cand, c2), (elem, e2), (hx, x2),
+                                                                                  (hy, y2)))
+            ymin, ymax = np.where(moved, lo2, ymin), np.where(moved, hi2, ymax)
             bj = centred
-            t_star, cand, elem, hx, hy, ymin, ymax = closing_region(bj)
     keep = np.isfinite(ymin)
 
     c, s_ = np.cos(phis[pi])[:, None], np.sin(phis[pi])[:, None]
