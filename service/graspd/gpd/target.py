@@ -122,9 +122,8 @@ def rows_on_prepared(rows: NDArray[np.bool_], cloud: ViewpointCloud, prepared: V
 #: A row list flagging fewer than this share of the rows around its own rows is sparse (every 10th row of an
 #: object, as gpd_ros CloudIndexed users often send; a mask flags nearly all): it names the objects its rows lie on.
 SPARSE_ROWS = 0.5
-#: Radius (m) of the neighbourhood row_share looks at, and how many flagged rows it looks around at most.
-SHARE_RADIUS = 0.006
-SHARE_SAMPLES = 200
+#: Edge (m) of the cells row_share counts rows in.
+SHARE_CELL = 0.01
 
 
 def row_extent(rows: NDArray[np.bool_], cloud: ViewpointCloud) -> float:
@@ -135,20 +134,21 @@ def row_extent(rows: NDArray[np.bool_], cloud: ViewpointCloud) -> float:
     return float(np.ptp(flagged, axis=0).max()) if len(flagged) else 0.0
 
 
-def row_share(rows: NDArray[np.bool_], cloud: ViewpointCloud, radius: float = SHARE_RADIUS,
-              samples: int = SHARE_SAMPLES) -> float:
-    """The mean share of flagged rows among the rows within radius (m) of a flagged row (at most `samples` of
-    them, evenly spread): about 1 for a mask, about a tenth for every 10th row."""
-    flagged = np.flatnonzero(rows)
-    flagged = flagged[np.isfinite(cloud.points[flagged]).all(axis=1)]
+def row_share(rows: NDArray[np.bool_], cloud: ViewpointCloud, cell: float = SHARE_CELL) -> float:
+    """The share of flagged rows among all the rows in the cells of edge `cell` (m) that hold a flagged row:
+    about 1 for a mask (less at its rim), about a tenth for every 10th row."""
+    flagged = cloud.points[rows]
+    flagged = flagged[np.isfinite(flagged).all(axis=1)]
     if len(flagged) == 0:
         return 1.0
-    probe = cloud.points[flagged[:: max(1, len(flagged) // samples)]].astype(np.float64)
-    lo, hi = probe.min(axis=0) - radius, probe.max(axis=0) + radius
+    lo, hi = flagged.min(axis=0), flagged.max(axis=0)
     near = np.flatnonzero(np.all((cloud.points >= lo) & (cloud.points <= hi), axis=1))
-    tree = cKDTree(np.asarray(cloud.points[near], np.float64))
-    shares = [float(rows[near[i]].mean()) for i in tree.query_ball_point(probe, radius) if len(i)]
-    return float(np.mean(shares)) if shares else 1.0
+    cells = np.floor((cloud.points[near] - lo) / cell).astype(np.int64)
+    dims = cells.max(axis=0) + 1
+    key = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    votes = np.bincount(inverse.reshape(-1), rows[near].astype(np.float64), len(counts))
+    return float(votes.sum() / counts[votes > 0].sum())
 
 
 def sparse_rows_objects(rows: NDArray[np.bool_], cloud: ViewpointCloud, prepared: ViewpointCloud,
