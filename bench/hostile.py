@@ -26,7 +26,6 @@ import base64
 import io
 import json
 import os
-import re
 import socket
 import struct
 import subprocess
@@ -820,17 +819,16 @@ def round3(url: str, pid: int) -> list[str]:
         listing = c.get("/models")
         answers.append(listing.text)
     rss.close()
-    leaks = {kind: sum(bool(rx.search(a)) for a in answers) for kind, rx in ROUND3_LEAKS.items()}
+    sys.path.insert(0, str(ROOT / "tests"))
+    from error_text import LEAKS  # noqa: PLC0415  (the patterns the test suite checks every error body for)
+
+    leaks = {kind: sum(bool(rx.search(a)) for a in answers) for kind, rx in LEAKS.items()}
     rows += ["", f"Targets (rows 1, 2, 6: a 4xx, or 200 with a warning for 6, within 2 s and <= 150 MB): "
              f"{'met' if met else 'MISSED'}.  Row 7: {named.status_code} naming `{named.json().get('field')}`.  "
              f"Answers scanned (these {len(answers)} and GET /models, {len(listing.text):,} bytes): {leaks}."]
     print(rows[-1], flush=True)
     return rows
 
-
-#: What no answer may hold: a Python object's repr, or a directory of a machine.
-ROUND3_LEAKS = {"object repr": re.compile(r"object at 0x[0-9a-fA-F]+"),
-                "machine path": re.compile(r"(?<![\w.~/:])/(?:tmp|work|home|root|usr|opt|var|srv|data)/")}
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -48,19 +48,6 @@ TOKEN = "hostile-ros2-token-" + os.urandom(6).hex()
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
-def primitives(count: int) -> bytes:
-    """count 5 cm boxes spread over a metre cube (the audit's 60k: 5.8 MB)."""
-    centres = np.random.default_rng(0).random((count, 3))
-    return encode_grasp_planning(Header(FRAME, (1, 0)), box_centres=centres, box_sizes=np.full((count, 3), 0.05))
-
-
-def meshes(vertices: int) -> bytes:
-    """One mesh of as many vertices and triangles (the audit's 1.7M: 61 MB)."""
-    rng = np.random.default_rng(1)
-    return encode_grasp_planning(Header(FRAME, (1, 0)), meshes=((rng.random((vertices, 3)),
-                                                                 rng.integers(0, vertices, (vertices, 3))),))
-
-
 def good_target(points: np.ndarray) -> bytes:
     """A box around the middle of the cloud (the mug and the table under it)."""
     lo, hi = np.percentile(points, 30, axis=0), np.percentile(points, 70, axis=0)
@@ -76,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     from cyclonedds.domain import Domain  # noqa: PLC0415
 
     from graspd.server.ros2.dds import discovery_xml  # noqa: PLC0415
-    from server.ros2.peer import RosPeer, peer_types  # noqa: PLC0415
+    from server.ros2.peer import RosPeer, hostile_meshes, hostile_primitives, peer_types  # noqa: PLC0415
 
     mug = read_input(ROOT.parent / "shared" / "data" / "real" / "table_mug.pcd").cloud.points
     cloud = encode_pointcloud2(mug, Header(FRAME, (1, 0)))
@@ -126,8 +113,8 @@ def main(argv: list[str] | None = None) -> int:
             reply = decode(planner.call(payload, timeout=120)[2], RESPONSE)
             return reply.error_code.val, reply.error_code.message, len(reply.grasps), time.perf_counter() - t0
 
-        cases = [("60k box primitives", primitives(60_000)), ("20k box primitives", primitives(20_000)),
-                 ("1.7M mesh vertices and triangles", meshes(1_700_000)), ("a box around the mug (good)",
+        cases = [("60k box primitives", hostile_primitives(60_000)), ("20k box primitives", hostile_primitives(20_000)),
+                 ("1.7M mesh vertices and triangles", hostile_meshes(1_700_000)), ("a box around the mug (good)",
                                                                              good_target(mug))]
         rows += ["| GraspPlanning request | bytes | error code | message | grasps | time (s) | server RSS peak "
                  "increase (MB) |", "|---|---:|---:|---|---:|---:|---:|"]
@@ -141,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(f"| {name} | {len(payload):,} | {code} | {message[:90]} | {grasps} | {took:.2f} | "
                         f"{grow:.0f} |")
             print(rows[-1], flush=True)
-        big = meshes(1_700_000)
+        big = hostile_meshes(1_700_000)
         base = rss.reset()
         t0 = time.perf_counter()
         four = [threading.Thread(target=call, args=(planners[k % 3], big)) for k in range(4)]
@@ -158,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         lock = threading.Lock()
 
         def flood(planner: Any) -> None:
-            payloads = [primitives(60_000), big]
+            payloads = [hostile_primitives(60_000), big]
             k = 0
             while not flood_stop.is_set():
                 code = call(planner, payloads[k % 2])[0]

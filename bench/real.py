@@ -35,13 +35,17 @@ from numpy.typing import NDArray
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "service"), str(ROOT / "client")]
 
+from scipy.spatial import cKDTree  # noqa: E402
+
 from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.core.points import eps_clusters, ransac_plane, voxel_groups  # noqa: E402
 from graspd.gpd.environment import Label  # noqa: E402
 from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW, region_mask  # noqa: E402
+from graspd.gpd.scene import closing_region_points  # noqa: E402
 from graspd.io.cloud_files import read_input  # noqa: E402
+from graspd_client import Grasps  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 CAPTURES = ROOT / "bench" / "real_captures.json"
@@ -83,30 +87,25 @@ def object_labels(points: NDArray[np.float32], box: list[float] | None) -> NDArr
 
 def grasp_objects(grasps: GraspSet, hand: HandGeometry, points: NDArray[np.float32],
                   labels: NDArray[np.int64]) -> NDArray[np.int64]:
-    """The object (label) each grasp's closing region holds most of, -1 when it holds under MIN_POINTS."""
+    """The object (label) each grasp's closing region (graspd.gpd.scene.closing_region_points) holds most of,
+    -1 when it holds under MIN_POINTS object points."""
     out = np.full(len(grasps), -1, np.int64)
-    opening = hand.hand_outer_diameter - 2 * hand.finger_width
-    obj = labels >= 0
-    p, lab = points[obj].astype(np.float64), labels[obj]
+    obj = np.flatnonzero(labels >= 0)
+    if len(obj) == 0 or len(grasps) == 0:
+        return out
+    p = points[obj]
+    region = closing_region_points(cKDTree(np.asarray(p, np.float64)), p, grasps.positions, grasps.rotations, hand)
     for i in range(len(grasps)):
-        local = (p - grasps.positions[i]) @ grasps.rotations[i]  # hand frame: approach, binormal, axis
-        inside = ((local[:, 0] >= 0) & (local[:, 0] <= hand.hand_depth) & (np.abs(local[:, 1]) <= opening / 2)
-                  & (np.abs(local[:, 2]) <= hand.hand_height / 2))
-        if inside.sum() >= MIN_POINTS:
-            out[i] = int(np.bincount(lab[inside]).argmax())
+        held = labels[obj[region.index[region.grasp == i]]]
+        if len(held) >= MIN_POINTS:
+            out[i] = int(np.bincount(held).argmax())
     return out
 
 
-def grasp_set(body: dict[str, Any]) -> GraspSet:
-    """The answer's grasps as a GraspSet (cloud frame)."""
-    gs = body["grasps"]
-    if not gs:
-        return GraspSet()
-    rot = np.array([np.array([g["approach"], g["binormal"], g["axis"]]).T for g in gs])
-    return GraspSet(positions=np.array([g["position"] for g in gs]), rotations=rot,
-                    widths=np.array([g["width"] for g in gs]),
-                    scores=np.array([np.nan if g["score"] is None else g["score"] for g in gs]),
-                    samples=np.array([g.get("sample", g["position"]) for g in gs]))
+def grasp_set(answer: Grasps) -> GraspSet:
+    """The client's parsed answer as a GraspSet (cloud frame)."""
+    return GraspSet(positions=answer.poses[:, :3, 3], rotations=answer.rotations, widths=answer.widths,
+                    scores=answer.scores, samples=answer.samples)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -144,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
                 answer = client.detect_file(path, **params)
                 seconds = time.perf_counter() - t0
                 body = answer.raw
-                grasps = grasp_set(body)
+                grasps = grasp_set(answer)
                 on = grasp_objects(grasps[:TOP], hand, cloud.points, labels)
                 codes = [w["code"] for w in body["warnings"]]
                 rows.append({"capture": path.name, "row": row, "grasps": len(grasps), "top10_on": int((on >= 0).sum()),

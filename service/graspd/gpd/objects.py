@@ -96,8 +96,9 @@ def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_]
     sizes = np.bincount(group)
     by_group = np.argsort(group, kind="stable")
     first = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    spans = np.maximum.reduceat(pts[by_group], first, axis=0) - np.minimum.reduceat(pts[by_group], first, axis=0)
-    blob = (sizes >= min_points) & (spans.max(axis=1) < min_extent)
+    group_lo = np.minimum.reduceat(pts[by_group], first, axis=0)  # each group's bounds: blobs are told by them,
+    group_hi = np.maximum.reduceat(pts[by_group], first, axis=0)  # an object's centre and extent are its group's
+    blob = (sizes >= min_points) & ((group_hi - group_lo).max(axis=1) < min_extent)
     artefacts = np.zeros(n, bool)
     artefacts[idx[blob[group]]] = True
     keep = np.flatnonzero((sizes >= min_points) & ~blob)
@@ -107,10 +108,7 @@ def segment_objects(points: NDArray[np.floating], object_mask: NDArray[np.bool_]
     kept[keep] = np.arange(len(keep))
     label = kept[group]
     solid = np.flatnonzero(label >= 0)
-    by_object = solid[np.argsort(label[solid], kind="stable")]
-    starts = np.concatenate([[0], np.cumsum(sizes[keep])[:-1]])
-    sorted_pts = pts[by_object]
-    lo, hi = np.minimum.reduceat(sorted_pts, starts, axis=0), np.maximum.reduceat(sorted_pts, starts, axis=0)
+    lo, hi = group_lo[keep], group_hi[keep]
     centres = (lo + hi) / 2.0
     key = np.round(centres / ORDER_RESOLUTION).astype(np.int64)
     order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))

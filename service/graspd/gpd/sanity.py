@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.warning import DetectionWarning
-from graspd.gpd.preprocess import Workspace, range_limit, region_mask, spans_window
+from graspd.gpd.preprocess import Workspace, crop_mask, range_limit, region_mask, spans_window
 
 if TYPE_CHECKING:  # no import at run time: the detector may call these checks itself
     from graspd.gpd.detector import Detection
@@ -207,8 +207,8 @@ def in_workspace(points: NDArray[np.floating], workspace: Sequence[float] | None
     """The points (N,3) inside workspace [xmin, xmax, ymin, ymax, zmin, zmax] (m; None: all of them)."""
     if workspace is None:
         return points
-    lo, hi = np.asarray(workspace[0::2], float), np.asarray(workspace[1::2], float)
-    return points[((points >= lo) & (points <= hi)).all(axis=1)]
+    w = tuple(float(v) for v in workspace)
+    return points[crop_mask(points, (w[0], w[1], w[2], w[3], w[4], w[5]))]
 
 
 def check_detection(det: Detection, cloud: ViewpointCloud, workspace: Workspace | None, range_window: float,

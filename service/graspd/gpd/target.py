@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.errors import FieldError
+from graspd.core.points import voxel_groups
 from graspd.gpd.objects import MIN_OBJECT_EXTENT, Segmentation
 from graspd.gpd.preprocess import Workspace, crop_mask
 
@@ -119,36 +120,29 @@ def rows_on_prepared(rows: NDArray[np.bool_], cloud: ViewpointCloud, prepared: V
     return out
 
 
-#: A row list flagging fewer than this share of the rows around its own rows is sparse (every 10th row of an
-#: object, as gpd_ros CloudIndexed users often send; a mask flags nearly all): it names the objects its rows lie on.
+#: A row list flagging fewer than this share of the rows in the cells it touches, and spanning more than
+#: MIN_OBJECT_EXTENT, is sparse (every 10th row of an object, as gpd_ros CloudIndexed users often send; a mask flags
+#: nearly all): it names the objects its rows lie on.  A handful of neighbouring rows is a small patch instead.
 SPARSE_ROWS = 0.5
-#: Edge (m) of the cells row_share counts rows in.
+#: Edge (m) of the cells sparse_rows counts rows in.
 SHARE_CELL = 0.01
 
 
-def row_extent(rows: NDArray[np.bool_], cloud: ViewpointCloud) -> float:
-    """The largest side (m) of the flagged rows' bounds: a handful of neighbouring rows is a small patch, not a
-    sparse list over an object."""
-    flagged = cloud.points[rows]
-    flagged = flagged[np.isfinite(flagged).all(axis=1)]
-    return float(np.ptp(flagged, axis=0).max()) if len(flagged) else 0.0
-
-
-def row_share(rows: NDArray[np.bool_], cloud: ViewpointCloud, cell: float = SHARE_CELL) -> float:
-    """The share of flagged rows among all the rows in the cells of edge `cell` (m) that hold a flagged row:
-    about 1 for a mask (less at its rim), about a tenth for every 10th row."""
+def sparse_rows(rows: NDArray[np.bool_], cloud: ViewpointCloud, cell: float = SHARE_CELL) -> bool:
+    """Whether flagged rows (N,) are a sparse list over an object: they span more than MIN_OBJECT_EXTENT (m) and
+    are under SPARSE_ROWS of all the rows in the cells of edge `cell` (m, graspd.core.points.voxel_groups) that
+    hold one (about 1 for a mask, less at its rim; about a tenth for every 10th row)."""
     flagged = cloud.points[rows]
     flagged = flagged[np.isfinite(flagged).all(axis=1)]
     if len(flagged) == 0:
-        return 1.0
+        return False
     lo, hi = flagged.min(axis=0), flagged.max(axis=0)
+    if float(np.max(hi - lo)) <= MIN_OBJECT_EXTENT:
+        return False
     near = np.flatnonzero(np.all((cloud.points >= lo) & (cloud.points <= hi), axis=1))
-    cells = np.floor((cloud.points[near] - lo) / cell).astype(np.int64)
-    dims = cells.max(axis=0) + 1
-    key = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    votes = np.bincount(inverse.reshape(-1), rows[near].astype(np.float64), len(counts))
-    return float(votes.sum() / counts[votes > 0].sum())
+    inverse, counts = voxel_groups(cloud.points[near], cell)
+    votes = np.bincount(inverse, rows[near].astype(np.float64), len(counts))
+    return float(votes.sum() / counts[votes > 0].sum()) < SPARSE_ROWS
 
 
 def sparse_rows_objects(rows: NDArray[np.bool_], cloud: ViewpointCloud, prepared: ViewpointCloud,
@@ -191,7 +185,7 @@ def target_mask(target: Target, cloud: ViewpointCloud, prepared: ViewpointCloud,
         return mask
     assert target.rows is not None
     target.check_rows(len(cloud))
-    if row_share(target.rows, cloud) < SPARSE_ROWS and row_extent(target.rows, cloud) > MIN_OBJECT_EXTENT:
+    if sparse_rows(target.rows, cloud):
         mask = sparse_rows_objects(target.rows, cloud, prepared, segmentation)
     else:
         mask = rows_on_prepared(target.rows, cloud, prepared, voxel_size, workspace)

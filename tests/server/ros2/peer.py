@@ -14,10 +14,13 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from cyclonedds.domain import DomainParticipant
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from graspd.io.ros import Header
+from graspd.io.ros.encode import encode_grasp_planning
 from graspd.server.ros2.dds import RawReader, RawWriter, reliable_qos, sensor_qos
 from graspd.server.ros2.interfaces import ros_types
 
@@ -164,3 +167,20 @@ class ServiceClient:
                         return guid, got_seq, data[:4] + data[20:]
                 self.replies.cond.wait(0.5)
         raise AssertionError(f"no reply to request {seq}")
+
+
+#: The frame the audit's GraspPlanning requests are in (the camera's optical frame of the clouds sent with them).
+PLAN_FRAME = "camera_depth_optical_frame"
+
+
+def hostile_primitives(count: int = 60_000) -> bytes:
+    """The audit's 5.8 MB GraspPlanning request: count 5 cm boxes spread over a metre cube."""
+    centres = np.random.default_rng(0).random((count, 3))
+    return encode_grasp_planning(Header(PLAN_FRAME, (5, 6)), box_centres=centres, box_sizes=np.full((count, 3), 0.05))
+
+
+def hostile_meshes(vertices: int = 1_700_000) -> bytes:
+    """The audit's 61 MB GraspPlanning request: one mesh of as many vertices and triangles."""
+    rng = np.random.default_rng(1)
+    return encode_grasp_planning(Header(PLAN_FRAME, (5, 6)), meshes=((rng.random((vertices, 3)),
+                                                                      rng.integers(0, vertices, (vertices, 3))),))

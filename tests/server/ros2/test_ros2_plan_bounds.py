@@ -28,23 +28,11 @@ from graspd.server.ros2.interfaces import ros_types
 from graspd.server.services.budget import MemoryBudget, message_cost
 
 from .conftest import Collector, Decode, RosPeer, ServiceClient, serve_ros2
+from .peer import hostile_meshes, hostile_primitives
 
 FRAME = "camera_depth_optical_frame"
 HEADER = Header(FRAME, (5, 6))
 RESPONSE = "moveit_msgs/srv/GraspPlanning_Response"
-
-
-def hostile_primitives(count: int = 60_000) -> bytes:
-    """The audit's 5.8 MB GraspPlanning request: count unit boxes spread over a metre cube."""
-    centres = np.random.default_rng(0).random((count, 3))
-    return encode_grasp_planning(HEADER, box_centres=centres, box_sizes=np.full((count, 3), 0.05))
-
-
-def hostile_meshes(vertices: int = 1_700_000) -> bytes:
-    """The audit's 61 MB GraspPlanning request: one mesh of as many vertices and triangles."""
-    rng = np.random.default_rng(1)
-    return encode_grasp_planning(HEADER, meshes=((rng.random((vertices, 3)),
-                                                  rng.integers(0, vertices, (vertices, 3))),))
 
 
 # ------------------------------------------------------------------------------------------------ the decoder
