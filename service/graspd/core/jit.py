@@ -18,4 +18,4 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 def kernel(fn: F) -> F:
     """Compile fn with numba (nopython, cached, GIL released, no fast-math: results match numpy's arithmetic)."""
-    return numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")(fn)  # type: ignore[no-any-return]
+    return numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")(fn)  # type: ignore[no-any-return,return-value]
