@@ -29,10 +29,10 @@ from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.core.parallel import THREADS
 from graspd.gpd.environment import Plane
+from graspd.gpd.placement import place_hands, slab_coordinates, slab_neighbours
 from graspd.gpd.scene import ClosingRegionPoints, Scene, ball_pairs
 
 MIN_FRAME_POINTS = 3
-F64 = NDArray[np.float64]
 CHUNK = 128  # samples per task of the hand search: smaller tasks balance 2 cores better, in cache
 
 
@@ -181,6 +181,9 @@ class _Obstacles:
 DENSE_FACTOR = 12
 #: Obstacle points x samples tested densely at once (bounds the temporaries: ~40 MB).
 DENSE_BLOCK = 1 << 21
+#: A chunk's hand search tests every (sample, obstacle point) pair in one compiled pass when there are at most this
+#: many (a few ms); beyond, slab_pairs finds them.
+SCAN_PAIRS = 1 << 22
 #: Margin of the dense slab pre-test, relative to the largest coordinate (m/m): pairs this close to the slab's
 #: border go on to the exact test, so the dense and the kd-tree paths find the same pairs.
 DENSE_EPS = 1e-5
@@ -264,119 +267,36 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     half_h = hh / 2.0 + clear
     reach = float(np.sqrt(y_max**2 + (hd + behind) ** 2 + half_h**2))
     fr = frames.astype(np.float32)
-    axes = [np.ascontiguousarray(fr[:, :, k]) for k in range(3)]
-    sid, idx = slab_pairs(obstacles, samples, axes[2], reach, half_h)
-    d = obstacles.points[idx] - samples[sid]
+    if len(sample_idx) * len(obstacles.points) <= SCAN_PAIRS:  # every pair tested, in one compiled pass
+        sid, idx, loc = slab_neighbours(obstacles.points, samples, fr, reach, half_h)
+    else:  # a kd-tree or a dense pre-test finds the pairs near each slab
+        sid, idx = slab_pairs(obstacles, samples, np.ascontiguousarray(fr[:, :, 2]), reach, half_h)
+        slab, loc = slab_coordinates(obstacles.points, samples, fr, sid, idx, half_h)
+        sid, idx, loc = sid[slab], idx[slab], loc[slab]
     if obstacles.index is not None:
         idx = obstacles.index[idx]
-    z = np.einsum("tj,tj->t", d, axes[2][sid])
-    slab = np.abs(z) <= half_h
-    sid, idx, d, z = sid[slab], idx[slab], d[slab], z[slab]
-    within_height = np.abs(z) <= hh / 2.0  # the hand's own height: what its closing region holds
-    local_x = np.einsum("tj,tj->t", d, axes[0][sid])
-    local_y = np.einsum("tj,tj->t", d, axes[1][sid])
+    local_x, local_y, z = (np.ascontiguousarray(loc[:, k]) for k in range(3))
+    starts = np.zeros(len(sample_idx) + 1, np.int64)
+    np.cumsum(np.bincount(sid, minlength=len(sample_idx)), out=starts[1:])
 
-    # Binned minimum approach depth per (sample, orientation, y-bin).
+    # Binned minimum approach depth per (sample, orientation, y-bin): a point within a bin of a finger touches it.
     bin_w = min(fw / 4.0, 0.0025)
     n_bins = int(np.ceil(2 * y_max / bin_w)) + 1
-    n_s, n_phi = len(sample_idx), len(phis)
-    cos, sin = np.cos(phis).astype(np.float32)[:, None], np.sin(phis).astype(np.float32)[:, None]
-    x_phi = cos * local_x[None, :] + sin * local_y[None, :]  # (Phi, T) depth along the rotated approach
-    y_phi = -sin * local_x[None, :] + cos * local_y[None, :]
-    bins = np.floor((y_phi + y_max) / bin_w).astype(np.int64)
-    # a point at least hand_depth + clearance ahead stops no finger short of hand_depth, the most a fingertip
-    # reaches (below): leaving it out changes no fingertip depth
-    inside = np.flatnonzero((bins >= 0) & (bins < n_bins) & (x_phi < hd + clear))
-    hand_key = sid[None, :] * n_phi + np.arange(n_phi)[:, None]  # (Phi, T): flat (sample, orientation) ids
-    keys = hand_key.reshape(-1)[inside] * n_bins + bins.reshape(-1)[inside]
-    flat_min = np.full(n_s * n_phi * n_bins, np.inf, np.float32)
-    np.minimum.at(flat_min, keys, x_phi.reshape(-1)[inside])
-    depth_min = flat_min.reshape(n_s, n_phi, n_bins)
 
-    def bin_range(lo: float, hi: float) -> slice:
+    def bin_range(lo: float, hi: float) -> tuple[int, int]:
         first = max(int(np.floor((lo + y_max) / bin_w)), 0)
-        return slice(first, min(int(np.floor((hi + y_max) / bin_w)) + 1, n_bins))
+        return first, max(first, min(int(np.floor((hi + y_max) / bin_w)) + 1, n_bins))
 
-    tip = np.empty((n_s, n_phi, len(s_grid)), np.float32)
-    for j, s in enumerate(s_grid):
-        left = depth_min[:, :, bin_range(s - od / 2 - clear, s - od / 2 + fw)].min(axis=2)
-        right = depth_min[:, :, bin_range(s + od / 2 - fw, s + od / 2 + clear)].min(axis=2)
-        palm = depth_min[:, :, bin_range(s - od / 2 - clear, s + od / 2 + clear)].min(axis=2) + hd
-        tip[:, :, j] = np.minimum(np.minimum(left, right) - np.float32(clear), palm)
-    # the palm never passes the sample (it is always an obstacle when the obstacles hold it)
-    np.minimum(tip, hd, out=tip)
-    if p.support is not None:
-        np.minimum(tip, _support_limit(p, hand, samples, frames, phis, s_grid, behind), out=tip)
-    valid = tip >= hand.init_bite
-
-    # Middle of the valid finger placements for each (sample, orientation).
-    j_idx = np.arange(len(s_grid), dtype=np.float64)
-    n_valid = valid.sum(axis=2)
-    mean_j = (valid * j_idx).sum(axis=2) / np.maximum(n_valid, 1)
-    cost = np.where(valid, np.abs(j_idx - mean_j[:, :, None]), np.inf)
-    best_j = np.argmin(cost, axis=2)
-    si, pi = np.nonzero(n_valid > 0)
-    m = len(si)
-    cand_of = np.full((n_s, n_phi), -1, np.int64)
-    cand_of[si, pi] = np.arange(m)
-    cand_all = cand_of.reshape(-1)[hand_key]  # (Phi, T): the hand of each (orientation, point) pair, or -1
-    flat = np.flatnonzero(cand_all >= 0)  # in (orientation, point) order
-    half_w = hand.closing_half_width
-
-    def closing_region(bj: NDArray[np.intp], pairs: NDArray[np.intp] = flat
-                       ) -> tuple[F64, NDArray[np.int64], NDArray[np.int64], F64, F64, F64, F64]:
-        """The closing-region points of each hand at finger placement bj, from its sample's slab (same axis
-        for every orientation): every (orientation, slab point) pair of pairs (default: all) tested at once
-        against its hand; the hands' depths, their points' (hand, slab element, x, y) and each hand's y bounds of
-        its points (inf for a hand without pairs)."""
-        flat = pairs
-        t_star = tip[si, pi, bj].astype(np.float64)
-        shift = np.zeros((n_s, n_phi))  # hand base along the rotated approach, past the sample (m)
-        shift[si, pi] = t_star - hd
-        across = np.zeros((n_s, n_phi))  # hand centre along the rotated binormal (m)
-        across[si, pi] = s_grid[bj]
-        cand = cand_all.reshape(-1)[flat]
-        key = hand_key.reshape(-1)[flat]
-        hx = x_phi.reshape(-1)[flat] - shift.reshape(-1)[key]  # float64, as (x - (t* - hd)) per hand
-        hy = y_phi.reshape(-1)[flat] - across.reshape(-1)[key]
-        order = np.flatnonzero((hx >= 0.0) & (hx <= hd) & (np.abs(hy) <= half_w) & within_height[flat % len(sid)])
-        order = order[np.argsort(cand[order], kind="stable")]  # by hand, each hand's points in slab order
-        elem, cand, hx, hy = flat[order] % len(sid), cand[order], hx[order], hy[order]
-        ymin = np.full(m, np.inf)
-        ymax = np.full(m, -np.inf)
-        np.minimum.at(ymin, cand, hy)
-        np.maximum.at(ymax, cand, hy)
-        return t_star, cand.astype(np.int64), elem.astype(np.int64), hx, hy, ymin, ymax
-
-    bj = best_j[si, pi]
-    t_star, cand, elem, hx, hy, ymin, ymax = closing_region(bj)
-    if p.centre_on_object and m:
-        # A gripper closes symmetrically: move each hand to the placement nearest the middle of what lies between
-        # its fingers, so the object is not pushed sideways; only to placements with room to spare (the
-        # placements a grid step to either side are collision-free too), so a finger never ends up grazing a
-        # neighbour, and only as deep as the middle placement reaches.
-        middle = s_grid[bj] + np.where(np.isfinite(ymin), (ymin + ymax) / 2.0, 0.0)
-        roomy = valid[si, pi].copy()
-        roomy[:, 1:-1] &= valid[si, pi][:, :-2] & valid[si, pi][:, 2:]
-        roomy[:, [0, -1]] = False
-        roomy &= tip[si, pi] >= t_star[:, None].astype(np.float32) - 1e-3  # and no shallower: as much bite
-        roomy[np.arange(m), bj] = True  # the middle placement stays a choice
-        # nearest to 0.1 mm (float noise cannot flip a tie), then nearest the middle placement: the same hand
-        # whichever way the cloud is rotated
-        gap = np.round(np.abs(s_grid[None, :] - middle[:, None]) / 1e-4) * len(s_grid)
-        gap += np.abs(np.arange(len(s_grid))[None, :] - bj[:, None])
-        centred = np.argmin(np.where(roomy, gap, np.inf), axis=1)
-        moved = centred != bj
-        if moved.any():  # the closing regions of the hands that moved, the others' kept
-            pairs = flat[moved[cand_all.reshape(-1)[flat]]]
-            t_star, c2, e2, x2, y2, lo2, hi2 = closing_region(centred, pairs)
-            stay = ~moved[cand]
-            order = np.argsort(np.concatenate([cand[stay], c2]), kind="stable")
-            cand, elem, hx, hy = (np.concatenate([a[stay], b])[order] for a, b in ((cand, c2), (elem, e2), (hx, x2),
-                                                                                  (hy, y2)))
-            ymin, ymax = np.where(moved, lo2, ymin), np.where(moved, hi2, ymax)
-            bj = centred
-    keep = np.isfinite(ymin)
+    ranges = np.array([(*bin_range(s - od / 2 - clear, s - od / 2 + fw),  # left finger
+                        *bin_range(s + od / 2 - fw, s + od / 2 + clear),  # right finger
+                        *bin_range(s - od / 2 - clear, s + od / 2 + clear))  # palm
+                       for s in s_grid], np.int64).reshape(-1, 6)
+    support = None if p.support is None else _support_limit(p, hand, samples, frames, phis, s_grid, behind)
+    si, pi, bj, tip, ymin, ymax, local, elem, cand = place_hands(
+        starts, local_x, local_y, z, phis, s_grid, ranges, support, y_max=y_max, bin_w=bin_w, n_bins=n_bins, hd=hd,
+        clear=clear, init_bite=hand.init_bite, half_w=hand.closing_half_width, half_h=hh / 2.0,
+        centre=p.centre_on_object)
+    t_star = tip.astype(np.float64)
 
     c, s_ = np.cos(phis[pi])[:, None], np.sin(phis[pi])[:, None]
     f = frames[si]
@@ -385,11 +305,10 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     rotations = np.stack([approach, binormal, f[:, :, 2]], axis=2)
     positions = samples[si].astype(np.float64) + approach * (t_star - hd)[:, None] + binormal * s_grid[bj][:, None]
     grasps = GraspSet(
-        positions=positions[keep],
-        rotations=rotations[keep],
-        widths=(ymax - ymin)[keep],
-        scores=np.full(int(keep.sum()), np.nan),
-        samples=samples[si][keep].astype(np.float64),
+        positions=positions,
+        rotations=rotations,
+        widths=ymax - ymin,
+        scores=np.full(len(si), np.nan),
+        samples=samples[si].astype(np.float64),
     )
-    region = ClosingRegionPoints(cand, np.stack([hx, hy, z[elem]], axis=1).astype(np.float32), idx[elem])
-    return grasps, region.subset(keep)
+    return grasps, ClosingRegionPoints(cand, local, idx[elem])
