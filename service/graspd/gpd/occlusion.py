@@ -17,10 +17,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graspd.core.hand import HandGeometry
+from graspd.core.jit import kernel
 from graspd.core.parallel import THREADS
 from graspd.gpd.scene import VoxelGrid
 
 F64 = NDArray[np.float64]
+F32 = np.float32
 UnknownSpace = Literal["avoid", "allow"]
 UNKNOWN_SPACE_MODES: tuple[str, ...] = ("avoid", "allow")
 #: Default most share of a hand's samples that may lie in unseen space under "avoid": none (the margin below
@@ -73,27 +75,36 @@ def unknown_share(grid: VoxelGrid, positions: F64, rotations: F64, hand: HandGeo
     if m == 0 or not grid.cells.any():
         return out
     # in grid units (voxels from the grid's origin), float32: each hand's samples are its rotation times the local
-    # grid plus its position (elementwise: no BLAS threads beside the process's own), floored, clipped onto the
-    # grid (border cells read False) and looked up by flat index
+    # grid plus its position, floored, clipped onto the grid (border cells read False) and looked up
     local = (hand_samples(hand, approach_distance, margin, spacing) / grid.voxel).astype(np.float32)  # (P, 3)
     origin = ((positions - grid.origin) / grid.voxel).astype(np.float32)  # (M, 3)
     rots = rotations.astype(np.float32)
-    shape = grid.cells.shape
-    cells = grid.cells.reshape(-1)
 
     def share(a: int) -> None:
-        r, o = rots[a : a + chunk], origin[a : a + chunk]
-        flat: NDArray[np.int32] | None = None
-        for axis in range(3):
-            g = o[:, axis, None] + r[:, axis, 0, None] * local[:, 0]
-            g += r[:, axis, 1, None] * local[:, 1]
-            g += r[:, axis, 2, None] * local[:, 2]
-            np.floor(g, out=g)
-            np.clip(g, 0.0, shape[axis] - 1.0, out=g)
-            gi = g.astype(np.int32)  # at most MAX_GRID_CELLS cells: flat ids fit in int32
-            flat = gi if flat is None else flat * np.int32(shape[axis]) + gi
-        assert flat is not None
-        out[a : a + chunk] = cells[flat].mean(axis=1)
+        _unseen_counts(grid.cells, origin[a : a + chunk], rots[a : a + chunk], local, out[a : a + chunk])
 
     THREADS.map(share, range(0, m, chunk))
     return out
+
+
+@kernel
+def _unseen_counts(cells: NDArray[np.bool_], origin: NDArray[np.float32], rots: NDArray[np.float32],
+                   local: NDArray[np.float32], out: NDArray[np.float64]) -> None:
+    """out[h]: the share of the samples local (P,3; grid units, hand frame) of hand h (origin (M,3) in grid units,
+    rots (M,3,3)) that fall in a true cell; float32 arithmetic, positions clipped onto the grid."""
+    s0, s1, s2 = cells.shape
+    hi0, hi1, hi2 = F32(s0 - 1.0), F32(s1 - 1.0), F32(s2 - 1.0)
+    zero = F32(0.0)
+    for h in range(len(origin)):
+        n = 0
+        for q in range(len(local)):
+            l0, l1, l2 = local[q, 0], local[q, 1], local[q, 2]
+            g0 = np.floor(origin[h, 0] + rots[h, 0, 0] * l0 + rots[h, 0, 1] * l1 + rots[h, 0, 2] * l2)
+            g1 = np.floor(origin[h, 1] + rots[h, 1, 0] * l0 + rots[h, 1, 1] * l1 + rots[h, 1, 2] * l2)
+            g2 = np.floor(origin[h, 2] + rots[h, 2, 0] * l0 + rots[h, 2, 1] * l1 + rots[h, 2, 2] * l2)
+            i0 = int(min(max(g0, zero), hi0))
+            i1 = int(min(max(g1, zero), hi1))
+            i2 = int(min(max(g2, zero), hi2))
+            if cells[i0, i1, i2]:
+                n += 1
+        out[h] = n / len(local)

@@ -17,10 +17,9 @@ from scipy.spatial import cKDTree
 
 from graspd.core.cloud import CloudError, ViewpointCloud
 from graspd.core.hand import HandGeometry
+from graspd.core.jit import kernel
 
 MAX_GRID_CELLS = 48_000_000
-#: Shadow samples (surface points x steps) placed together when marking the unobserved volume.
-SHADOW_BLOCK = 1 << 19
 
 
 @dataclass(frozen=True)
@@ -108,34 +107,50 @@ def unobserved_grid(points: NDArray[np.float32], viewpoints: NDArray[np.float32]
     hi = pts.max(axis=0) + length
     v = max(voxel, float(np.cbrt(np.prod(hi - lo) / MAX_GRID_CELLS)))
     shape = tuple(int(s) for s in np.ceil((hi - lo) / v).astype(np.int64) + 1)
-    # Surface points thinned to one per voxel: shadows are resolved at the voxel size anyway.
-    occ_idx = np.floor((pts - lo) / v).astype(np.int64)
-    flat = (occ_idx[:, 0] * shape[1] + occ_idx[:, 1]) * shape[2] + occ_idx[:, 2]
-    uniq, first = np.unique(flat, return_index=True)
-    occupied = np.zeros(int(np.prod(shape)), bool)
-    occupied[uniq] = True
-    surface = pts[first]
-    steps = np.arange(1, int(np.ceil(length / v)) + 1) * v
-    shadowed = np.ones(int(np.prod(shape)), bool)
-    top = np.array(shape) - 1
-    per = max(1, SHADOW_BLOCK // max(1, len(surface)))  # steps marked together (bounded temporaries)
-    for cam in viewpoints.astype(np.float64):
-        ray = surface - cam
-        ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-9)
-        mine = np.zeros(int(np.prod(shape)), bool)
-        for a in range(0, len(steps), per):
-            # the same positions as one step at a time: surface + ray * step, each step in turn
-            g = np.floor((surface[None] + ray[None] * steps[a : a + per, None, None] - lo) / v).astype(np.int64)
-            np.clip(g, 0, top, out=g)
-            mine[((g[..., 0] * shape[1] + g[..., 1]) * shape[2] + g[..., 2]).reshape(-1)] = True
-        shadowed &= mine
-    cells = (shadowed & ~occupied).reshape(shape)
+    cells = np.empty(shape, bool)
+    steps = np.arange(1, int(np.ceil(length / v)) + 1, dtype=np.float64) * v
+    _unobserved(pts, viewpoints.astype(np.float64), lo, v, steps, cells)
     # The box reaches `length` past every point, so border cells are (at most) the shadows' rounding
     # spill: clear them, which lets lookups clip out-of-grid positions onto the border.
     cells[[0, -1], :, :] = False
     cells[:, [0, -1], :] = False
     cells[:, :, [0, -1]] = False
     return VoxelGrid(lo, v, cells)
+
+
+@kernel
+def _unobserved(pts: NDArray[np.float64], cams: NDArray[np.float64], lo: NDArray[np.float64], v: float,
+                steps: NDArray[np.float64], cells: NDArray[np.bool_]) -> None:
+    """cells (grid of voxel v from lo): True where every camera's shadow (each surface voxel's first point marched
+    away from the camera by steps, m) reaches and no point lies."""
+    s0, s1, s2 = cells.shape
+    occupied = np.zeros((s0, s1, s2), np.bool_)
+    surface = np.empty(len(pts), np.int64)  # surface points thinned to one per voxel (the first): shadows are
+    n = 0  # resolved at the voxel size anyway
+    for i in range(len(pts)):
+        a = int(np.floor((pts[i, 0] - lo[0]) / v))
+        b = int(np.floor((pts[i, 1] - lo[1]) / v))
+        c = int(np.floor((pts[i, 2] - lo[2]) / v))
+        if not occupied[a, b, c]:
+            occupied[a, b, c] = True
+            surface[n] = i
+            n += 1
+    cells[:] = True
+    mine = np.empty((s0, s1, s2), np.bool_)
+    for cam in range(len(cams)):
+        mine[:] = False
+        for q in range(n):
+            p = surface[q]
+            r0, r1, r2 = pts[p, 0] - cams[cam, 0], pts[p, 1] - cams[cam, 1], pts[p, 2] - cams[cam, 2]
+            norm = max(np.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-9)
+            r0, r1, r2 = r0 / norm, r1 / norm, r2 / norm
+            for step in steps:
+                a = min(max(int(np.floor((pts[p, 0] + r0 * step - lo[0]) / v)), 0), s0 - 1)
+                b = min(max(int(np.floor((pts[p, 1] + r1 * step - lo[1]) / v)), 0), s1 - 1)
+                c = min(max(int(np.floor((pts[p, 2] + r2 * step - lo[2]) / v)), 0), s2 - 1)
+                mine[a, b, c] = True
+        cells &= mine
+    cells &= ~occupied
 
 
 def ball_pairs(tree: cKDTree, centres: NDArray[np.floating], radius: float
