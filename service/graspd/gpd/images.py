@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.core.parallel import THREADS
+from graspd.gpd.rasterize import depth_maps, project_points, unobserved_cells
 from graspd.gpd.scene import ClosingRegionPoints, Scene, closing_region_points
 
 REPRESENTATIONS: dict[str, int] = {"15": 15, "12": 12, "3": 3, "herzog": 3}
@@ -54,38 +55,6 @@ def _unit_coords(local: NDArray[np.float32], hand: HandGeometry) -> NDArray[np.f
     return np.clip((local - lo) / size, 0.0, 1.0)
 
 
-def _pixel_means(gid: NDArray[np.int64], unit: NDArray[np.float32], values: NDArray[np.float32],
-                 proj: tuple[int, int, int], size: int) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
-    """For projection proj: the flat pixel ids (grasp*size*size + row*size + col) hit by points, and the
-    mean of each column of values (T,V) over the points in each such pixel (P,V)."""
-    _, r, c = proj
-    row = np.minimum((unit[:, r] * size).astype(np.int64), size - 1)
-    col = np.minimum((unit[:, c] * size).astype(np.int64), size - 1)
-    pix = (gid * size + row) * size + col
-    uniq, inv, counts = np.unique(pix, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    means = np.stack([np.bincount(inv, values[:, v], len(uniq)) for v in range(values.shape[1])], axis=1)
-    return uniq, (means / counts[:, None]).astype(np.float32)
-
-
-def _scatter(out: NDArray[np.uint8], channels: range, pix: NDArray[np.int64], values: NDArray[np.float32]) -> None:
-    """Write values (P, len(channels)) at flat pixel ids (grasp*h*w + row*w + col) of channels of out
-    (M,C,h,w), a C-contiguous array."""
-    m, n_ch, h, w = out.shape
-    g, rest = np.divmod(pix, h * w)
-    base = g * (n_ch * h * w) + rest
-    flat = out.reshape(-1)
-    u8 = _to_u8(values)
-    for k, channel in enumerate(channels):
-        flat[base + channel * (h * w)] = u8[:, k]
-
-
-def _to_u8(x: NDArray[np.float32]) -> NDArray[np.uint8]:
-    """Values in [0, 1] as round(255 x), clipped."""
-    y = np.rint(x * np.float32(255.0))
-    return np.clip(y, 0, 255, out=y).astype(np.uint8)
-
-
 def unobserved_grids(scene: Scene, grasps: GraspSet, hand: HandGeometry, chunk: int = 256
                      ) -> NDArray[np.bool_]:
     """Which cells of a regular grid over each closing region (M, nx, ny, nz), at the scene's shadow
@@ -98,27 +67,13 @@ def unobserved_grids(scene: Scene, grasps: GraspSet, hand: HandGeometry, chunk: 
     unit = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     lo = np.array([0.0, -half_w, -hand.hand_height / 2.0])
     local = (lo + unit * np.array([hand.hand_depth, 2 * half_w, hand.hand_height])).astype(np.float32)
-    out = np.zeros((len(grasps), *n), bool)
+    grid_cells = np.ascontiguousarray(grid.cells)
+    out = np.zeros((len(grasps), int(np.prod(n))), bool)
     for a in range(0, len(grasps), chunk):
-        rot = grasps.rotations[a : a + chunk].astype(np.float32)
-        pos = grasps.positions[a : a + chunk].astype(np.float32)
-        world = pos[:, None, :] + np.matmul(local[None, :, :], rot.transpose(0, 2, 1))
-        out[a : a + chunk] = grid.contains(world).reshape(len(rot), *n)
-    return out
-
-
-def _grid_depth_maps(grid: NDArray[np.bool_], depth_axis: int, size: int) -> NDArray[np.uint8]:
-    """Mean unit depth (as uint8) of the true cells along depth_axis, upsampled to (M, size, size)."""
-    k = grid.shape[1 + depth_axis]
-    weights = np.stack([np.ones(k), (np.arange(k) + 0.5) / k], axis=1).astype(np.float32)  # (k, 2)
-    # counts and depth sums in one small matmul (BLAS) instead of two reductions over the grid
-    stats = np.moveaxis(grid, 1 + depth_axis, -1).astype(np.float32) @ weights  # (M, a, b, 2)
-    counts, sums = stats[..., 0], stats[..., 1]
-    mean = _to_u8(np.where(counts > 0, sums / np.maximum(counts, 1.0), 0.0).astype(np.float32))
-    rows = (np.arange(size) + 0.5) / size
-    r_idx = (rows * mean.shape[1]).astype(np.int64)
-    c_idx = (rows * mean.shape[2]).astype(np.int64)
-    return mean[:, r_idx][:, :, c_idx]
+        unobserved_cells(grid_cells, grid.origin.astype(np.float32), 1.0 / v,
+                         grasps.positions[a : a + chunk].astype(np.float32),
+                         grasps.rotations[a : a + chunk].astype(np.float32), local, out[a : a + chunk])
+    return out.reshape(len(grasps), *n)
 
 
 ENCODE_CHUNK = 256  # grasps encoded together: keeps temporaries in cache and time linear in grasps
@@ -206,9 +161,9 @@ def _chunks(scene: Scene, grasps: GraspSet, hand: HandGeometry, region: ClosingR
 def _encode_chunk(out: NDArray[np.uint8], scene: Scene, grasps: GraspSet, hand: HandGeometry,
                   representation: str, occ: ClosingRegionPoints) -> None:
     """Fill out (M, C, size, size), a C-contiguous block of the result, with the images of grasps."""
-    size = out.shape[-1]
     occ_unit = _unit_coords(occ.local, hand)
     unobs = unobserved_grids(scene, grasps, hand) if representation in ("15", "herzog") else None
+    gid = np.ascontiguousarray(occ.grasp)
     if representation != "herzog":
         rot = grasps.rotations.astype(np.float32)
         nrm = np.einsum("tj,tjk->tk", scene.normals[occ.index], rot[occ.grasp])
@@ -217,17 +172,16 @@ def _encode_chunk(out: NDArray[np.uint8], scene: Scene, grasps: GraspSet, hand: 
         ch = 0
         for p in projections:
             proj = _PROJECTIONS[p]
-            depth = occ_unit[:, proj[0] : proj[0] + 1]
-            pix, means = _pixel_means(occ.grasp, occ_unit, np.concatenate([nrm_scaled, depth], axis=1), proj, size)
             take = 3 if representation == "3" else 4
-            _scatter(out, range(ch, ch + take), pix, means[:, :take])
+            values = np.concatenate([nrm_scaled, occ_unit[:, proj[0] : proj[0] + 1]], axis=1)[:, :take]
+            project_points(gid, occ_unit, np.ascontiguousarray(values), proj[1], proj[2], ch, out)
             ch += take
             if unobs is not None:
-                out[:, ch] = _grid_depth_maps(unobs, p, size)
+                depth_maps(unobs, p, ch, out)
                 ch += 1
         return
     assert unobs is not None
-    pix, means = _pixel_means(occ.grasp, occ_unit, occ_unit[:, 0:1], _PROJECTIONS[0], size)
-    _scatter(out, range(1), pix, means[:, :1])
-    out[:, 1] = _grid_depth_maps(unobs, 0, size)
+    project_points(gid, occ_unit, np.ascontiguousarray(occ_unit[:, 0:1]), _PROJECTIONS[0][1], _PROJECTIONS[0][2], 0,
+                   out)
+    depth_maps(unobs, 0, 1, out)
     out[:, 2] = np.where((out[:, 0] > 0) | (out[:, 1] > 0), 0, 255).astype(np.uint8)
