@@ -182,8 +182,8 @@ DENSE_FACTOR = 12
 #: Obstacle points x samples tested densely at once (bounds the temporaries: ~40 MB).
 DENSE_BLOCK = 1 << 21
 #: A chunk's hand search tests every (sample, obstacle point) pair in one compiled pass when there are at most this
-#: many (a few ms); beyond, slab_pairs finds them.
-SCAN_PAIRS = 1 << 22
+#: many (~1 ns a pair); beyond, slab_pairs finds them.
+SCAN_PAIRS = 1 << 24
 #: Margin of the dense slab pre-test, relative to the largest coordinate (m/m): pairs this close to the slab's
 #: border go on to the exact test, so the dense and the kd-tree paths find the same pairs.
 DENSE_EPS = 1e-5

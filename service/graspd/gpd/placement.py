@@ -50,16 +50,19 @@ def slab_coordinates(points: NDArray[np.float32], samples: NDArray[np.float32], 
 
 @kernel
 def _slab_scan(points: NDArray[np.float32], samples: NDArray[np.float32], frames: NDArray[np.float32],
-               reach: float, half_h: float, counts: NDArray[np.int64], fill: bool, sid: NDArray[np.int64],
-               idx: NDArray[np.int64], local: NDArray[np.float32]) -> None:
+               reach: float, half_h: float, capacity: int
+               ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32], int]:
     """Every point of points within reach (m, float64 test) of each sample and within half_h of its slab (float32
-    test), in sample then point order: counted per sample into counts, or (fill) written at counts' offsets."""
+    test), in sample then point order: sample rows, point rows, sample-frame coordinates, and their number (the
+    arrays grow by doubling from capacity rows)."""
     hh, r2 = F32(half_h), reach * reach
+    sid = np.empty(capacity, np.int64)
+    idx = np.empty(capacity, np.int64)
+    local = np.empty((capacity, 3), np.float32)
     o = 0
     for s in range(len(samples)):
         sx, sy, sz = samples[s, 0], samples[s, 1], samples[s, 2]
         ax, ay, az = frames[s, 0, 2], frames[s, 1, 2], frames[s, 2, 2]
-        n = 0
         for i in range(len(points)):
             d0, d1, d2 = points[i, 0] - sx, points[i, 1] - sy, points[i, 2] - sz
             zz = d0 * ax + d1 * ay + d2 * az
@@ -70,15 +73,18 @@ def _slab_scan(points: NDArray[np.float32], samples: NDArray[np.float32], frames
             e2 = np.float64(points[i, 2]) - np.float64(sz)
             if not e0 * e0 + e1 * e1 + e2 * e2 <= r2:
                 continue
-            if fill:
-                sid[o], idx[o] = s, i
-                local[o, 0] = d0 * frames[s, 0, 0] + d1 * frames[s, 1, 0] + d2 * frames[s, 2, 0]
-                local[o, 1] = d0 * frames[s, 0, 1] + d1 * frames[s, 1, 1] + d2 * frames[s, 2, 1]
-                local[o, 2] = zz
-                o += 1
-            n += 1
-        if not fill:
-            counts[s] = n
+            if o == len(sid):
+                grown = max(2 * len(sid), 1024)
+                sid2, idx2, local2 = np.empty(grown, np.int64), np.empty(grown, np.int64), np.empty((grown, 3),
+                                                                                                     np.float32)
+                sid2[:o], idx2[:o], local2[:o] = sid[:o], idx[:o], local[:o]
+                sid, idx, local = sid2, idx2, local2
+            sid[o], idx[o] = s, i
+            local[o, 0] = d0 * frames[s, 0, 0] + d1 * frames[s, 1, 0] + d2 * frames[s, 2, 0]
+            local[o, 1] = d0 * frames[s, 0, 1] + d1 * frames[s, 1, 1] + d2 * frames[s, 2, 1]
+            local[o, 2] = zz
+            o += 1
+    return sid, idx, local, o
 
 
 def slab_neighbours(points: NDArray[np.float32], samples: NDArray[np.float32], frames: NDArray[np.float32],
@@ -87,16 +93,9 @@ def slab_neighbours(points: NDArray[np.float32], samples: NDArray[np.float32], f
     point lies within half_h (m) of the sample's plane normal to its frame's third axis, in sample then point
     order, and their points in the sample frame (T, 3; float32, m): slab_pairs then slab_coordinates, in one
     pass, for the point sets small enough that testing all pairs is cheaper than a kd-tree."""
-    pts = np.ascontiguousarray(points, np.float32)
-    smp = np.ascontiguousarray(samples, np.float32)
-    fr = np.ascontiguousarray(frames, np.float32)
-    counts = np.zeros(len(smp), np.int64)
-    none_i, none_l = np.zeros(0, np.int64), np.zeros((0, 3), np.float32)
-    _slab_scan(pts, smp, fr, reach, half_h, counts, False, none_i, none_i, none_l)
-    total = int(counts.sum())
-    sid, idx, local = np.empty(total, np.int64), np.empty(total, np.int64), np.empty((total, 3), np.float32)
-    _slab_scan(pts, smp, fr, reach, half_h, counts, True, sid, idx, local)
-    return sid, idx, local
+    sid, idx, local, n = _slab_scan(np.ascontiguousarray(points, np.float32), np.ascontiguousarray(samples, np.float32),
+                                    np.ascontiguousarray(frames, np.float32), reach, half_h, 256 * len(samples))
+    return sid[:n], idx[:n], local[:n]
 
 
 @kernel
