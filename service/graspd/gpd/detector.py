@@ -351,6 +351,7 @@ class GraspDetector:
                                   clear_behind=h.palm_depth + p.approach_distance,
                                   obstacles=None if plane is None else ~env.closed_form_mask(prepared.points),
                                   support=plane, support_clearance=env.clearance, clearance=p.clearance)
+        scene = replace(scene, focus=hand_focus(prepared.points, sampling, h, p.approach_distance))
         return Prepared(cloud=prepared, environment=env, scene=scene, sampling=sampling,
                         selection=p.selection(h, env), segmentation=segmentation, target=target)
 
@@ -382,6 +383,25 @@ class GraspDetector:
             feasible[region.grasp[outside]] = False
         kept, kept_region = cands[feasible], region.subset(feasible)
         return kept.with_objects(prep.segmentation.grasp_objects(kept_region, len(kept))), kept_region
+
+
+def hand_focus(points: NDArray[np.float32], sampling: SamplingParams, hand: HandGeometry, approach_distance: float
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The box (lo, hi; m, cloud frame) every hand of the sampling, and its path back from the pre-grasp pose,
+    lies in: the bounds of the points it samples at, grown by the farthest any part of such a hand reaches from
+    its sample (which lies between the fingers).  None when it samples anywhere (no pool)."""
+    if sampling.sample_indices is not None:
+        at = points[np.asarray(sampling.sample_indices, np.int64)]
+    elif sampling.sample_pool is not None:
+        at = points[sampling.sample_pool]
+    else:
+        return None
+    if len(at) == 0:
+        return None
+    along = hand.hand_depth + hand.palm_depth + approach_distance
+    across = hand.hand_outer_diameter / 2.0 + hand.closing_half_width
+    reach = float(np.sqrt(along**2 + across**2 + (hand.hand_height / 2.0) ** 2))
+    return at.min(axis=0).astype(np.float64) - reach, at.max(axis=0).astype(np.float64) + reach
 
 
 @dataclass(frozen=True)

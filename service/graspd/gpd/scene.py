@@ -55,6 +55,7 @@ class Scene:
     tree: cKDTree
     shadow_voxel: float = 0.004
     shadow_length: float = 0.10
+    focus: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (lo, hi) m: where hands can reach
     _cache: dict[str, VoxelGrid] = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -72,11 +73,13 @@ class Scene:
         return self.unobserved_within(self.shadow_length)
 
     def unobserved_within(self, length: float) -> VoxelGrid:
-        """Space within length (m) behind the surface from every camera (computed once per length): the hand
-        checks look deeper than the images (graspd.gpd.occlusion.hand_shadow_length)."""
+        """Space within length (m) behind the surface from every camera (computed once per length; exact inside
+        the focus box, where hands reach, when there is one): the hand checks look deeper than the images
+        (graspd.gpd.occlusion.hand_shadow_length)."""
         key = "unobserved" if length == self.shadow_length else f"unobserved@{length:.6f}"
         if key not in self._cache:
-            self._cache[key] = unobserved_grid(self.cloud.points, self.cloud.viewpoints, self.shadow_voxel, length)
+            self._cache[key] = unobserved_grid(self.cloud.points, self.cloud.viewpoints, self.shadow_voxel, length,
+                                               self.focus)
         return self._cache[key]
 
     @staticmethod
@@ -96,8 +99,11 @@ class Scene:
 
 
 def unobserved_grid(points: NDArray[np.float32], viewpoints: NDArray[np.float32], voxel: float,
-                    length: float) -> VoxelGrid:
-    """Voxels within `length` behind the surface as seen from every camera, and holding no point.
+                    length: float, focus: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+                    ) -> VoxelGrid:
+    """Voxels within `length` behind the surface as seen from every camera, and holding no point.  With a focus
+    box (lo, hi; m) only the cells inside it are exact (those outside may read False): the shadows that cannot
+    reach it are not marched, which spares most of a large scene when hands can reach only part of it.
 
     The grid's voxel grows past `voxel` only if the shadows' bounding box would exceed MAX_GRID_CELLS."""
     if len(points) == 0 or length <= 0.0:
@@ -109,7 +115,10 @@ def unobserved_grid(points: NDArray[np.float32], viewpoints: NDArray[np.float32]
     shape = tuple(int(s) for s in np.ceil((hi - lo) / v).astype(np.int64) + 1)
     cells = np.empty(shape, bool)
     steps = np.arange(1, int(np.ceil(length / v)) + 1, dtype=np.float64) * v
-    _unobserved(pts, viewpoints.astype(np.float64), lo, v, steps, cells)
+    # a cell of margin round the focus: a shadow passing just outside it still marks the cells it rounds into
+    near_lo = lo if focus is None else np.asarray(focus[0], np.float64) - v
+    near_hi = hi if focus is None else np.asarray(focus[1], np.float64) + v
+    _unobserved(pts, viewpoints.astype(np.float64), lo, v, steps, near_lo, near_hi, cells)
     # The box reaches `length` past every point, so border cells are (at most) the shadows' rounding
     # spill: clear them, which lets lookups clip out-of-grid positions onto the border.
     cells[[0, -1], :, :] = False
@@ -120,9 +129,11 @@ def unobserved_grid(points: NDArray[np.float32], viewpoints: NDArray[np.float32]
 
 @kernel
 def _unobserved(pts: NDArray[np.float64], cams: NDArray[np.float64], lo: NDArray[np.float64], v: float,
-                steps: NDArray[np.float64], cells: NDArray[np.bool_]) -> None:
+                steps: NDArray[np.float64], near_lo: NDArray[np.float64], near_hi: NDArray[np.float64],
+                cells: NDArray[np.bool_]) -> None:
     """cells (grid of voxel v from lo): True where every camera's shadow (each surface voxel's first point marched
-    away from the camera by steps, m) reaches and no point lies."""
+    away from the camera by steps, m) reaches and no point lies; shadows whose bounds miss the box [near_lo,
+    near_hi] are not marched."""
     s0, s1, s2 = cells.shape
     occupied = np.zeros((s0, s1, s2), np.bool_)
     surface = np.empty(len(pts), np.int64)  # surface points thinned to one per voxel (the first): shadows are
@@ -135,6 +146,7 @@ def _unobserved(pts: NDArray[np.float64], cams: NDArray[np.float64], lo: NDArray
             occupied[a, b, c] = True
             surface[n] = i
             n += 1
+    reach = steps[-1] if len(steps) else 0.0
     cells[:] = True
     mine = np.empty((s0, s1, s2), np.bool_)
     for cam in range(len(cams)):
@@ -144,11 +156,16 @@ def _unobserved(pts: NDArray[np.float64], cams: NDArray[np.float64], lo: NDArray
             r0, r1, r2 = pts[p, 0] - cams[cam, 0], pts[p, 1] - cams[cam, 1], pts[p, 2] - cams[cam, 2]
             norm = max(np.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-9)
             r0, r1, r2 = r0 / norm, r1 / norm, r2 / norm
+            e0, e1, e2 = pts[p, 0] + r0 * reach, pts[p, 1] + r1 * reach, pts[p, 2] + r2 * reach
+            if (max(pts[p, 0], e0) < near_lo[0] or min(pts[p, 0], e0) > near_hi[0]
+                    or max(pts[p, 1], e1) < near_lo[1] or min(pts[p, 1], e1) > near_hi[1]
+                    or max(pts[p, 2], e2) < near_lo[2] or min(pts[p, 2], e2) > near_hi[2]):
+                continue  # the shadow's bounds miss the box
             for step in steps:
-                a = min(max(int(np.floor((pts[p, 0] + r0 * step - lo[0]) / v)), 0), s0 - 1)
-                b = min(max(int(np.floor((pts[p, 1] + r1 * step - lo[1]) / v)), 0), s1 - 1)
-                c = min(max(int(np.floor((pts[p, 2] + r2 * step - lo[2]) / v)), 0), s2 - 1)
-                mine[a, b, c] = True
+                m0 = min(max(int(np.floor((pts[p, 0] + r0 * step - lo[0]) / v)), 0), s0 - 1)
+                m1 = min(max(int(np.floor((pts[p, 1] + r1 * step - lo[1]) / v)), 0), s1 - 1)
+                m2 = min(max(int(np.floor((pts[p, 2] + r2 * step - lo[2]) / v)), 0), s2 - 1)
+                mine[m0, m1, m2] = True
         cells &= mine
     cells &= ~occupied
 
