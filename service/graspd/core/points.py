@@ -1,5 +1,5 @@
-"""Point-set geometry every layer shares, numpy and scipy only: the one voxel grid, PCA normals, statistical
-outlier removal, a seeded RANSAC plane and distance clusters."""
+"""Point-set geometry every layer shares (numpy, scipy, and compiled kernels for the per-point loops): the one
+voxel grid, PCA normals, statistical outlier removal, a seeded RANSAC plane and distance clusters."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from graspd.core.jit import kernel
 from graspd.core.parallel import THREADS
 
 FloatArray = TypeVar("FloatArray", NDArray[np.float32], NDArray[np.float64])
@@ -53,12 +54,358 @@ def voxel_downsample(points: FloatArray, voxel: float) -> FloatArray:
     return np.asarray(sums / counts[:, None]).astype(points.dtype, copy=False)
 
 
-def _padded(points: NDArray[np.floating]) -> NDArray[np.float64]:
-    """points as float64 with one extra row of zeros: the row cKDTree's 'no neighbour' index (N) gathers."""
-    return np.vstack([np.asarray(points, np.float64), np.zeros((1, 3))])
+#: Cell edge of the normals' grid as a multiple of the radius: a little over 1, so two points within the radius
+#: lie in the same or adjacent cells despite the rounding of their cell coordinates.
+_CELL_MARGIN = 1.0 + 1e-6
+#: Cell coordinates are clamped to +-this: a coordinate farther than 2^61 cells from the origin (not a real cloud:
+#: 2.3e16 m at 1 cm) shares the edge cell; distances are still exact, so neighbours are too, and differences of
+#: two clamped coordinates fit int64.
+_CELL_LIMIT = float(1 << 61)
 
 
-#: Points whose normals one task of pca_normals computes (tasks run on the process's thread budget).
+@kernel
+def _cells(points: NDArray[np.float64], edge: float, out: NDArray[np.int64]) -> None:
+    """Integer cell coordinates (N,3) of points (N,3, float64) in the grid of cubic cells of edge `edge` anchored
+    at the origin, shifted to start at 0: floor(p / edge) - its minimum.  Computed from each point alone (not
+    from p - min, which rounds away a far cloud's detail), clamped to +-2^61 (NaN to 0) so the cast is defined."""
+    n = points.shape[0]
+    for k in range(3):
+        low = np.int64(0)
+        for i in range(n):
+            c = np.floor(points[i, k] / edge)
+            if not c >= -_CELL_LIMIT:
+                c = -_CELL_LIMIT if c < 0.0 else 0.0
+            elif c > _CELL_LIMIT:
+                c = _CELL_LIMIT
+            out[i, k] = np.int64(c)
+            if i == 0 or out[i, k] < low:
+                low = out[i, k]
+        for i in range(n):
+            out[i, k] -= low
+
+
+@kernel
+def _cell_runs(cells: NDArray[np.int64], order: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The distinct cells (M,3) of cell coordinates (N,3) visited in `order` (lexicographic: x, then y, then z),
+    and where each one's points start in that order (M+1,; the last entry N)."""
+    n = order.shape[0]
+    uniq = np.empty((n, 3), np.int64)
+    start = np.empty(n + 1, np.int64)
+    m = 0
+    for j in range(n):
+        i = order[j]
+        if m == 0 or cells[i, 0] != uniq[m - 1, 0] or cells[i, 1] != uniq[m - 1, 1] or cells[i, 2] != uniq[m - 1, 2]:
+            uniq[m, 0], uniq[m, 1], uniq[m, 2] = cells[i, 0], cells[i, 1], cells[i, 2]
+            start[m] = j
+            m += 1
+    start[m] = n
+    return uniq[:m].copy(), start[:m + 1].copy()
+
+
+@kernel
+def _first_cell_at_least(uniq: NDArray[np.int64], x: int, y: int, z: int) -> int:
+    """Index of the first of the lexicographically sorted cells uniq (M,3) that is >= (x, y, z) (M if none)."""
+    a, b = 0, uniq.shape[0]
+    while a < b:
+        h = (a + b) >> 1
+        ux, uy, uz = uniq[h, 0], uniq[h, 1], uniq[h, 2]
+        if ux < x or (ux == x and (uy < y or (uy == y and uz < z))):
+            a = h + 1
+        else:
+            b = h
+    return a
+
+
+@kernel
+def _rotation(app: float, aqq: float, apq: float) -> tuple[float, float]:
+    """cos and sin of the Jacobi rotation that diagonalises the symmetric 2x2 [[app, apq], [apq, aqq]] (apq != 0;
+    Numerical Recipes' form, small-angle root): the axes (c, -s) and (s, c) then have the eigenvalues
+    app - t apq and aqq + t apq, t = s / c."""
+    theta = (aqq - app) / (2.0 * apq)
+    if abs(theta) > 1e150:  # theta^2 would overflow
+        t = 0.5 / theta
+    else:
+        t = 1.0 / (abs(theta) + np.sqrt(theta * theta + 1.0))
+        if theta < 0.0:
+            t = -t
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    return c, t * c
+
+
+@kernel
+def _cross_axis(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float, lam: float
+                ) -> tuple[float, float, float]:
+    """Unit eigenvector of the symmetric 3x3 a (its upper triangle) for its eigenvalue lam, which must be simple:
+    every row of a - lam I is normal to it, so the longest cross product of two rows is along it.  (0, 0, 0) when
+    all three vanish."""
+    r00, r11, r22 = a00 - lam, a11 - lam, a22 - lam
+    x0, y0, z0 = a01 * a12 - a02 * r11, a02 * a01 - r00 * a12, r00 * r11 - a01 * a01  # row 0 x row 1
+    x1, y1, z1 = a01 * r22 - a02 * a12, a02 * a02 - r00 * r22, r00 * a12 - a01 * a02  # row 0 x row 2
+    x2, y2, z2 = r11 * r22 - a12 * a12, a12 * a02 - a01 * r22, a01 * a12 - r11 * a02  # row 1 x row 2
+    n0 = x0 * x0 + y0 * y0 + z0 * z0
+    n1 = x1 * x1 + y1 * y1 + z1 * z1
+    n2 = x2 * x2 + y2 * y2 + z2 * z2
+    if n0 >= n1 and n0 >= n2:
+        x, y, z, n = x0, y0, z0, n0
+    elif n1 >= n2:
+        x, y, z, n = x1, y1, z1, n1
+    else:
+        x, y, z, n = x2, y2, z2, n2
+    if not n > 0.0:
+        return 0.0, 0.0, 0.0
+    s = 1.0 / np.sqrt(n)
+    return x * s, y * s, z * s
+
+
+@kernel
+def _least_axis(c00: float, c01: float, c02: float, c11: float, c12: float, c22: float
+                ) -> tuple[float, float, float, float]:
+    """The unit eigenvector (x, y, z) of the least eigenvalue of the symmetric 3x3 c (its upper triangle, float64)
+    and c's largest eigenvalue (0 for the zero matrix).
+
+    The robust closed form (Eberly, "A Robust Eigensolver for 3x3 Symmetric Matrices"): c is scaled to entries in
+    [-1, 1]; the eigenvalues come from the trigonometric solution of the characteristic cubic; then the axis of
+    the better separated extreme eigenvalue is taken first (cross products of rows of c - lam I), and, when that
+    is the largest one, the least axis from one Jacobi rotation of the 2x2 block normal to it.  The angle error
+    is about the float64 rounding over the relative gap to the nearest eigenvalue (eigh's own accuracy): planar
+    neighbourhoods (one small eigenvalue) and linear ones (two) alike, at any scale.  A multiple of the identity
+    has every axis: (1, 0, 0)."""
+    m = max(abs(c00), abs(c01), abs(c02), abs(c11), abs(c12), abs(c22))
+    if not m > 0.0:
+        return 0.0, 0.0, 1.0, 0.0
+    a00, a01, a02, a11, a12, a22 = c00 / m, c01 / m, c02 / m, c11 / m, c12 / m, c22 / m
+    q = (a00 + a11 + a22) / 3.0
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p2 = (b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)) / 6.0
+    if not p2 > 0.0:
+        return 1.0, 0.0, 0.0, m * q
+    p = np.sqrt(p2)
+    det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
+    phi = np.arccos(min(1.0, max(-1.0, det / (2.0 * p2 * p)))) / 3.0
+    lmax = q + 2.0 * p * np.cos(phi)
+    lmin = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    lmid = 3.0 * q - lmax - lmin
+    if lmid - lmin >= lmax - lmid:  # the least eigenvalue is the better separated one: its axis directly
+        x, y, z = _cross_axis(a00, a01, a02, a11, a12, a22, lmin)
+        if x != 0.0 or y != 0.0 or z != 0.0:
+            return x, y, z, m * lmax
+    ux, uy, uz = _cross_axis(a00, a01, a02, a11, a12, a22, lmax)  # the largest one's axis, then the plane normal
+    if ux == 0.0 and uy == 0.0 and uz == 0.0:
+        return 1.0, 0.0, 0.0, m * lmax
+    if abs(ux) > abs(uy):  # (v, w): an orthonormal pair normal to u
+        s = 1.0 / np.sqrt(ux * ux + uz * uz)
+        vx, vy, vz = -uz * s, 0.0, ux * s
+    else:
+        s = 1.0 / np.sqrt(uy * uy + uz * uz)
+        vx, vy, vz = 0.0, uz * s, -uy * s
+    wx, wy, wz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    avx, avy, avz = a00 * vx + a01 * vy + a02 * vz, a01 * vx + a11 * vy + a12 * vz, a02 * vx + a12 * vy + a22 * vz
+    awx, awy, awz = a00 * wx + a01 * wy + a02 * wz, a01 * wx + a11 * wy + a12 * wz, a02 * wx + a12 * wy + a22 * wz
+    mvv = vx * avx + vy * avy + vz * avz
+    mvw = vx * awx + vy * awy + vz * awz
+    mww = wx * awx + wy * awy + wz * awz
+    if mvw == 0.0:
+        cs, sn = (1.0, 0.0) if mvv <= mww else (0.0, 1.0)
+    else:
+        c, s = _rotation(mvv, mww, mvw)
+        t = s / c
+        cs, sn = (c, -s) if mvv - t * mvw <= mww + t * mvw else (s, c)
+    x, y, z = cs * vx + sn * wx, cs * vy + sn * wy, cs * vz + sn * wz
+    n = np.sqrt(x * x + y * y + z * z)
+    return x / n, y / n, z / n, m * lmax
+
+
+@kernel
+def _select_pairs(d: NDArray[np.float64], s: NDArray[np.int64], count: int, k: int) -> None:
+    """Reorder d[:count] and s[:count] together so that their first k entries hold the k smallest d
+    (quickselect, in place; 0 < k < count)."""
+    a, b = 0, count - 1
+    while a < b:
+        m = (a + b) >> 1  # median of three as the pivot
+        x, y, z = d[a], d[m], d[b]
+        pivot = max(min(x, y), min(max(x, y), z))
+        i, j = a, b
+        while i <= j:
+            while d[i] < pivot:
+                i += 1
+            while d[j] > pivot:
+                j -= 1
+            if i <= j:
+                d[i], d[j] = d[j], d[i]
+                s[i], s[j] = s[j], s[i]
+                i += 1
+                j -= 1
+        if k - 1 <= j:
+            b = j
+        elif k - 1 >= i:
+            a = i
+        else:
+            return
+
+
+#: Distance buckets of the nearest-neighbour selection: a surface's neighbours spread evenly over squared
+#: distance, so about one neighbour falls in each.
+_BUCKETS = 64
+
+
+@kernel
+def _nearest(kd: NDArray[np.float64], kept: NDArray[np.int64], count: int, k: int, radius2: float,
+             hist: NDArray[np.int64], bucket: NDArray[np.int64], tie: NDArray[np.int64], tie_d: NDArray[np.float64]
+             ) -> None:
+    """Reorder kept[:count] (candidates with squared distances kd[:count], all within radius2) so that its first k
+    entries are the k nearest (k < count): a histogram over squared distance finds the bucket holding the k-th;
+    the nearer buckets are taken whole and that bucket's points are selected exactly (the first ones first on
+    equal distances; quickselect when there are many).  hist (_BUCKETS,), bucket, tie, tie_d (count,) are
+    scratch."""
+    nb = hist.shape[0]
+    hist[:] = 0
+    scale = nb / radius2
+    for t in range(count):
+        b = min(np.int64(kd[t] * scale), nb - 1)
+        bucket[t] = b
+        hist[b] += 1
+    below = 0
+    edge = 0
+    while below + hist[edge] < k:
+        below += hist[edge]
+        edge += 1
+    m = 0
+    ties = 0
+    for t in range(count):  # branch-free partition (m <= t: kept is compacted in place)
+        j = kept[t]
+        kept[m] = j
+        tie[ties] = j
+        tie_d[ties] = kd[t]
+        m += bucket[t] < edge
+        ties += bucket[t] == edge
+    need = k - below
+    if ties > 4 * need + 16:  # many at one distance (duplicates): quickselect
+        _select_pairs(tie_d, tie, ties, need)
+        for u in range(need):
+            kept[m + u] = tie[u]
+        return
+    for _ in range(need):  # the nearest of the edge bucket, one by one
+        best = 0
+        for u in range(1, ties):
+            if tie_d[u] < tie_d[best]:
+                best = u
+        kept[m] = tie[best]
+        m += 1
+        ties -= 1
+        for u in range(best, ties):
+            tie[u], tie_d[u] = tie[u + 1], tie_d[u + 1]
+
+
+@kernel
+def _normals_of_cells(sorted_pts: NDArray[np.float64], order: NDArray[np.int64], uniq: NDArray[np.int64],
+                      start: NDArray[np.int64], first: int, last: int, radius2: float, max_nn: int,
+                      out: NDArray[np.float32]) -> None:
+    """Normals of the points in cells first..last-1 (of uniq, start: _cell_runs) into out (N,3) at their input
+    rows (order): for each point the max_nn nearest points within sqrt(radius2) among the 27 cells around its
+    own (points sorted by cell, sorted_pts (N,3)), their centred covariance and its least-variance axis.  The
+    candidates of a cell are gathered once (coordinates by axis, so the distance loop vectorises)."""
+    cap = 256
+    bx = np.empty(cap, np.float64)
+    by = np.empty(cap, np.float64)
+    bz = np.empty(cap, np.float64)
+    dist = np.empty(cap, np.float64)
+    kd = np.empty(cap, np.float64)
+    kept = np.empty(cap, np.int64)
+    bucket = np.empty(cap, np.int64)
+    tie = np.empty(cap, np.int64)
+    tie_d = np.empty(cap, np.float64)
+    hist = np.empty(_BUCKETS, np.int64)
+    lo = np.empty(9, np.int64)
+    hi = np.empty(9, np.int64)
+    for cell in range(first, last):
+        cx, cy, cz = uniq[cell, 0], uniq[cell, 1], uniq[cell, 2]
+        runs = 0
+        size = 0
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):  # cells (x+dx, y+dy, z-1..z+1) are consecutive in the sorted order
+                a = _first_cell_at_least(uniq, cx + dx, cy + dy, cz - 1)
+                b = a
+                while (b < uniq.shape[0] and uniq[b, 0] == cx + dx and uniq[b, 1] == cy + dy
+                       and uniq[b, 2] <= cz + 1):
+                    b += 1
+                if b > a:
+                    lo[runs], hi[runs] = start[a], start[b]
+                    size += start[b] - start[a]
+                    runs += 1
+        if size > cap:
+            cap = 2 * size
+            bx = np.empty(cap, np.float64)
+            by = np.empty(cap, np.float64)
+            bz = np.empty(cap, np.float64)
+            dist = np.empty(cap, np.float64)
+            kd = np.empty(cap, np.float64)
+            kept = np.empty(cap, np.int64)
+            bucket = np.empty(cap, np.int64)
+            tie = np.empty(cap, np.int64)
+            tie_d = np.empty(cap, np.float64)
+        n = 0
+        for run in range(runs):
+            for j in range(lo[run], hi[run]):
+                bx[n], by[n], bz[n] = sorted_pts[j, 0], sorted_pts[j, 1], sorted_pts[j, 2]
+                n += 1
+        for i in range(start[cell], start[cell + 1]):
+            px, py, pz = sorted_pts[i, 0], sorted_pts[i, 1], sorted_pts[i, 2]
+            if (i > start[cell] and px == sorted_pts[i - 1, 0] and py == sorted_pts[i - 1, 1]
+                    and pz == sorted_pts[i - 1, 2]):  # a copy of the previous point: the same neighbours
+                row, prev = order[i], order[i - 1]
+                out[row, 0], out[row, 1], out[row, 2] = out[prev, 0], out[prev, 1], out[prev, 2]
+                continue
+            for t in range(n):
+                ex, ey, ez = bx[t] - px, by[t] - py, bz[t] - pz
+                dist[t] = ex * ex + ey * ey + ez * ez
+            count = 0
+            for t in range(n):  # branch-free: keep t when within the radius (a NaN distance is not)
+                kept[count] = t
+                kd[count] = dist[t]
+                count += dist[t] <= radius2
+            if count > max_nn:
+                _nearest(kd, kept, count, max_nn, radius2, hist, bucket, tie, tie_d)
+                count = max_nn
+            if count < 3:
+                continue
+            mx = my = mz = 0.0
+            for t in range(count):
+                mx += bx[kept[t]]
+                my += by[kept[t]]
+                mz += bz[kept[t]]
+            mx /= count
+            my /= count
+            mz /= count
+            sxx = sxy = sxz = syy = syz = szz = 0.0
+            for t in range(count):
+                ex, ey, ez = bx[kept[t]] - mx, by[kept[t]] - my, bz[kept[t]] - mz
+                sxx += ex * ex
+                sxy += ex * ey
+                sxz += ex * ez
+                syy += ey * ey
+                syz += ey * ez
+                szz += ez * ez
+            x, y, z, largest = _least_axis(sxx / count, sxy / count, sxz / count, syy / count, syz / count,
+                                           szz / count)
+            if not largest > 0.0:
+                continue  # every neighbour at the same place
+            row = order[i]
+            out[row, 0] = x
+            out[row, 1] = y
+            out[row, 2] = z
+
+
+def _lexicographic(cells: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The order (N,) that sorts integer cell coordinates (N,3, >= 0) by x, then y, then z (stable): by one int64
+    key where the grid's cell count fits one, else by the three columns."""
+    dims = cells.max(axis=0) + 1
+    if int(dims[0]) * int(dims[1]) * int(dims[2]) < 1 << 62:  # Python ints: no overflow in the test itself
+        keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+        return np.argsort(keys, kind="stable").astype(np.int64, copy=False)
+    return np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0])).astype(np.int64, copy=False)
+
+
+#: Points (about) whose normals one task of pca_normals computes (tasks run on the process's thread budget).
 NORMALS_CHUNK = 4096
 
 
@@ -66,29 +413,34 @@ def pca_normals(points: NDArray[np.floating], radius: float, max_nn: int, chunk:
                 ) -> NDArray[np.float32]:
     """Unit surface normals (N,3), unoriented: the least-variance axis of each point's neighbourhood, the at most
     max_nn nearest points within radius (m; the point itself included: open3d's hybrid search).  (0, 0, 1)
-    where fewer than 3 neighbours or a degenerate neighbourhood.  Vectorised over chunks of points, which run on
-    the process's thread budget (graspd.core.parallel; each point's normal depends on its neighbours alone)."""
-    pts = np.asarray(points, np.float64)
+    where fewer than 3 neighbours or a degenerate neighbourhood (all neighbours at one place).
+
+    Compiled (graspd.core.jit): the points are sorted into cubic cells of edge radius (found by sorting their
+    integer cell coordinates, so the memory follows the points, not the cloud's extent: a cloud kilometres wide
+    costs what a tabletop does), each point's candidates are the points of the 27 cells around its own, and the
+    covariance (centred, float64) is diagonalised by Jacobi rotations.  Chunks of about `chunk` points, whole
+    cells each, run on the process's thread budget (graspd.core.parallel; the kernel releases the GIL)."""
+    pts = np.ascontiguousarray(points, np.float64)
     out = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (len(pts), 1))
-    if len(pts) < 3:
+    if len(pts) < 3 or max_nn < 3:
         return out
-    tree = cKDTree(pts, balanced_tree=False)  # built 4x faster; the nearest neighbours are the same
-    padded = _padded(pts)
-    k = min(max_nn, len(pts))
+    edge = float(radius) * _CELL_MARGIN
+    cells = np.empty((len(pts), 3), np.int64)
+    _cells(pts, edge, cells)
+    order = _lexicographic(cells)
+    uniq, start = _cell_runs(cells, order)
+    sorted_pts = pts[order]
+    # chunks of whole cells, about `chunk` points each
+    bounds = np.unique(np.searchsorted(start, np.arange(0, len(pts), max(1, chunk)), side="right") - 1)
+    bounds = np.append(bounds[bounds < len(uniq)], len(uniq))
+    reach = float(radius) * (1.0 + 1e-12)  # a neighbour exactly at the radius counts, despite rounding
+    radius2 = reach * reach
 
-    def normals_of(start: int) -> None:
-        dist, idx = tree.query(pts[start:start + chunk], k=k, distance_upper_bound=radius * (1 + 1e-12))
-        idx = idx.reshape(len(idx), k)
-        count = np.isfinite(dist.reshape(len(idx), k)).sum(axis=1)
-        nb = padded[idx]  # missing neighbours gather the zero row: they add nothing to the sums
-        n = np.maximum(count, 1)[:, None]
-        mean = nb.sum(axis=1) / n
-        cov = np.matmul(nb.transpose(0, 2, 1), nb) / n[:, :, None] - mean[:, :, None] * mean[:, None, :]
-        evals, evecs = np.linalg.eigh(cov)
-        ok = (count >= 3) & (evals[:, 2] > 0.0)
-        out[start:start + chunk][ok] = evecs[ok, :, 0].astype(np.float32)
+    def normals_of(k: int) -> None:
+        _normals_of_cells(sorted_pts, order, uniq, start, int(bounds[k]), int(bounds[k + 1]), radius2, int(max_nn),
+                          out)
 
-    THREADS.map(normals_of, range(0, len(pts), chunk))
+    THREADS.map(normals_of, range(len(bounds) - 1))
     return out
 
 
