@@ -1,4 +1,4 @@
-"""Admission by estimated cost (issue 23 item 2): a request that can never fit the detection memory budget gets 413
+"""Admission by estimated cost: a request that can never fit the detection memory budget gets 413
 naming the field that costs most, one that cannot fit now 503 with Retry-After; over HTTP before the body is read
 when its size alone says so, and the same budget on Zenoh."""
 
@@ -20,7 +20,14 @@ from graspd.server.app import create_app
 from graspd.server.problems import Problem
 from graspd.server.requests import parse_request
 from graspd.server.runner import serve_in_thread
-from graspd.server.services.budget import BASE_MB, SAMPLE_MB, MemoryBudget, request_cost, work_units
+from graspd.server.services.budget import (
+    BASE_MB,
+    SAMPLE_MB,
+    MemoryBudget,
+    occupied_voxels,
+    request_cost,
+    work_units,
+)
 from graspd.server.settings import Settings
 from graspd_client import ZenohGraspClient
 from graspd_client.errors import RequestRejected
@@ -97,7 +104,10 @@ def test_a_request_that_would_end_past_its_deadline_is_503_not_started(
     """Expected seconds = work units x learned seconds per unit: a request expected to need the whole deadline
     after it waited and was parsed is refused with 503 + Retry-After instead of running into a 504."""
     body = small_body(krylon, num_samples=300)
-    units = work_units(parse_request(body))
+    req = parse_request(body)
+    params = req.to_params()
+    units = work_units(req, occupied_voxels(req.to_input().cloud, params.voxel_size, params.workspace,
+                                            params.range_window))  # what the engine counts on its worker
     with TestClient(create_app(make_settings(deadline_s=10))) as client:
         budget = client.app.state.service.engine.budget  # type: ignore[attr-defined]
         budget.unit_seconds = 9.99999 / units  # expected ~10 s: it fits the deadline only if it started at once

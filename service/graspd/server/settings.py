@@ -54,7 +54,9 @@ class Settings(BaseSettings):
     detect_memory_wait_s: float = Field(default=5.0, ge=0, description="a request whose detection does not fit the "
                                         "memory budget now waits this long on its worker for memory, then 503 (s)")
     queue_size: int = Field(default=32, ge=0, description="requests that may wait for a worker before 503")
-    deadline_s: float = Field(default=30.0, gt=0, description="per-request deadline, queueing included (s)")
+    deadline_s: float = Field(default=30.0, gt=0, description="per-request deadline, queueing included (s): a "
+                              "request starts only if its detection is expected to end within it (else 413 when it "
+                              "never would, 503 when not now); a started one is awaited up to twice as long (504)")
     max_body_bytes: int = Field(default=64 << 20, gt=0, description="request size cap (bytes); larger gets 413")
     token: SecretStr | None = Field(default=None, description="bearer token required on /detect, /models and the "
                                      "template routes, and as the attachment of every Zenoh query and streamed cloud")

@@ -1,19 +1,36 @@
-"""The detection engine shared by HTTP and Zenoh: admission control (bounded queue, 503 when full),
-a worker pool sized to the cores, per-request deadlines, and request -> detection -> response JSON."""
+"""The detection engine every entrance shares (HTTP, uploads, Zenoh, ROS 2): admission control, a worker pool
+sized to the cores, per-request deadlines, and request -> detection -> response JSON.
+
+Admission is by cost, so that under load the service finishes work instead of timing it all out:
+
+- at the door (admit(), before an HTTP body is read): 503 with Retry-After when the queue is full, or when the
+  queue's expected wait (the running detections' expected ends, then the typical time of each request ahead,
+  spread over the workers) leaves no time for a typical request before its deadline;
+- in the queue: a request that can no longer start before its deadline (even the smallest detection would end
+  past it) gets 503 with Retry-After the moment that is known (a watchdog re-plans the queue whenever a running
+  detection's expected end is learnt), not a 504 at the deadline, and is never run;
+- on its worker, after parsing: the occupied voxels its detection will keep are counted (budget.occupied_voxels:
+  a 5M-point volume keeps ~20x the voxels of a 5M-point surface scan, and costs ~10x the time), then the memory
+  budget (413 naming the field when it never fits, 503 when not now) and the time (413 when the detection alone
+  would not end within the deadline, 503 when it would not now, with the detections sharing the cores);
+- a detection that starts is awaited to its end: the answer is given up (504) only past twice the deadline, a
+  guard for a detection that ran far beyond its estimate, not for queued work.
+"""
 
 from __future__ import annotations
 
 import asyncio
 import contextvars
+import heapq
 import logging
 import math
 import threading
 import time
 import uuid
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, InvalidStateError, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -33,7 +50,14 @@ from graspd.server.problems import CALLER_ERRORS, Problem, from_wire
 from graspd.server.schemas import CropsRequest, DetectRequest, DetectResponse
 from graspd.server.services import proposals
 from graspd.server.services.allocator import IdleTrimmer, trim_function
-from graspd.server.services.budget import TIME_MARGIN, MemoryBudget, cost_of, work_units
+from graspd.server.services.budget import (
+    TIME_MARGIN,
+    MemoryBudget,
+    cost_of,
+    occupied_voxels,
+    too_slow,
+    work_parts,
+)
 from graspd.server.services.registry import ModelRegistry
 from graspd.server.services.templates import TemplateService
 from graspd.server.settings import Settings
@@ -59,6 +83,24 @@ def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
              "in_image": bool(inside[i])} for i in range(len(g))]
 
 
+#: A started detection is awaited up to this many deadlines after it was queued (then 504): admission already
+#: refused what was expected to end past one deadline, so this only bounds a detection far beyond its estimate.
+ANSWER_DEADLINES = 2.0
+
+
+@dataclass(eq=False)
+class Ticket:
+    """One request from enqueue() to its answer.  future: what every entrance waits on (the engine settles it with
+    the response JSON or a Problem); phase: queued -> started, or queued -> refused (503 while queued, never run);
+    ends: when a started one is expected to end (time.perf_counter() s); deadline likewise."""
+
+    deadline: float
+    future: Future[bytes] = field(default_factory=Future)
+    phase: str = "queued"
+    ends: float = 0.0
+    work: Future[Any] | None = None  # the executor's future of the job
+
+
 class DetectionEngine:
     """Runs detections on a thread pool with at most `workers` at once and `queue_size` waiting."""
 
@@ -73,14 +115,19 @@ class DetectionEngine:
         # detection, in the time the detection's serial stages leave a core idle
         self._checks = ThreadPoolExecutor(self.workers, thread_name_prefix="graspd-check")
         self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)  # wakes the queue watchdog (_watch)
+        self._queued: list[Ticket] = []  # enqueued, not started, in the executor's (FIFO) order
+        self._started: set[Ticket] = set()
         self._pending = 0
         self._running = 0
         self._detecting = 0  # running past parsing and admission (what shares the cores)
         self._avg_seconds = 1.0  # EWMA of a request's time on a worker (parse + detect), seconds
         self._trimmer = IdleTrimmer(trim_function(), busy=lambda: self._pending > 0)
         self.templates = TemplateService(settings)  # method "templates", and what feedback needs
-        self.budget = MemoryBudget(settings.detect_memory_mb)  # admission by estimated cost (budget.py)
+        self.budget = MemoryBudget(settings.detect_memory_mb, THREADS.cores)  # admission by cost (budget.py)
         self.closed = False
+        self._watchdog = threading.Thread(target=self._watch, name="graspd-queue-watch", daemon=True)
+        self._watchdog.start()
         # the detections parallelise over THREADS themselves: BLAS threads would only spin beside them
         set_blas_threads(1)
         #: seconds the warm-up took (services/warmup.py: the warm-up request once on each detect worker, before
@@ -90,6 +137,9 @@ class DetectionEngine:
             from graspd.server.services.warmup import warm_up  # noqa: PLC0415 - the engine imports no warm-up
 
             self.warmup_s = warm_up(registry, self.executor, self.workers)
+            # the voxel count's compiled pass, loaded (or compiled) before the first request needs it
+            occupied_voxels(ViewpointCloud(points=np.zeros((2, 3), np.float32),
+                                           viewpoints=np.zeros((1, 3), np.float32)), 0.003, None, 1.0)
 
     # ---- admission -------------------------------------------------------------------------
     def retry_after(self) -> float:
@@ -98,19 +148,35 @@ class DetectionEngine:
         wait = self._avg_seconds / self.workers
         return float(min(self.settings.max_retry_after_s, max(1, math.ceil(wait))))
 
+    def min_seconds(self) -> float:
+        """Expected seconds of the smallest detection (one work unit alone: budget.work_parts)."""
+        return self.budget.unit_seconds
+
+    def _free_at(self, now: float) -> list[float]:
+        """Seconds from now until each worker is free of the detections started (their expected ends), as a heap
+        of `workers` entries.  Under the lock."""
+        free = [max(0.0, t.ends - now) for t in self._started][: self.workers]
+        free += [0.0] * (self.workers - len(free))
+        heapq.heapify(free)
+        return free
+
     def _admit(self) -> None:
         """Reserve a place (running or queued) or refuse with 503: when the queue is full, or when the queue's
-        expected wait (measured service time x requests ahead / workers) would pass the deadline."""
+        expected wait (the running detections' expected ends, then the typical time of each request ahead over
+        the workers) and a typical request's time would pass the deadline."""
         with self._lock:
             if self.closed:
                 raise Problem(503, "server is shutting down", retry_after=1.0)
-            ahead = self._pending - self.workers + 1  # requests a new one would wait for
             if self._pending >= self.capacity:
                 raise Problem(503, f"server busy ({self._pending} requests queued or running)",
                               retry_after=self.retry_after())
-            if ahead > 0 and self._avg_seconds * ahead / self.workers > self.settings.deadline_s:
-                raise Problem(503, f"server busy: {self._pending} requests ahead would take longer than the "
-                              f"deadline of {self.settings.deadline_s:g} s", retry_after=self.retry_after())
+            free = self._free_at(time.perf_counter())
+            for _ in range(max(0, self._pending - len(self._started))):  # admitted, not started: a typical time
+                heapq.heapreplace(free, free[0] + self._avg_seconds)
+            if free[0] > 0 and free[0] + max(self._avg_seconds, self.min_seconds()) > self.settings.deadline_s:
+                raise Problem(503, f"server busy: the {self._pending} requests queued or running would take about "
+                              f"{free[0]:.0f} s, too long to start another within the deadline of "
+                              f"{self.settings.deadline_s:g} s", retry_after=self.retry_after())
             self._pending += 1
             self.metrics.queue_depth.set(self._pending - self._running)
 
@@ -136,13 +202,110 @@ class DetectionEngine:
     def pending(self) -> int:
         return self._pending
 
+    # ---- the queue ---------------------------------------------------------------------------
+    def _late(self) -> Problem:
+        """The answer to a request that could not start in time: 503 with Retry-After (the queue was the problem),
+        or 504 naming the deadline when not even the smallest detection fits the deadline here."""
+        if self.min_seconds() > self.settings.deadline_s:
+            return Problem(504, f"deadline of {self.settings.deadline_s} s passed while queued", "deadline")
+        return Problem(503, f"server busy: the requests ahead leave no time to start this one within the deadline "
+                            f"of {self.settings.deadline_s:g} s", retry_after=self.retry_after())
+
+    @staticmethod
+    def _settle(ticket: Ticket, result: bytes | BaseException) -> None:
+        """Give the ticket's waiters their answer (nothing when the caller went away: the future was cancelled)."""
+        try:
+            if isinstance(result, BaseException):
+                ticket.future.set_exception(result)
+            else:
+                ticket.future.set_result(result)
+        except InvalidStateError:
+            pass
+
+    def _refuse_late(self, now: float) -> tuple[list[Ticket], float | None]:
+        """Under the lock: take out of the queue the requests that cannot start before their deadline leaves
+        time for the smallest detection (their expected start: the workers' expected free times, then a typical
+        request's time for each one ahead of them); those and the seconds until the next could become late."""
+        free = self._free_at(now)
+        smallest = self.min_seconds()
+        late: list[Ticket] = []
+        wake: float | None = None
+        for ticket in list(self._queued):
+            slack = ticket.deadline - (now + free[0] + smallest)
+            if slack < 0:
+                ticket.phase = "refused"
+                self._queued.remove(ticket)
+                late.append(ticket)
+                continue
+            wake = slack if wake is None else min(wake, slack)
+            heapq.heapreplace(free, free[0] + self._avg_seconds)
+        return late, wake
+
+    def _watch(self) -> None:
+        """The queue watchdog (a thread): answers queued requests that can no longer start in time with 503 as
+        soon as that is known, re-planning whenever the queue or a running detection's expected end changes."""
+        while True:
+            with self._changed:
+                if self.closed:
+                    return
+                late, wake = self._refuse_late(time.perf_counter())
+                if not late:
+                    self._changed.wait(None if wake is None else wake + 0.001)
+                    continue
+            for ticket in late:  # outside the lock: the waiters' callbacks run here
+                if ticket.work is not None:
+                    ticket.work.cancel()  # the executor never runs it; its place is given back (_work_done)
+                self._settle(ticket, self._late())
+
+    def _work_done(self, ticket: Ticket, work: Future[Any]) -> None:
+        """The executor's job ended, or was cancelled before it ran (refused while queued, or the executor shut
+        down): give the place back; a request still waiting for its answer gets 503."""
+        self._release()
+        if work.cancelled():
+            with self._changed:
+                waiting = ticket.phase == "queued"
+                if waiting:
+                    ticket.phase = "refused"
+                    self._queued.remove(ticket)
+                self._changed.notify()
+            if waiting:
+                self._settle(ticket, Problem(503, "server is shutting down", retry_after=1.0))
+
+    def _run(self, ticket: Ticket, parse: Callable[[], DetectRequest], enqueued: float, timings: dict[str, float],
+             header: dict[str, Any] | None, on_detection: OnDetection | None) -> None:
+        """The executor's job: start the ticket unless it was refused while queued or its caller went away, run
+        it (_job) and settle its future."""
+        with self._changed:
+            if ticket.phase != "queued":
+                return
+            self._queued.remove(ticket)
+            if not ticket.future.set_running_or_notify_cancel():  # the caller went away while it was queued
+                ticket.phase = "refused"
+                self._changed.notify()
+                return
+            ticket.phase = "started"
+            ticket.ends = time.perf_counter() + self._avg_seconds  # until its own estimate is known
+            self._started.add(ticket)
+            self._changed.notify()
+        result: bytes | BaseException
+        try:
+            result = self._job(ticket, parse, enqueued, timings, header, on_detection)
+        except BaseException as exc:  # a Problem, or a fault the entrance reports as 500
+            result = exc
+        with self._changed:
+            self._started.discard(ticket)
+            self._changed.notify()
+        self._settle(ticket, result)
+
     # ---- the work --------------------------------------------------------------------------
-    def _job(self, parse: Callable[[], DetectRequest], enqueued: float, deadline: float,
+    def _job(self, ticket: Ticket, parse: Callable[[], DetectRequest], enqueued: float,
              timings: dict[str, float], header: dict[str, Any] | None,
              on_detection: OnDetection | None = None) -> bytes:
-        """Parse (on this worker, not the event loop) and detect; the response JSON bytes, or Problem.  header:
-        the ROS header of a CDR payload, which parse() may fill in (Zenoh); it goes into the response.
-        on_detection(det, cloud, hand) is called on the worker with the detection (ROS outputs, the viewer)."""
+        """Parse (on this worker, not the event loop), admit by cost and detect; the response JSON bytes, or
+        Problem.  header: the ROS header of a CDR payload, which parse() may fill in (Zenoh); it goes into the
+        response.  on_detection(det, cloud, hand) is called on the worker with the detection (ROS outputs, the
+        viewer)."""
+        deadline = ticket.deadline
         start = time.perf_counter()
         held = 0.0  # MiB of the memory budget this request holds (budget.MemoryBudget)
         units = 0.0  # its work units (budget.work_units), known once parsed
@@ -153,25 +316,10 @@ class DetectionEngine:
         try:
             timings["queue"] = start - enqueued
             before = timings.get("read", 0.0) + timings.get("decode", 0.0)  # spent before enqueue (body read)
-            if start > deadline:
-                if self._avg_seconds < self.settings.deadline_s:  # requests fit the deadline: the queue was long
-                    raise Problem(503, f"server busy: queued past the deadline of {self.settings.deadline_s:g} s",
-                                  retry_after=self.retry_after())
-                raise Problem(504, f"deadline of {self.settings.deadline_s} s passed while queued", "deadline")
+            if start + self.min_seconds() > deadline:  # the watchdog refuses these while queued; one it missed
+                raise self._late()
             req = parse()
-            wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
-            held = self.budget.take(cost_of(req), self.retry_after(), wait)  # 413 / 503 before detection work
-            shared = 1 + self._detecting  # detections sharing the cores (graspd.core.parallel), this one included
-            lone = work_units(req) * self.budget.unit_seconds  # 503 rather than start what cannot end in time
-            margin = TIME_MARGIN if shared > 1 or timings["queue"] > 1.0 else 1.0  # under load: a safety margin
-            if lone <= self.settings.deadline_s and time.perf_counter() + margin * lone * shared > deadline:
-                raise Problem(503, f"server busy: this request takes about {lone * shared:.0f} s now and would not "
-                              f"end within the deadline of {self.settings.deadline_s:g} s",
-                              retry_after=self.retry_after())
-            with self._lock:
-                self._detecting += 1
-            units = work_units(req) * shared  # timed from here on (budget.observe learns seconds per lone unit)
-            timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
+            self.budget.check(cost_of(req))  # 413 on the points sent alone, before any work on the cloud
             try:
                 hand = req.hand_geometry()
                 given = req.to_input()  # in the frame detection runs in; non-finite rows dropped (graspd.io.inputs)
@@ -179,6 +327,29 @@ class DetectionEngine:
                 params = req.to_params()
             except CALLER_ERRORS as exc:
                 raise from_wire(exc) from None
+            # what the detection will work on: the occupied voxels of its region (a volume keeps ~20x a surface's)
+            voxels = occupied_voxels(cloud, params.voxel_size, params.workspace, params.range_window)
+            wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
+            held = self.budget.take(cost_of(req, voxels), self.retry_after(), wait,  # 413 / 503 before detection
+                                    params.voxel_size)
+            work = work_parts(req, voxels)
+            lone = sum(work.values()) * self.budget.unit_seconds  # expected seconds alone
+            if lone > self.settings.deadline_s:  # would not end in time even alone: it never fits
+                raise self._late() if self.min_seconds() > self.settings.deadline_s else \
+                    too_slow(req, voxels, self.budget.unit_seconds, self.settings.deadline_s, params.voxel_size)
+            shared = 1 + self._detecting  # detections sharing the cores (graspd.core.parallel), this one included
+            margin = TIME_MARGIN if shared > 1 or timings["queue"] > 1.0 else 1.0  # under load: a safety margin
+            now = time.perf_counter()
+            if now + margin * lone * shared > deadline:  # 503 rather than start what cannot end in time
+                raise Problem(503, f"server busy: this request takes about {lone * shared:.0f} s now and would not "
+                              f"end within the deadline of {self.settings.deadline_s:g} s",
+                              retry_after=self.retry_after())
+            with self._changed:
+                self._detecting += 1
+                ticket.ends = now + lone * shared  # the watchdog re-plans the queue behind it
+                self._changed.notify()
+            units = sum(work.values()) * shared  # timed from here on (budget.observe learns seconds per lone unit)
+            timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
             model = self.registry.resolve(req.model, req.use_classifier and req.method == "gpd",
                                           hand or HandGeometry())
             det: Detection | TemplateDetection
@@ -251,62 +422,79 @@ class DetectionEngine:
 
     def submit(self, req: DetectRequest, timings: dict[str, float], header: dict[str, Any] | None = None,
                on_detection: OnDetection | None = None) -> tuple[Future[bytes], float]:
-        """Admit a request (Problem 503 when full) and queue it; returns the future and its deadline."""
+        """Admit a request (Problem 503 when full) and queue it; returns the future and when to give up on it
+        (see enqueue)."""
         self._admit()
         return self.enqueue(lambda: req, timings, header, on_detection)
 
     def enqueue(self, parse: Callable[[], DetectRequest], timings: dict[str, float],
                 header: dict[str, Any] | None = None, on_detection: OnDetection | None = None
                 ) -> tuple[Future[bytes], float]:
-        """Queue an admitted request (admit() first): parse() runs on a worker, then the detection.  Returns
-        the future and its deadline; the place is given back when the future is done.  header: a ROS header
-        for the response (Zenoh, CDR input), read after parse() ran."""
+        """Queue an admitted request (admit() first): parse() runs on a worker, then the detection.  Returns the
+        future, which the engine settles with the response JSON or a Problem (a request that cannot start in
+        time gets 503 while queued), and the time (time.perf_counter() s) after which a waiter gives up with 504
+        (gave_up): ANSWER_DEADLINES deadlines, for a detection that started but ran far past its estimate.  The
+        place is given back when the job is done.  header: a ROS header for the response (Zenoh, CDR input),
+        read after parse() ran."""
         now = time.perf_counter()
-        deadline = now + self.settings.deadline_s
+        ticket = Ticket(now + self.settings.deadline_s)
         context = contextvars.copy_context()  # the request id follows the work onto the worker thread
+        with self._changed:
+            self._queued.append(ticket)
+            self._changed.notify()
         try:
-            fut = self.executor.submit(context.run, self._job, parse, now, deadline, timings, header, on_detection)
+            ticket.work = self.executor.submit(context.run, self._run, ticket, parse, now, timings, header,
+                                               on_detection)
         except RuntimeError:  # executor shut down
+            with self._changed:
+                if ticket in self._queued:
+                    self._queued.remove(ticket)
             self._release()
             raise Problem(503, "server is shutting down", retry_after=1.0) from None
-        fut.add_done_callback(self._release)
-        return fut, deadline
+        ticket.work.add_done_callback(lambda work: self._work_done(ticket, work))
+        return ticket.future, now + ANSWER_DEADLINES * self.settings.deadline_s
+
+    def gave_up(self) -> Problem:
+        """The 504 of a waiter whose detection started but ran past ANSWER_DEADLINES deadlines."""
+        return Problem(504, f"no result within {ANSWER_DEADLINES:g} x the deadline of {self.settings.deadline_s} s "
+                            "(the detection ran far beyond its estimate)", "deadline")
 
     def run_sync(self, req: DetectRequest, timings: dict[str, float] | None = None,
                  header: dict[str, Any] | None = None, on_detection: OnDetection | None = None) -> bytes:
         """Blocking detect (Zenoh callbacks, CLI): response JSON bytes, or Problem."""
-        fut, deadline = self.submit(req, timings if timings is not None else {}, header, on_detection)
+        fut, give_up = self.submit(req, timings if timings is not None else {}, header, on_detection)
         self.trim_after(fut)
         try:
-            return fut.result(timeout=max(0.0, deadline - time.perf_counter()))
+            return fut.result(timeout=max(0.0, give_up - time.perf_counter()))
         except FutureTimeout:
             fut.cancel()
-            raise Problem(504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline") from None
+            raise self.gave_up() from None
 
     async def run(self, req: DetectRequest, timings: dict[str, float]) -> bytes:
         """Awaitable detect for the HTTP app: the work runs off the event loop."""
-        fut, deadline = self.submit(req, timings)
-        return await self._wait(fut, deadline)
+        fut, give_up = self.submit(req, timings)
+        return await self._wait(fut, give_up)
 
     async def run_admitted(self, parse: Callable[[], DetectRequest], timings: dict[str, float],
                            on_detection: OnDetection | None = None) -> bytes:
         """Awaitable parse + detect of a request admitted with admit(): both run on a worker thread."""
-        fut, deadline = self.enqueue(parse, timings, None, on_detection)
-        return await self._wait(fut, deadline)
+        fut, give_up = self.enqueue(parse, timings, None, on_detection)
+        return await self._wait(fut, give_up)
 
-    async def _wait(self, fut: Future[bytes], deadline: float) -> bytes:
+    async def _wait(self, fut: Future[bytes], give_up: float) -> bytes:
         waiter = asyncio.wrap_future(fut)
         self.trim_after(fut)
         try:
-            return await asyncio.wait_for(waiter, timeout=max(0.0, deadline - time.perf_counter()))
+            return await asyncio.wait_for(waiter, timeout=max(0.0, give_up - time.perf_counter()))
         except TimeoutError:
             fut.cancel()
-            raise Problem(504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline") from None
+            raise self.gave_up() from None
 
     def close(self, wait: bool = True) -> None:
-        """Refuse new work and let running detections finish (graceful shutdown)."""
-        with self._lock:
+        """Refuse new work and let running detections finish (graceful shutdown); queued requests get 503."""
+        with self._changed:
             self.closed = True
+            self._changed.notify_all()
         self.executor.shutdown(wait=wait, cancel_futures=True)
         self._checks.shutdown(wait=wait, cancel_futures=True)
         self._trimmer.close()

@@ -432,7 +432,7 @@ class ZenohNode:
             return req
 
         try:
-            fut, _deadline = self.engine.enqueue(parse, {"read": time.perf_counter() - t0}, header)
+            fut, give_up = self.engine.enqueue(parse, {"read": time.perf_counter() - t0}, header)
         except Problem as exc:  # shutting down (the place was given back)
             self._finish(query, t0, ctx, exc)
             return
@@ -443,16 +443,15 @@ class ZenohNode:
             return
         fut.add_done_callback(lambda f: self._reply(query, f, t0, key, ctx))
         self.engine.trim_after(fut)
-        if self.settings.deadline_s:
-            timer = threading.Timer(self.settings.deadline_s, self._expire, (query, fut, t0, ctx))
+        if self.settings.deadline_s:  # the engine answers queued work itself; this bounds a runaway detection
+            timer = threading.Timer(max(0.0, give_up - time.perf_counter()), self._expire, (query, fut, t0, ctx))
             timer.daemon = True
             timer.start()
             fut.add_done_callback(lambda _: timer.cancel())
 
     def _expire(self, query: Any, fut: Future[bytes], t0: float, ctx: RequestContext) -> None:
         if fut.cancel() or not fut.done():
-            self._finish(query, t0, ctx, Problem(
-                504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline"))
+            self._finish(query, t0, ctx, self.engine.gave_up())
 
     def _reply(self, query: Any, fut: Future[bytes], t0: float, key: str, ctx: RequestContext) -> None:
         if fut.cancelled():
