@@ -3,7 +3,7 @@ voxel grid, PCA normals, statistical outlier removal, a seeded RANSAC plane and 
 
 from __future__ import annotations
 
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,31 +17,397 @@ from graspd.core.parallel import THREADS
 FloatArray = TypeVar("FloatArray", NDArray[np.float32], NDArray[np.float64])
 
 
-#: Grids of at most this many cells are counted densely by voxel_groups (8 bytes a cell, transiently), larger
-#: ones by sorting the points' cell keys.
-DENSE_VOXEL_CELLS = 1 << 22
+#: Grid indices are clamped to +-this: a coordinate more than 2^61 voxels from the origin (not a real cloud: 6.9e15 m
+#: at 3 mm) falls in the edge voxel, and differences of two indices fit int64.
+_GRID_LIMIT = float(1 << 61)
+#: Clouds of at least this many points are voxelised in slabs of x, one task each on the thread budget.
+VOXEL_SLAB_POINTS = 1 << 19
+
+
+@kernel
+def _grid_index(c: float, voxel: float) -> np.int64:
+    """floor(c / voxel) as int64, in the arithmetic of c's and voxel's dtype (float32 points: float32 division, as
+    numpy's); clamped to +-2^61, NaN to 0, so that the cast is defined."""
+    g = np.floor(c / voxel)
+    if g >= -_GRID_LIMIT and g <= _GRID_LIMIT:
+        return np.int64(g)
+    if g < 0.0:
+        return np.int64(-_GRID_LIMIT)
+    return np.int64(_GRID_LIMIT) if g > 0.0 else np.int64(0)
+
+
+@kernel
+def _slot(x: int | np.int64, y: int | np.int64, z: int | np.int64, shift: int) -> np.int64:
+    """Hash-table slot of voxel (x, y, z) in a table of 2^(64 - shift) slots (multiplicative hashing)."""
+    h = (np.uint64(x) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(y) * np.uint64(0xC2B2AE3D27D4EB4F)
+         + np.uint64(z) * np.uint64(0x165667B19E3779F9))
+    return np.int64(h >> np.uint64(shift))
+
+
+@kernel
+def _voxel_fill(points: NDArray[np.floating], voxel: float, source: NDArray[np.int32],
+                normals: NDArray[np.float32], keep: NDArray[np.bool_], x_lo: int, x_hi: int, start: int,
+                table: NDArray[np.int64], shift: int, acc: NDArray[np.float64], m: int, ids: NDArray[np.int64],
+                id_stride: int, id_offset: int) -> tuple[int, int]:
+    """Accumulate points start.. (those keep (N,) flags, where given) whose grid x index lies in [x_lo, x_hi] into
+    their voxels: table (4S,) slots of x, y,
+    z, voxel (-1: free; open addressing), acc (C,W) rows count, sum x, y, z, [normal sums x, y, z,] camera votes
+    (float64; W says which), and where ids (N,) is given, each point's voxel v as v * id_stride + id_offset.
+    Voxels are numbered as first met; each one's sums run in point order (numpy's bincount order: the same
+    float64 sums).  Stops at the first point that finds the table half full or acc full: returns (that point,
+    voxels so far); (N, voxels) when done."""
+    n = points.shape[0]
+    mask = (table.shape[0] >> 2) - 1
+    limit = min(table.shape[0] >> 3, acc.shape[0])
+    with_normals = normals.shape[0] == n
+    vote0 = 7 if with_normals else 4
+    with_votes = acc.shape[1] > vote0
+    with_ids = ids.shape[0] == n
+    with_keep = keep.shape[0] == n
+    for i in range(start, n):
+        if with_keep and not keep[i]:
+            if with_ids:
+                ids[i] = -1
+            continue
+        x = _grid_index(points[i, 0], voxel)
+        if x < x_lo or x > x_hi:
+            continue
+        y = _grid_index(points[i, 1], voxel)
+        z = _grid_index(points[i, 2], voxel)
+        h = _slot(x, y, z, shift)
+        while True:
+            b = h << 2
+            v = table[b + 3]
+            if v < 0:
+                if m == limit:
+                    return i, m
+                v = m
+                table[b], table[b + 1], table[b + 2], table[b + 3] = x, y, z, v
+                m += 1
+                break
+            if (table[b] == x) & (table[b + 1] == y) & (table[b + 2] == z):  # no branch per coordinate
+                break
+            h = (h + 1) & mask
+        acc[v, 0] += 1.0
+        acc[v, 1] += points[i, 0]
+        acc[v, 2] += points[i, 1]
+        acc[v, 3] += points[i, 2]
+        if with_normals:
+            acc[v, 4] += normals[i, 0]
+            acc[v, 5] += normals[i, 1]
+            acc[v, 6] += normals[i, 2]
+        if with_votes:
+            acc[v, vote0 + source[i]] += 1.0
+        if with_ids:
+            ids[i] = v * id_stride + id_offset
+    return n, m
+
+
+@kernel
+def _voxel_slab(points: NDArray[np.floating], voxel: float, source: NDArray[np.int32], width: int,
+                normals: NDArray[np.float32], keep: NDArray[np.bool_], x_lo: int, x_hi: int, ids: NDArray[np.int64],
+                id_stride: int, id_offset: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """The voxels (grid indices (M,3), first met first) and their acc rows (M,W) of the points whose grid x index
+    lies in [x_lo, x_hi] (_voxel_fill, which also writes ids); memory grows with the voxels (a hash table), not
+    with the cloud's extent."""
+    cap = 1 << 10
+    bits = 11
+    table = np.full(4 << bits, -1, np.int64)
+    acc = np.zeros((cap, width), np.float64)
+    i, m = 0, 0
+    while True:
+        i, m = _voxel_fill(points, voxel, source, normals, keep, x_lo, x_hi, i, table, 64 - bits, acc, m, ids,
+                           id_stride, id_offset)
+        if i == points.shape[0]:
+            break
+        if m == acc.shape[0]:
+            cap *= 2
+            grown = np.zeros((cap, width), np.float64)
+            grown[:m] = acc[:m]
+            acc = grown
+        if 2 * m >= table.shape[0] >> 2:
+            bits += 1
+            old = table
+            table = np.full(4 << bits, -1, np.int64)
+            mask = (1 << bits) - 1
+            for r in range(0, old.shape[0], 4):
+                if old[r + 3] >= 0:
+                    h = _slot(old[r], old[r + 1], old[r + 2], 64 - bits)
+                    while table[(h << 2) + 3] >= 0:
+                        h = (h + 1) & mask
+                    table[h << 2:(h << 2) + 4] = old[r:r + 4]
+    keys = np.empty((m, 3), np.int64)
+    for r in range(0, table.shape[0], 4):
+        v = table[r + 3]
+        if v >= 0:
+            keys[v, 0], keys[v, 1], keys[v, 2] = table[r], table[r + 1], table[r + 2]
+    return keys, acc[:m]
+
+
+#: Grid spans (voxels per axis) below this pack a voxel's three indices into one int64 key (21 bits each, x in
+#: the high bits: the key orders voxels as the grid does): 6 km at 3 mm.
+_PACK = 1 << 21
+
+
+@kernel
+def _coord_bounds(points: NDArray[np.floating], keep: NDArray[np.bool_]
+                  ) -> tuple[NDArray[np.floating], NDArray[np.floating], bool, int]:
+    """The bounds lo, hi (3,) of the points (those keep flags, where given), whether all their coordinates are
+    finite, and how many there are."""
+    n = points.shape[0]
+    with_keep = keep.shape[0] == n
+    lo = np.full(3, np.inf, points.dtype)
+    hi = np.full(3, -np.inf, points.dtype)
+    finite = True
+    count = 0
+    for i in range(n):
+        if with_keep and not keep[i]:
+            continue
+        count += 1
+        for k in range(3):
+            c = points[i, k]
+            if not np.isfinite(c):
+                finite = False
+            lo[k] = min(lo[k], c)
+            hi[k] = max(hi[k], c)
+    return lo, hi, finite, count
+
+
+@kernel
+def _packed_fill(points: NDArray[np.floating], voxel: float, source: NDArray[np.int32],
+                 normals: NDArray[np.float32], keep: NDArray[np.bool_], base: NDArray[np.int64], x_lo: int,
+                 x_hi: int, start: int, table_keys: NDArray[np.int64], table_ids: NDArray[np.int32], shift: int,
+                 acc: NDArray[np.float64], m: int, ids: NDArray[np.int64], id_stride: int, id_offset: int, step: int
+                 ) -> tuple[int, int]:
+    """_voxel_fill for grids whose span fits _PACK voxels an axis (finite points, base (3,) their lowest grid
+    index): voxels keyed by one packed int64 in a table of keys and voxel + 1 (0: free), 12 bytes a slot.  Every
+    step-th point from start (step > 1: a sample, to size the table)."""
+    n = points.shape[0]
+    mask = table_keys.shape[0] - 1
+    limit = min(table_keys.shape[0] >> 1, acc.shape[0])
+    with_normals = normals.shape[0] == n
+    vote0 = 7 if with_normals else 4
+    with_votes = acc.shape[1] > vote0
+    with_ids = ids.shape[0] == n
+    with_keep = keep.shape[0] == n
+    for i in range(start, n, step):
+        if with_keep and not keep[i]:
+            if with_ids:
+                ids[i] = -1
+            continue
+        x = _grid_index(points[i, 0], voxel) - base[0]
+        if x < x_lo or x > x_hi:
+            continue
+        key = (x << 42) | ((_grid_index(points[i, 1], voxel) - base[1]) << 21) | (
+            _grid_index(points[i, 2], voxel) - base[2])
+        h = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(shift))
+        while True:
+            t = table_ids[h]
+            if t == 0:
+                if m == limit:
+                    return i, m
+                table_keys[h] = key
+                table_ids[h] = m + 1
+                v = m
+                m += 1
+                break
+            if table_keys[h] == key:
+                v = t - 1
+                break
+            h = (h + 1) & mask
+        acc[v, 0] += 1.0
+        acc[v, 1] += points[i, 0]
+        acc[v, 2] += points[i, 1]
+        acc[v, 3] += points[i, 2]
+        if with_normals:
+            acc[v, 4] += normals[i, 0]
+            acc[v, 5] += normals[i, 1]
+            acc[v, 6] += normals[i, 2]
+        if with_votes:
+            acc[v, vote0 + source[i]] += 1.0
+        if with_ids:
+            ids[i] = v * id_stride + id_offset
+    return n, m
+
+
+@kernel
+def _packed_slab(points: NDArray[np.floating], voxel: float, source: NDArray[np.int32], width: int,
+                 normals: NDArray[np.float32], keep: NDArray[np.bool_], base: NDArray[np.int64], x_lo: int,
+                 x_hi: int, ids: NDArray[np.int64], id_stride: int, id_offset: int, expected: int, step: int = 1
+                 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """_voxel_slab with packed keys (_packed_fill, every step-th point): the voxels' keys (M,), first met first, and
+    acc rows (M,W).  Sized for `expected` voxels at first (grown by doubling)."""
+    cap = max(1 << 10, expected)
+    bits = 1
+    while (1 << bits) < 2 * cap:
+        bits += 1
+    table_keys = np.empty(1 << bits, np.int64)
+    table_ids = np.zeros(1 << bits, np.int32)
+    acc = np.zeros((cap, width), np.float64)
+    i, m = 0, 0
+    while True:
+        i, m = _packed_fill(points, voxel, source, normals, keep, base, x_lo, x_hi, i, table_keys, table_ids,
+                            64 - bits, acc, m, ids, id_stride, id_offset, step)
+        if i >= points.shape[0]:
+            break
+        if m == acc.shape[0]:
+            cap *= 2
+            grown = np.zeros((cap, width), np.float64)
+            grown[:m] = acc[:m]
+            acc = grown
+        if 2 * m >= table_keys.shape[0]:
+            bits += 1
+            old_keys, old_ids = table_keys, table_ids
+            table_keys = np.empty(1 << bits, np.int64)
+            table_ids = np.zeros(1 << bits, np.int32)
+            mask = (1 << bits) - 1
+            for r in range(old_ids.shape[0]):
+                if old_ids[r] != 0:
+                    h = np.int64((np.uint64(old_keys[r]) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
+                    while table_ids[h] != 0:
+                        h = (h + 1) & mask
+                    table_keys[h] = old_keys[r]
+                    table_ids[h] = old_ids[r]
+    keys = np.empty(m, np.int64)
+    for r in range(table_ids.shape[0]):
+        if table_ids[r] != 0:
+            keys[table_ids[r] - 1] = table_keys[r]
+    return keys, acc[:m]
+
+
+@kernel
+def _relabel(ids: NDArray[np.int64], slabs: int, first: NDArray[np.int64], rank: NDArray[np.int64],
+             out: NDArray[np.int64]) -> None:
+    """out[i] = rank[first[s] + v] for ids[i] = v * slabs + s (voxel v of slab s): each point's voxel in the grid's
+    order (-1 stays -1: a point left out)."""
+    for i in range(ids.shape[0]):
+        if ids[i] < 0:
+            out[i] = -1
+            continue
+        s = ids[i] % slabs
+        out[i] = rank[first[s] + ids[i] // slabs]
+
+
+def _lexicographic(cells: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The order (N,) that sorts integer cell coordinates (N,3) by x, then y, then z (stable): by one int64 key
+    where the grid's cell count fits one, else by the three columns."""
+    if len(cells) == 0:
+        return np.zeros(0, np.int64)
+    lo = cells.min(axis=0)
+    dims = cells.max(axis=0) - lo + 1
+    if int(dims[0]) * int(dims[1]) * int(dims[2]) < 1 << 62:  # Python ints: no overflow in the test itself
+        keys = ((cells[:, 0] - lo[0]) * dims[1] + cells[:, 1] - lo[1]) * dims[2] + cells[:, 2] - lo[2]
+        return np.argsort(keys, kind="stable").astype(np.int64, copy=False)
+    return np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0])).astype(np.int64, copy=False)
+
+
+#: voxel_sums sizes its tables from every _SAMPLE_STEP-th point's voxels.
+_SAMPLE_STEP = 16
+
+
+def _expected_voxels(points: NDArray[np.floating], voxel: Any, keep: NDArray[np.bool_], base: NDArray[np.int64],
+                     count: int) -> int:
+    """About how many voxels count points make (a packed grid, _packed_slab's arguments): from the voxels m of
+    every _SAMPLE_STEP-th point (k), solving m / count = (1 - exp(-lam / k)) / lam for the points a voxel lam
+    (Poisson occupancy; bisection), plus a margin.  Sizing the tables once saves growing them (copies and fresh
+    pages on every doubling)."""
+    k = _SAMPLE_STEP
+    if count < 64 * k:
+        return count
+    empty = np.zeros(0, np.int64)
+    keys, _ = _packed_slab(points, voxel, np.zeros(0, np.int32), 4, np.zeros((0, 3), np.float32), keep, base,
+                           -(1 << 62), (1 << 62) - 1, empty, 1, 0, count // k, k)
+    r = len(keys) / count
+    if r >= (1.0 - np.exp(-1.0 / k)) - 1e-12:  # nearly every sampled point alone in its voxel
+        return count
+    a, b = 1.0, float(count)
+    for _ in range(60):  # f(lam) = (1 - exp(-lam / k)) / lam decreases in lam
+        lam = np.sqrt(a * b)
+        if (1.0 - np.exp(-lam / k)) / lam > r:
+            a = lam
+        else:
+            b = lam
+    return min(count, int(1.2 * count / np.sqrt(a * b)) + 1024)
+
+
+def voxel_sums(points: NDArray[np.floating], voxel: float, camera_source: NDArray[np.int32] | None = None,
+               normals: NDArray[np.float32] | None = None, with_ids: bool = False, slabs: int | None = None,
+               keep: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
+    """The one voxel grid, compiled: each occupied voxel's row (M,W) in grid order (x, then y, then z) of count,
+    float64 sums of x, y, z, of the normals' x, y, z when given, and the points per camera when camera_source
+    (N,) names more than one; and with_ids, each point's voxel (N,; else None).  With keep (N,) only the points
+    it flags count (the others' ids are -1): the voxels of a selection without copying it.
+
+    One pass over the points hashes each one's grid index (floor(p / voxel) in numpy's arithmetic: float32 for
+    float32 points and a Python float) into a table of the occupied voxels, then only those are sorted: no array
+    over the grid's extent, and nothing the size of the cloud but the ids.  A grid under _PACK voxels an axis
+    (a bounds pass first) keys a voxel by one packed int64; a wider one (or non-finite points) by the three
+    indices.  Clouds of VOXEL_SLAB_POINTS or more are split into slabs of x (boundaries at quantiles of a
+    sample; `slabs` of them, else one per thread the budget shares out) run on the thread budget; a voxel lies
+    in one slab, so its sums are the same float64 additions in point order however the cloud is split."""
+    pts = np.ascontiguousarray(points if points.dtype in (np.float32, np.float64) else points.astype(np.float64))
+    v = np.result_type(pts.dtype, voxel).type(voxel)  # numpy's points / voxel: float32 for a Python float
+    n = len(pts)
+    ncam = int(camera_source.max()) + 1 if camera_source is not None and camera_source.size else 1
+    src = np.zeros(0, np.int32) if ncam == 1 or camera_source is None else \
+        np.ascontiguousarray(camera_source, np.int32)
+    nrm = np.zeros((0, 3), np.float32) if normals is None else np.ascontiguousarray(normals, np.float32)
+    flags = np.zeros(0, np.bool_) if keep is None else np.ascontiguousarray(keep, np.bool_)
+    width = (4 if normals is None else 7) + (ncam if ncam > 1 else 0)
+    lo, hi, finite, count = _coord_bounds(pts, flags)
+    if count == 0:
+        return np.zeros((0, width)), (np.full(n, -1, np.int64) if with_ids else None)
+    with np.errstate(over="ignore", invalid="ignore"):  # float32's largest coordinates over a voxel: inf
+        span = np.floor(hi / v) - np.floor(lo / v)
+        base = np.clip(np.floor(lo / v), -_GRID_LIMIT, _GRID_LIMIT).astype(np.int64)  # the lowest grid index
+    packed = finite and bool(np.all(span < _PACK))
+    offset = base[0] if packed else 0  # slabs in grid x relative to base when packed
+    bounds = [-(1 << 62), 1 << 62]  # slab k: grid x indices bounds[k] .. bounds[k + 1] - 1
+    if slabs is None:
+        slabs = THREADS.share() if count >= VOXEL_SLAB_POINTS else 1
+    if slabs > 1:
+        sample = pts[:: max(1, n // 4096), 0]
+        gx = np.clip(np.floor(sample[np.isfinite(sample)] / v), -_GRID_LIMIT, _GRID_LIMIT)
+        if len(gx):
+            cuts = np.unique(np.quantile(gx, np.arange(1, slabs) / slabs, method="lower").astype(np.int64))
+            bounds = [-(1 << 62), *(int(c) - int(offset) for c in cuts), 1 << 62]
+    slabs = len(bounds) - 1
+    ids = np.empty(n if with_ids else 0, np.int64)
+    expected = _expected_voxels(pts, v, flags, base, count) // slabs if packed else count // 8 // slabs
+
+    def slab(k: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        if packed:
+            keys, acc = _packed_slab(pts, v, src, width, nrm, flags, base, bounds[k], bounds[k + 1] - 1, ids, slabs,
+                                     k, expected)
+            order = np.argsort(keys)  # packed keys sort as the grid does
+        else:
+            cells, acc = _voxel_slab(pts, v, src, width, nrm, flags, bounds[k], bounds[k + 1] - 1, ids, slabs, k)
+            order = _lexicographic(cells)
+        return order, acc[order]
+
+    parts = THREADS.map(slab, range(slabs))
+    rows = parts[0][1] if slabs == 1 else np.concatenate([acc for _, acc in parts])
+    if not with_ids:
+        return rows, None
+    rank = np.empty(len(rows), np.int64)  # slab s's voxel v (as first met) -> its place in the grid order
+    first = np.zeros(slabs, np.int64)
+    for s, (order, _) in enumerate(parts):
+        rank[first[s] + order] = first[s] + np.arange(len(order))
+        if s + 1 < slabs:
+            first[s + 1] = first[s] + len(order)
+    out = np.empty(n, np.int64)
+    _relabel(ids, slabs, first, rank, out)
+    return rows, out
 
 
 def voxel_groups(points: NDArray[np.floating], voxel: float) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """The one voxel grid: for points (N,3, m, any frame, N > 0) the index of the occupied voxel of edge voxel
-    (m) each falls in, voxels ordered by grid index (x, then y, then z; keyed in the points' dtype), and each
-    voxel's point count (M,)."""
-    grid = np.floor(points / voxel).astype(np.int64)
-    grid -= grid.min(axis=0)
-    dims = grid.max(axis=0) + 1
-    cells = int(dims[0]) * int(dims[1]) * int(dims[2])  # Python ints: a cloud metres wide overflows int64
-    if cells >= 1 << 62:  # no int64 key fits: the rows themselves, in the same x, y, z order
-        _, inverse, counts = np.unique(grid, axis=0, return_inverse=True, return_counts=True)
-        return inverse.reshape(-1), counts
-    keys = (grid[:, 0] * dims[1] + grid[:, 1]) * dims[2] + grid[:, 2]
-    if cells <= DENSE_VOXEL_CELLS:  # count into the grid itself: the same voxels, order and counts, no sort
-        dense = np.bincount(keys, minlength=cells)
-        occupied = np.flatnonzero(dense)
-        rank = np.empty(cells, np.intp)
-        rank[occupied] = np.arange(len(occupied))
-        return rank[keys], dense[occupied]
-    _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-    return inverse.reshape(-1), counts
+    """The one voxel grid: for points (N,3, m, any frame) the index of the occupied voxel of edge voxel (m) each
+    falls in, voxels ordered by grid index (x, then y, then z; keyed in the points' dtype), and each voxel's point
+    count (M,).  Compiled (voxel_sums); grid indices beyond +-2^61 voxels are clamped there, and non-finite
+    points (which callers drop first) fall in the voxel of index 0 or the edge."""
+    rows, ids = voxel_sums(points, voxel, with_ids=True)
+    assert ids is not None
+    return ids, rows[:, 0].astype(np.int64)
 
 
 def voxel_downsample(points: FloatArray, voxel: float) -> FloatArray:
@@ -49,9 +415,8 @@ def voxel_downsample(points: FloatArray, voxel: float) -> FloatArray:
     .voxelize is the same with cameras and normals; points (N,3) in any frame."""
     if len(points) == 0:
         return points
-    inv, counts = voxel_groups(points, voxel)
-    sums = np.stack([np.bincount(inv, points[:, k], len(counts)) for k in range(3)], axis=1)
-    return np.asarray(sums / counts[:, None]).astype(points.dtype, copy=False)
+    rows, _ = voxel_sums(points, voxel)
+    return np.asarray(rows[:, 1:4] / rows[:, :1]).astype(points.dtype, copy=False)
 
 
 #: Cell edge of the normals' grid as a multiple of the radius: a little over 1, so two points within the radius
@@ -393,16 +758,6 @@ def _normals_of_cells(sorted_pts: NDArray[np.float64], order: NDArray[np.int64],
             out[row, 0] = x
             out[row, 1] = y
             out[row, 2] = z
-
-
-def _lexicographic(cells: NDArray[np.int64]) -> NDArray[np.int64]:
-    """The order (N,) that sorts integer cell coordinates (N,3, >= 0) by x, then y, then z (stable): by one int64
-    key where the grid's cell count fits one, else by the three columns."""
-    dims = cells.max(axis=0) + 1
-    if int(dims[0]) * int(dims[1]) * int(dims[2]) < 1 << 62:  # Python ints: no overflow in the test itself
-        keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
-        return np.argsort(keys, kind="stable").astype(np.int64, copy=False)
-    return np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0])).astype(np.int64, copy=False)
 
 
 #: Points (about) whose normals one task of pca_normals computes (tasks run on the process's thread budget).
