@@ -267,8 +267,14 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
     half_h = hh / 2.0 + clear
     reach = float(np.sqrt(y_max**2 + (hd + behind) ** 2 + half_h**2))
     fr = frames.astype(np.float32)
-    if len(sample_idx) * len(obstacles.points) <= SCAN_PAIRS:  # every pair tested, in one compiled pass
-        sid, idx, loc = slab_neighbours(obstacles.points, samples, fr, reach, half_h)
+    # the obstacle points within reach of the chunk's bounds (samples are in index order, which voxels keep in x
+    # order, so a chunk spans a narrow slice of the scene), in their order: the pairs and their order are the same
+    bound = np.float32(reach * (1.0 + 1e-6) + 1e-6)
+    near = np.flatnonzero(np.all((obstacles.points >= samples.min(axis=0) - bound)
+                                 & (obstacles.points <= samples.max(axis=0) + bound), axis=1))
+    if len(sample_idx) * len(near) <= SCAN_PAIRS:  # every pair tested, in one compiled pass
+        sid, idx, loc = slab_neighbours(obstacles.points[near], samples, fr, reach, half_h)
+        idx = near[idx]
     else:  # a kd-tree or a dense pre-test finds the pairs near each slab
         sid, idx = slab_pairs(obstacles, samples, np.ascontiguousarray(fr[:, :, 2]), reach, half_h)
         slab, loc = slab_coordinates(obstacles.points, samples, fr, sid, idx, half_h)
