@@ -1,21 +1,24 @@
 """Big clouds under load: admission by cost, measured from outside.
 
-Starts the real service (`graspd serve`, a subprocess on a free port, a token, default settings otherwise) and
-has 8 clients send 16 requests in all (2 each, back to back, no retries) of 5M-point clouds, two loads one after
-the other:
+Starts the real service (`graspd serve` from --service-root's sources, a subprocess on a free port, a token,
+Zenoh off, default settings otherwise; a fresh one per load) and has 8 clients send 16 requests in all (2 each,
+back to back; a 503's Retry-After is waited out before the client's next request, a refused request is not sent
+again) of big clouds as binary PCDs, num_samples=300, the loads one after the other:
 
-- volumetric: random blobs (40 Gaussian blobs of 2-6 cm in a 60 x 60 x 30 cm box 70 cm from the camera), which
-  keep about half their points after 3 mm voxelisation (~2.4M occupied voxels);
-- tabletop: an honest organised scan (a depth image ray-cast from one camera: a table with boxes, cylinders and
-  spheres on it, 0.5 mm depth noise), which keeps ~0.1-0.2M voxels.
+- volumetric: 5M points of random blobs (40 Gaussian blobs of 2-6 cm in a 60 x 60 x 30 cm box 70 cm from the
+  camera), which keep about half their points after 3 mm voxelisation (~2.4M occupied voxels);
+- tabletop: a 5M-point honest organised scan (a depth image ray-cast from one camera: a table with boxes,
+  cylinders and spheres on it, 0.5 mm depth noise), which keeps ~0.13M voxels;
+- volumetric 1M: the blobs with 1M points (~0.8M voxels): volumes the server can finish within the deadline.
 
-For each load: the statuses, the slowest answer (s), whether each 503 carried Retry-After, the peak RSS of the
-service process (psutil, every 5 ms) and /healthz latencies (every 100 ms while the load runs; p50, p99).
-Targets: every answer within 60 s, no 504, at least half 200 (where a lone detection fits the deadline), peak
-RSS <= 4 GB, /healthz p99 <= 1 s.  Appends a section to bench/results/big-clouds.md (--label names it: before or
-after a change), with the command, the commit and the machine's load.
+For each load: the statuses and times, the slowest answer (s), whether each 503 carried Retry-After, the 4xx
+fields, the peak RSS of the service process (psutil, every 10 ms) and /healthz latencies (every 100 ms on a fresh
+connection from another process while the load runs; p50, p99).  Targets: every answer within 60 s, no 504, at
+least half 200, peak RSS <= 4 GB, /healthz p99 <= 1 s.  Puts a section into bench/results/big-clouds.md (--label
+names it, e.g. before or after a change; a section of the same label is replaced) with the command, the commit
+and the machine's load.
 
-  PYTHONPATH=service:client .venv/bin/python bench/big_clouds.py --label after [--service-root DIR]
+  PYTHONPATH=service:client .venv/bin/python bench/big_clouds.py --label after [--service-root DIR] [--loads ...]
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import multiprocessing
 import os
 import subprocess
 import sys
@@ -30,6 +34,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -195,10 +200,9 @@ def run_load(url: str, pid: int, name: str, body: bytes, clients: int, per_clien
              ) -> LoadResult:
     """`clients` threads each sending `per_client` requests of body back to back (a 503's Retry-After is waited
     out before the client's next request; a refused request is not sent again); /healthz every 100 ms on a fresh
-    connection meanwhile; the server's peak RSS."""
+    connection meanwhile, from another process; the server's peak RSS."""
     result = LoadResult(name, 0)
     lock = threading.Lock()
-    done = threading.Event()
 
     def client() -> None:
         with httpx.Client(base_url=url, timeout=180) as c:
@@ -219,30 +223,36 @@ def run_load(url: str, pid: int, name: str, body: bytes, clients: int, per_clien
                     time.sleep(float(answer.retry_after))
 
     rss = Rss(pid)
+    stop = multiprocessing.Event()
+    latencies: multiprocessing.Queue[list[float]] = multiprocessing.Queue()
+    prober = multiprocessing.Process(target=probe_health, args=(url, stop, latencies), daemon=True)
+    prober.start()  # its own process: the clients' uploads here do not delay it
     t0 = time.perf_counter()
     threads = [threading.Thread(target=client, daemon=True) for _ in range(clients)]
     for t in threads:
         t.start()
-
-    def health() -> None:
-        while not done.is_set():
-            h0 = time.perf_counter()
-            try:
-                ok = httpx.get(f"{url}/healthz", timeout=10).status_code == 200
-            except httpx.HTTPError:
-                ok = False
-            result.health.append(time.perf_counter() - h0 if ok else float("inf"))
-            done.wait(0.1)
-
-    prober = threading.Thread(target=health, daemon=True)
-    prober.start()
     for t in threads:
         t.join()
     result.wall = time.perf_counter() - t0
-    done.set()
-    prober.join()
+    stop.set()
+    result.health = latencies.get(timeout=30)
+    prober.join(timeout=30)
     result.peak_rss = rss.close()
     return result
+
+
+def probe_health(url: str, stop: Any, out: Any) -> None:
+    """GET /healthz on a fresh connection every 100 ms until stop is set; puts the latencies (s; inf: failed)."""
+    latencies: list[float] = []
+    while not stop.is_set():
+        h0 = time.perf_counter()
+        try:
+            ok = httpx.get(f"{url}/healthz", timeout=10).status_code == 200
+        except httpx.HTTPError:
+            ok = False
+        latencies.append(time.perf_counter() - h0 if ok else float("inf"))
+        stop.wait(0.1)
+    out.put(latencies)
 
 
 def start_server(service_root: Path, work: Path) -> tuple[subprocess.Popen[bytes], str]:
@@ -312,11 +322,12 @@ def write_section(out: Path, label: str, text: str) -> None:
     """Put `text` into out as the section headed `## label`, replacing one of that label, else appended."""
     head = ("# Big clouds under load: admission by cost\n\n"
             "8 clients send 16 requests in all (2 each, back to back; a 503's Retry-After is waited out before the "
-            "client's next request, a refused request is not sent again) of 5M-point binary PCDs (60 MB, "
-            "num_samples=300) to a fresh `graspd serve` (default settings: workers = cores, queue 32, deadline "
-            "30 s, detection memory budget 2048 MiB; Zenoh off), one load after the other: volumetric random "
-            "blobs, then an honest tabletop scan (bench/big_clouds.py says how each is made).  Peak RSS: the "
-            "service process, every 10 ms; /healthz: every 100 ms on a fresh connection while the load runs.  "
+            "client's next request, a refused request is not sent again) of big clouds as binary PCDs (5M points: "
+            "60 MB; num_samples=300) to a fresh `graspd serve` per load (default settings: workers = cores, queue "
+            "32, deadline 30 s, detection memory budget 2048 MiB; Zenoh off), one load after the other: 5M points "
+            "of volumetric random blobs, a 5M-point honest tabletop scan, 1M points of the blobs "
+            "(bench/big_clouds.py says how each is made).  Peak RSS: the service process, every 10 ms; /healthz: "
+            "every 100 ms on a fresh connection from another process while the load runs.  "
             f"Targets: every answer within {ANSWER_S:g} s, no 504, at least half 200, peak RSS <= {RSS_GB:g} GB, "
             f"/healthz p99 <= {HEALTH_P99_S:g} s.\n")
     sections = out.read_text().split("\n## ") if out.exists() else [head]
@@ -335,7 +346,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clients", type=int, default=8)
     ap.add_argument("--per-client", type=int, default=2)
     ap.add_argument("--num-samples", type=int, default=300)
-    ap.add_argument("--loads", default="volumetric,tabletop", help="comma-separated: volumetric, tabletop")
+    ap.add_argument("--loads", default="volumetric,tabletop,volumetric:1000000",
+                    help="comma-separated loads, each volumetric or tabletop, with :points for another size than "
+                         "--points")
+    ap.add_argument("--note", default="", help="a line under the section's title (what the checkout is)")
     args = ap.parse_args(argv)
     root = args.service_root.resolve()
     commit = subprocess.run(["git", "-C", str(root), "log", "-1", "--format=%h %s"], capture_output=True,
@@ -350,8 +364,11 @@ def main(argv: list[str] | None = None) -> int:
             "|---|---:|---|---|---|---:|---:|---|---:|---|---:|"]
     verdicts = []
     notes = []
-    for name in args.loads.split(","):
-        points = makers[name](args.points)
+    for load in args.loads.split(","):
+        kind, _, size = load.partition(":")
+        count = int(size or args.points)
+        name = kind if count == 5_000_000 else f"{kind} {count / 1e6:g}M"
+        points = makers[kind](count)
         voxels = voxels_of(points)
         body = pcd(points, len(points))
         del points
@@ -377,8 +394,12 @@ def main(argv: list[str] | None = None) -> int:
     load = os.getloadavg()
     command = (f"PYTHONPATH=service:client .venv/bin/python bench/big_clouds.py --label {args.label}"
                + (f" --service-root {args.service_root}" if root != ROOT else "")
-               + (f" --points {args.points}" if args.points != 5_000_000 else ""))
+               + (f" --points {args.points}" if args.points != 5_000_000 else "")
+               + (f" --loads {args.loads}" if args.loads != ap.get_default("loads") else "")
+               + (f" --clients {args.clients} --per-client {args.per_client}"
+                  if (args.clients, args.per_client) != (8, 2) else ""))
     text = (f"## {args.label}: {commit}{' (with uncommitted changes)' if dirty else ''}\n\n"
+            + (f"{args.note}\n\n" if args.note else "") +
             f"Command: `{command}`, {datetime.date.today().isoformat()}.  Machine: {os.cpu_count()} cores, load "
             f"average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end (shared with other work: times are "
             "noisy).\n\n" + "\n".join(rows) + "\n\nTargets: " + ".  ".join(verdicts) + ".\n\n"

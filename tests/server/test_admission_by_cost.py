@@ -146,13 +146,14 @@ def _held_worker(engine: Any, release: threading.Event, body: dict[str, Any]) ->
 def test_queued_work_that_cannot_start_in_time_is_503_at_once_and_never_runs(
         make_settings: Callable[..., Settings], small_body: Callable[..., dict[str, Any]],
         krylon: ViewpointCloud) -> None:
-    """One worker, deadline 2.5 s, the worker held.  A request queued behind it gets 503 with Retry-After as soon
-    as it can no longer start within its deadline (~1.9 s: the smallest detection takes one unit, 0.6 s here) and
-    is never parsed; one more arriving while that one waits is 503 at the door, at once."""
+    """One worker, deadline 2.5 s, the worker held, nothing timed yet (a request is expected to take the smallest
+    detection's time, one unit: 1 s here).  A request queued behind the held one gets 503 with Retry-After as
+    soon as it can no longer start and end within its deadline (~1.5 s) and is never parsed; one more arriving
+    while that one waits is 503 at the door, at once (~2 s ahead of it, ~1 s its own)."""
     body = small_body(krylon, num_samples=20)
     with TestClient(create_app(make_settings(detect_workers=1, deadline_s=2.5))) as client:
         engine = client.app.state.service.engine  # type: ignore[attr-defined]
-        engine.budget.unit_seconds = 0.6
+        engine.budget.unit_seconds = 1.0
         release = threading.Event()
         held = _held_worker(engine, release, body)
         parsed: list[bool] = []

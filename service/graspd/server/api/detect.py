@@ -106,7 +106,7 @@ async def detect(request: Request, state: State) -> Response:
         poses = q.getlist("camera_pose")
         timings = {"read": time.perf_counter() - t0}
         body = await state.engine.run_admitted(lambda: parse_body(data, content_type, query, viewpoints, poses),
-                                               timings)
+                                               timings, size=len(data))
         outcome, status = "ok", 200
         return Response(body, media_type="application/json")  # DetectResponse.to_json(), made on the worker
     except ClientDisconnect:  # the client went away while sending: nothing to answer (RequestGuard logs it)

@@ -3,12 +3,14 @@ sized to the cores, per-request deadlines, and request -> detection -> response 
 
 Admission is by cost, so that under load the service finishes work instead of timing it all out:
 
-- at the door (admit(), before an HTTP body is read): 503 with Retry-After when the queue is full, or when the
-  queue's expected wait (the running detections' expected ends, then the typical time of each request ahead,
-  spread over the workers) leaves no time for a typical request before its deadline;
-- in the queue: a request that can no longer start before its deadline (even the smallest detection would end
-  past it) gets 503 with Retry-After the moment that is known (a watchdog re-plans the queue whenever a running
-  detection's expected end is learnt), not a 504 at the deadline, and is never run;
+- at the door (admit(), before an HTTP body is read): 503 with Retry-After when the queue is full, or when no
+  worker is free and the queue's expected wait (the running detections' expected ends, then each request ahead's
+  expected time, over the workers) leaves a typical request no time to end before its deadline;
+- in the queue: a request expected not to start in time to end before its deadline (a request not parsed yet is
+  expected to take what the detections running now were estimated to, under the start's margin, at most what
+  its payload's size allows, at least the smallest detection's time) gets 503 with Retry-After the moment that
+  is known (a watchdog re-plans the queue whenever it or a running detection's estimate changes), not a 504 at
+  the deadline, and is never run;
 - on its worker, after parsing: the occupied voxels its detection will keep are counted (budget.occupied_voxels:
   a 5M-point volume keeps ~20x the voxels of a 5M-point surface scan, and costs ~10x the time), then the memory
   budget (413 naming the field when it never fits, 503 when not now) and the time (413 when the detection alone
@@ -51,11 +53,15 @@ from graspd.server.schemas import CropsRequest, DetectRequest, DetectResponse
 from graspd.server.services import proposals
 from graspd.server.services.allocator import IdleTrimmer, trim_function
 from graspd.server.services.budget import (
+    DENSEST_POINT_BYTES,
+    POINTS_PER_UNIT,
+    SAMPLES_PER_UNIT,
     TIME_MARGIN,
     MemoryBudget,
     cost_of,
     occupied_voxels,
     too_slow,
+    voxel_units,
     work_parts,
 )
 from graspd.server.services.registry import ModelRegistry
@@ -83,6 +89,8 @@ def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
              "in_image": bool(inside[i])} for i in range(len(g))]
 
 
+#: Samples of a request that names none (what _bound assumes of a payload not parsed yet).
+DEFAULT_SAMPLES = int(DetectRequest.model_fields["num_samples"].default)
 #: A started detection is awaited up to this many deadlines after it was queued (then 504): admission already
 #: refused what was expected to end past one deadline, so this only bounds a detection far beyond its estimate.
 ANSWER_DEADLINES = 2.0
@@ -92,12 +100,16 @@ ANSWER_DEADLINES = 2.0
 class Ticket:
     """One request from enqueue() to its answer.  future: what every entrance waits on (the engine settles it with
     the response JSON or a Problem); phase: queued -> started, or queued -> refused (503 while queued, never run);
-    ends: when a started one is expected to end (time.perf_counter() s); deadline likewise."""
+    bound: the most seconds its payload's size allows (inf: not known); began, ends: when a started one began and
+    is expected to end, its own estimate once `estimated`; deadline likewise (time.perf_counter() s)."""
 
     deadline: float
+    bound: float = math.inf
     future: Future[bytes] = field(default_factory=Future)
     phase: str = "queued"
+    began: float = 0.0
     ends: float = 0.0
+    estimated: bool = False
     work: Future[Any] | None = None  # the executor's future of the job
 
 
@@ -122,6 +134,7 @@ class DetectionEngine:
         self._running = 0
         self._detecting = 0  # running past parsing and admission (what shares the cores)
         self._avg_seconds = 1.0  # EWMA of a request's time on a worker (parse + detect), seconds
+        self._avg_detect = 0.0  # EWMA of the time on a worker of the requests that ran a detection, seconds
         self._trimmer = IdleTrimmer(trim_function(), busy=lambda: self._pending > 0)
         self.templates = TemplateService(settings)  # method "templates", and what feedback needs
         self.budget = MemoryBudget(settings.detect_memory_mb, THREADS.cores)  # admission by cost (budget.py)
@@ -142,10 +155,12 @@ class DetectionEngine:
                                            viewpoints=np.zeros((1, 3), np.float32)), 0.003, None, 1.0)
 
     # ---- admission -------------------------------------------------------------------------
-    def retry_after(self) -> float:
-        """Seconds until a worker is expected to free a slot: the measured service time (EWMA) over the
-        workers, at least 1 s and at most settings.max_retry_after_s (what the clients wait at most)."""
-        wait = self._avg_seconds / self.workers
+    def retry_after(self, wait: float | None = None) -> float:
+        """Seconds a refused client should wait: `wait` when known, else until a worker is expected to free a
+        slot (the measured service time, EWMA, over the workers); at least 1 s and at most
+        settings.max_retry_after_s (what the clients wait at most)."""
+        if wait is None:
+            wait = self._avg_seconds / self.workers
         return float(min(self.settings.max_retry_after_s, max(1, math.ceil(wait))))
 
     def min_seconds(self) -> float:
@@ -160,10 +175,25 @@ class DetectionEngine:
         heapq.heapify(free)
         return free
 
+    def _typical(self) -> float:
+        """Under the lock: the seconds on a worker of a request not parsed yet: as the detections running now
+        (their own estimates, sharing the cores included), else as the recent ones (EWMA); 0 when none ran."""
+        known = [t.ends - t.began for t in self._started if t.estimated]
+        return sum(known) / len(known) if known else self._avg_detect
+
+    def _expected(self, ticket: Ticket | None, typical: float) -> float:
+        """The seconds a request not parsed yet is expected to need once it starts, as its start would judge them
+        (TIME_MARGIN: it will have waited): the typical request's, at most its payload's bound, at least the
+        smallest detection's."""
+        own = TIME_MARGIN * typical
+        if ticket is not None:
+            own = min(own, ticket.bound)
+        return max(self.min_seconds(), own)
+
     def _admit(self) -> None:
-        """Reserve a place (running or queued) or refuse with 503: when the queue is full, or when the queue's
-        expected wait (the running detections' expected ends, then the typical time of each request ahead over
-        the workers) and a typical request's time would pass the deadline."""
+        """Reserve a place (running or queued) or refuse with 503: when the queue is full, or when no worker is
+        free and the queue's expected wait (the running detections' expected ends, then each request ahead's
+        expected time, over the workers) leaves no time for a typical request before the deadline."""
         with self._lock:
             if self.closed:
                 raise Problem(503, "server is shutting down", retry_after=1.0)
@@ -171,12 +201,16 @@ class DetectionEngine:
                 raise Problem(503, f"server busy ({self._pending} requests queued or running)",
                               retry_after=self.retry_after())
             free = self._free_at(time.perf_counter())
-            for _ in range(max(0, self._pending - len(self._started))):  # admitted, not started: a typical time
-                heapq.heapreplace(free, free[0] + self._avg_seconds)
-            if free[0] > 0 and free[0] + max(self._avg_seconds, self.min_seconds()) > self.settings.deadline_s:
+            typical = self._typical()
+            for ticket in self._queued:
+                heapq.heapreplace(free, free[0] + self._expected(ticket, typical))
+            for _ in range(max(0, self._pending - len(self._started) - len(self._queued))):  # reading a body
+                heapq.heapreplace(free, free[0] + self._expected(None, typical))
+            over = free[0] + self._expected(None, typical) - self.settings.deadline_s
+            if free[0] > 0 and over > 0:
                 raise Problem(503, f"server busy: the {self._pending} requests queued or running would take about "
                               f"{free[0]:.0f} s, too long to start another within the deadline of "
-                              f"{self.settings.deadline_s:g} s", retry_after=self.retry_after())
+                              f"{self.settings.deadline_s:g} s", retry_after=self.retry_after(over))
             self._pending += 1
             self.metrics.queue_depth.set(self._pending - self._running)
 
@@ -223,22 +257,25 @@ class DetectionEngine:
             pass
 
     def _refuse_late(self, now: float) -> tuple[list[Ticket], float | None]:
-        """Under the lock: take out of the queue the requests that cannot start before their deadline leaves
-        time for the smallest detection (their expected start: the workers' expected free times, then a typical
-        request's time for each one ahead of them); those and the seconds until the next could become late."""
+        """Under the lock: take out of the queue the requests that cannot start in time to end before their
+        deadline: their expected start (the workers' expected free times, then the expected time of each one
+        ahead) and their own expected time (_expected) pass it, or, where a worker should be free now (one that
+        takes it judges it by its own estimate), even the smallest detection's would.  Returns those and the
+        seconds until the next could become late."""
         free = self._free_at(now)
-        smallest = self.min_seconds()
+        typical, smallest = self._typical(), self.min_seconds()
         late: list[Ticket] = []
         wake: float | None = None
         for ticket in list(self._queued):
-            slack = ticket.deadline - (now + free[0] + smallest)
+            own = self._expected(ticket, typical)
+            slack = ticket.deadline - (now + free[0] + (own if free[0] > 0 else smallest))
             if slack < 0:
                 ticket.phase = "refused"
                 self._queued.remove(ticket)
                 late.append(ticket)
                 continue
             wake = slack if wake is None else min(wake, slack)
-            heapq.heapreplace(free, free[0] + self._avg_seconds)
+            heapq.heapreplace(free, free[0] + own)
         return late, wake
 
     def _watch(self) -> None:
@@ -284,7 +321,8 @@ class DetectionEngine:
                 self._changed.notify()
                 return
             ticket.phase = "started"
-            ticket.ends = time.perf_counter() + self._avg_seconds  # until its own estimate is known
+            ticket.began = time.perf_counter()
+            ticket.ends = ticket.began + self._expected(ticket, self._typical())  # until its own estimate is known
             self._started.add(ticket)
             self._changed.notify()
         result: bytes | BaseException
@@ -346,7 +384,7 @@ class DetectionEngine:
                               retry_after=self.retry_after())
             with self._changed:
                 self._detecting += 1
-                ticket.ends = now + lone * shared  # the watchdog re-plans the queue behind it
+                ticket.ends, ticket.estimated = now + lone * shared, True  # the watchdog re-plans the queue
                 self._changed.notify()
             units = sum(work.values()) * shared  # timed from here on (budget.observe learns seconds per lone unit)
             timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
@@ -412,6 +450,8 @@ class DetectionEngine:
                 self.metrics.running.set(self._running)
                 if elapsed > 0.01 or self._avg_seconds < 0.01:  # refusals in microseconds say nothing of the load
                     self._avg_seconds = 0.8 * self._avg_seconds + 0.2 * elapsed
+                if units:
+                    self._avg_detect = elapsed if not self._avg_detect else 0.8 * self._avg_detect + 0.2 * elapsed
 
     def _detect(self, req: DetectRequest, cloud: ViewpointCloud, params: DetectionParams, hand: HandGeometry | None,
                 model: str | None) -> Detection | TemplateDetection:
@@ -428,16 +468,17 @@ class DetectionEngine:
         return self.enqueue(lambda: req, timings, header, on_detection)
 
     def enqueue(self, parse: Callable[[], DetectRequest], timings: dict[str, float],
-                header: dict[str, Any] | None = None, on_detection: OnDetection | None = None
-                ) -> tuple[Future[bytes], float]:
+                header: dict[str, Any] | None = None, on_detection: OnDetection | None = None,
+                size: int = 0) -> tuple[Future[bytes], float]:
         """Queue an admitted request (admit() first): parse() runs on a worker, then the detection.  Returns the
         future, which the engine settles with the response JSON or a Problem (a request that cannot start in
         time gets 503 while queued), and the time (time.perf_counter() s) after which a waiter gives up with 504
         (gave_up): ANSWER_DEADLINES deadlines, for a detection that started but ran far past its estimate.  The
         place is given back when the job is done.  header: a ROS header for the response (Zenoh, CDR input),
-        read after parse() ran."""
+        read after parse() ran.  size: the payload's bytes when known (0: not), which bound what it can cost while
+        it is queued (a small request behind big ones is not judged by theirs)."""
         now = time.perf_counter()
-        ticket = Ticket(now + self.settings.deadline_s)
+        ticket = Ticket(now + self.settings.deadline_s, self._bound(size))
         context = contextvars.copy_context()  # the request id follows the work onto the worker thread
         with self._changed:
             self._queued.append(ticket)
@@ -453,6 +494,15 @@ class DetectionEngine:
             raise Problem(503, "server is shutting down", retry_after=1.0) from None
         ticket.work.add_done_callback(lambda work: self._work_done(ticket, work))
         return ticket.future, now + ANSWER_DEADLINES * self.settings.deadline_s
+
+    def _bound(self, size: int) -> float:
+        """The most seconds a payload of `size` bytes can take (0: not known, inf): its points at the densest
+        encoding, each in a voxel of its own, the default samples, every worker busy."""
+        if size <= 0:
+            return math.inf
+        points = size // DENSEST_POINT_BYTES
+        units = 1.0 + points / POINTS_PER_UNIT + voxel_units(points) + DEFAULT_SAMPLES / SAMPLES_PER_UNIT
+        return units * self.budget.unit_seconds * self.workers
 
     def gave_up(self) -> Problem:
         """The 504 of a waiter whose detection started but ran past ANSWER_DEADLINES deadlines."""
@@ -476,9 +526,10 @@ class DetectionEngine:
         return await self._wait(fut, give_up)
 
     async def run_admitted(self, parse: Callable[[], DetectRequest], timings: dict[str, float],
-                           on_detection: OnDetection | None = None) -> bytes:
-        """Awaitable parse + detect of a request admitted with admit(): both run on a worker thread."""
-        fut, give_up = self.enqueue(parse, timings, None, on_detection)
+                           on_detection: OnDetection | None = None, size: int = 0) -> bytes:
+        """Awaitable parse + detect of a request admitted with admit(): both run on a worker thread.  size: the
+        payload's bytes (see enqueue)."""
+        fut, give_up = self.enqueue(parse, timings, None, on_detection, size)
         return await self._wait(fut, give_up)
 
     async def _wait(self, fut: Future[bytes], give_up: float) -> bytes:
