@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from graspd.core.points import VOXEL_SLAB_POINTS, voxel_downsample, voxel_groups, voxel_sums
+from graspd.core.points import voxel_downsample, voxel_groups, voxel_sums
 from graspd.gpd.preprocess import voxelize
 
 
@@ -107,7 +107,7 @@ def test_points_on_voxel_boundaries() -> None:
 
 def test_slabs_change_nothing() -> None:
     """Clouds split into slabs of x (threads) give the same voxels, order, ids and float64 sums."""
-    pts, source, normals = tabletop(VOXEL_SLAB_POINTS + 5000, seed=2)
+    pts, source, normals = tabletop(600_000, seed=2)
     base, ids = voxel_sums(pts, 0.003, source, normals, with_ids=True, slabs=1)
     assert ids is not None
     for slabs in (2, 3, 7):

@@ -20,8 +20,9 @@ FloatArray = TypeVar("FloatArray", NDArray[np.float32], NDArray[np.float64])
 #: Grid indices are clamped to +-this: a coordinate more than 2^61 voxels from the origin (not a real cloud: 6.9e15 m
 #: at 3 mm) falls in the edge voxel, and differences of two indices fit int64.
 _GRID_LIMIT = float(1 << 61)
-#: Clouds of at least this many points are voxelised in slabs of x, one task each on the thread budget.
-VOXEL_SLAB_POINTS = 1 << 19
+#: Points a slab of x holds at least when voxel_sums splits a cloud over the thread budget's threads (each slab's
+#: thread reads every point, so a small cloud gains nothing from a split).
+VOXEL_SLAB_POINTS = 1 << 20
 
 
 @kernel
@@ -342,9 +343,10 @@ def voxel_sums(points: NDArray[np.floating], voxel: float, camera_source: NDArra
     float32 points and a Python float) into a table of the occupied voxels, then only those are sorted: no array
     over the grid's extent, and nothing the size of the cloud but the ids.  A grid under _PACK voxels an axis
     (a bounds pass first) keys a voxel by one packed int64; a wider one (or non-finite points) by the three
-    indices.  Clouds of VOXEL_SLAB_POINTS or more are split into slabs of x (boundaries at quantiles of a
-    sample; `slabs` of them, else one per thread the budget shares out) run on the thread budget; a voxel lies
-    in one slab, so its sums are the same float64 additions in point order however the cloud is split."""
+    indices.  Clouds of twice VOXEL_SLAB_POINTS or more are split into slabs of x (boundaries at quantiles of a
+    sample; `slabs` of them, else one per thread the budget shares out, each of VOXEL_SLAB_POINTS at least) run on
+    the thread budget; a voxel lies in one slab, so its sums are the same float64 additions in point order
+    however the cloud is split."""
     pts = np.ascontiguousarray(points if points.dtype in (np.float32, np.float64) else points.astype(np.float64))
     v = np.result_type(pts.dtype, voxel).type(voxel)  # numpy's points / voxel: float32 for a Python float
     n = len(pts)
@@ -364,7 +366,7 @@ def voxel_sums(points: NDArray[np.floating], voxel: float, camera_source: NDArra
     offset = base[0] if packed else 0  # slabs in grid x relative to base when packed
     bounds = [-(1 << 62), 1 << 62]  # slab k: grid x indices bounds[k] .. bounds[k + 1] - 1
     if slabs is None:
-        slabs = THREADS.share() if count >= VOXEL_SLAB_POINTS else 1
+        slabs = max(1, min(THREADS.share(), count // VOXEL_SLAB_POINTS))
     if slabs > 1:
         sample = pts[:: max(1, n // 4096), 0]
         gx = np.clip(np.floor(sample[np.isfinite(sample)] / v), -_GRID_LIMIT, _GRID_LIMIT)
