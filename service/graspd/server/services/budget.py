@@ -190,17 +190,17 @@ VOXELS_PER_UNIT = 16_000
 VOXELS_DOUBLING = 2_500_000
 SAMPLES_PER_UNIT = 100
 #: Seconds per work unit of a detection running alone on REFERENCE_CORES cores, before any detection was timed
-#: (the fit above); with more cores the engine starts from proportionally less (an optimistic start: a detection
-#: that overruns still ends and teaches, where a pessimistic one would refuse what fits and learn nothing).
+#: (the fit above); with more cores the engine starts from proportionally less.  Only a start: the detector gets
+#: faster (the same 5M-point blobs took 26-35 s, then 20 s a few commits later) and machines differ, so the
+#: engine learns the seconds per unit from every detection that runs (MemoryBudget.observe) and never refuses a
+#: request for good on the start alone (engine.py: best effort when idle).
 UNIT_SECONDS = 0.1
 REFERENCE_CORES = 2
-#: A timed detection of this many work units or more moves the learnt seconds per unit fully (an EWMA weight of
-#: 0.2); a smaller one proportionally less: a small detection's time is mostly fixed costs.
+#: A timed detection of this many work units or more counts fully in the learnt seconds per unit, a smaller one
+#: proportionally less (a small detection's time is mostly fixed costs): the first full one replaces the start,
+#: the next ones average with it, down to an EWMA weight of LEARN_WEIGHT.
 LEARN_UNITS = 20.0
-#: Under load (other detections running, or a queue wait over 1 s) expected seconds are multiplied by this before
-#: they are compared with the time left: a detection's time varies with the machine's load, and a refusal costs a
-#: retry where an overrun costs cores and a late answer.  A lone request fits if its plain estimate does.
-TIME_MARGIN = 1.5
+LEARN_WEIGHT = 0.2
 
 
 def voxel_units(voxels: float) -> float:
@@ -248,9 +248,11 @@ def _shrink_hint(part: str, allowed: int, count: int, voxel_size: float) -> str:
 PART_FIELDS = {"cloud": "cloud", "voxels": "cloud", "num_samples": "num_samples", "crops": "crops"}
 
 
-def too_slow(req: Any, voxels: int, unit_seconds: float, deadline_s: float, voxel_size: float) -> Problem:
+def too_slow(req: Any, voxels: int, unit_seconds: float, limit_s: float, deadline_s: float,
+             voxel_size: float) -> Problem:
     """413 for a parsed DetectRequest (its cloud keeping `voxels` occupied voxels) whose work would take longer
-    alone than the deadline: names the field of the costliest part and how far it must shrink."""
+    alone than limit_s, the most a request may take here: names the field of the costliest part and how far it
+    must shrink to end within the deadline (deadline_s)."""
     parts = work_parts(req, voxels)
     seconds = sum(parts.values()) * unit_seconds
     part = max((k for k in parts if k != "base"), key=lambda k: parts[k])
@@ -259,8 +261,8 @@ def too_slow(req: Any, voxels: int, unit_seconds: float, deadline_s: float, voxe
                       "voxels": (voxels, voxels_for_units(left)),
                       "num_samples": (int(req.num_samples), int(left * SAMPLES_PER_UNIT))}[part]
     return Problem(413, f"this request needs about {seconds:.0f} s of detection on this server even alone, more "
-                        f"than the deadline of {deadline_s:g} s (GRASPD_DEADLINE_S): send "
-                        f"{_shrink_hint(part, allowed, count, voxel_size)}", PART_FIELDS[part])
+                        f"than the {limit_s:g} s it may take (twice the deadline, GRASPD_DEADLINE_S = {deadline_s:g} "
+                        f"s): send {_shrink_hint(part, allowed, count, voxel_size)}", PART_FIELDS[part])
 
 
 class MemoryBudget:
@@ -273,14 +275,18 @@ class MemoryBudget:
         self._cond = threading.Condition()
         #: a detection's seconds per work unit alone: UNIT_SECONDS scaled to `cores`, then learnt (observe())
         self.unit_seconds = UNIT_SECONDS * min(1.0, REFERENCE_CORES / max(1, cores))
+        self.learnt = 0.0  # full-size detections timed so far (LEARN_UNITS)
 
     def observe(self, units: float, seconds: float) -> None:
         """Learn seconds per work unit from a detection that ran, `units` of work (work_units x the detections
-        sharing the cores; 0: it was refused before detection): an EWMA weighted by its size (LEARN_UNITS)."""
+        sharing the cores; 0: it was refused before detection): a running mean by size (LEARN_UNITS), then an
+        EWMA (LEARN_WEIGHT)."""
         if units > 0 and seconds > 0.0:
-            weight = 0.2 * min(1.0, units / LEARN_UNITS)
+            size = min(1.0, units / LEARN_UNITS)
             with self._cond:
+                weight = size * max(LEARN_WEIGHT, 1.0 / (1.0 + self.learnt))
                 self.unit_seconds = (1.0 - weight) * self.unit_seconds + weight * seconds / units
+                self.learnt += size
 
     def _too_big(self, parts: dict[str, float], voxel_size: float) -> Problem:
         total = sum(parts.values())

@@ -7,14 +7,18 @@ Admission is by cost, so that under load the service finishes work instead of ti
   worker is free and the queue's expected wait (the running detections' expected ends, then each request ahead's
   expected time, over the workers) leaves a typical request no time to end before its deadline;
 - in the queue: a request expected not to start in time to end before its deadline (a request not parsed yet is
-  expected to take what the detections running now were estimated to, under the start's margin, at most what
-  its payload's size allows, at least the smallest detection's time) gets 503 with Retry-After the moment that
-  is known (a watchdog re-plans the queue whenever it or a running detection's estimate changes), not a 504 at
-  the deadline, and is never run;
+  expected to take what the detections running now were estimated to, at most what its payload's size allows,
+  at least the smallest detection's time) gets 503 with Retry-After the moment that is known (a watchdog
+  re-plans the queue whenever it or a running detection's estimate changes), not a 504 at the deadline, and is
+  never run;
 - on its worker, after parsing: the occupied voxels its detection will keep are counted (budget.occupied_voxels:
-  a 5M-point volume keeps ~20x the voxels of a 5M-point surface scan, and costs ~10x the time), then the memory
-  budget (413 naming the field when it never fits, 503 when not now) and the time (413 when the detection alone
-  would not end within the deadline, 503 when it would not now, with the detections sharing the cores);
+  a 5M-point volume keeps ~20x the voxels of a 5M-point surface scan, and costs ~10-20x the time), then the
+  memory budget (413 naming the field when it never fits, 503 when not now) and the time: expected seconds =
+  work units x the learnt seconds per unit x the detections sharing the cores; 413 naming the field when alone
+  it would outlast the whole answer window (ANSWER_DEADLINES deadlines: it never fits, even were the estimate
+  twice too high), run as best effort when it would outlast the deadline only and nothing else runs or waits
+  (it is answered if it ends within the window, and what it takes is learnt: the estimate may be stale), 503
+  otherwise, and 503 when with the detections running now it would not end within the deadline;
 - a detection that starts is awaited to its end: the answer is given up (504) only past twice the deadline, a
   guard for a detection that ran far beyond its estimate, not for queued work.
 """
@@ -56,7 +60,6 @@ from graspd.server.services.budget import (
     DENSEST_POINT_BYTES,
     POINTS_PER_UNIT,
     SAMPLES_PER_UNIT,
-    TIME_MARGIN,
     MemoryBudget,
     cost_of,
     occupied_voxels,
@@ -182,10 +185,9 @@ class DetectionEngine:
         return sum(known) / len(known) if known else self._avg_detect
 
     def _expected(self, ticket: Ticket | None, typical: float) -> float:
-        """The seconds a request not parsed yet is expected to need once it starts, as its start would judge them
-        (TIME_MARGIN: it will have waited): the typical request's, at most its payload's bound, at least the
-        smallest detection's."""
-        own = TIME_MARGIN * typical
+        """The seconds a request not parsed yet is expected to need once it starts: the typical request's, at most
+        its payload's bound, at least the smallest detection's."""
+        own = typical
         if ticket is not None:
             own = min(own, ticket.bound)
         return max(self.min_seconds(), own)
@@ -372,17 +374,22 @@ class DetectionEngine:
                                     params.voxel_size)
             work = work_parts(req, voxels)
             lone = sum(work.values()) * self.budget.unit_seconds  # expected seconds alone
-            if lone > self.settings.deadline_s:  # would not end in time even alone: it never fits
+            if lone > ANSWER_DEADLINES * self.settings.deadline_s:  # never fits, even were the estimate 2x high
                 raise self._late() if self.min_seconds() > self.settings.deadline_s else \
-                    too_slow(req, voxels, self.budget.unit_seconds, self.settings.deadline_s, params.voxel_size)
-            shared = 1 + self._detecting  # detections sharing the cores (graspd.core.parallel), this one included
-            margin = TIME_MARGIN if shared > 1 or timings["queue"] > 1.0 else 1.0  # under load: a safety margin
-            now = time.perf_counter()
-            if now + margin * lone * shared > deadline:  # 503 rather than start what cannot end in time
-                raise Problem(503, f"server busy: this request takes about {lone * shared:.0f} s now and would not "
-                              f"end within the deadline of {self.settings.deadline_s:g} s",
-                              retry_after=self.retry_after())
+                    too_slow(req, voxels, self.budget.unit_seconds, ANSWER_DEADLINES * self.settings.deadline_s,
+                             self.settings.deadline_s, params.voxel_size)
             with self._changed:
+                shared = 1 + self._detecting  # detections sharing the cores (graspd.core.parallel), this one too
+                alone = len(self._started) == 1 and not self._queued and self._pending == 1
+                now = time.perf_counter()
+                if lone > self.settings.deadline_s and not alone:  # best effort only on an idle server
+                    raise Problem(503, f"server busy: this request takes about {lone:.0f} s even alone, more than "
+                                  f"the deadline of {self.settings.deadline_s:g} s: it runs only when nothing else "
+                                  "runs or waits", retry_after=self.retry_after())
+                if lone <= self.settings.deadline_s and now + lone * shared > deadline:  # 503, not start in vain
+                    raise Problem(503, f"server busy: this request takes about {lone * shared:.0f} s now and would "
+                                  f"not end within the deadline of {self.settings.deadline_s:g} s",
+                                  retry_after=self.retry_after())
                 self._detecting += 1
                 ticket.ends, ticket.estimated = now + lone * shared, True  # the watchdog re-plans the queue
                 self._changed.notify()
