@@ -167,3 +167,14 @@ def test_huge_coordinates(scale: float) -> None:
     assert_grid(both, 0.003)
     inverse, _ = voxel_groups(both, 0.003)
     assert np.array_equal(np.unique(inverse[:3000], return_inverse=True)[1], reference(pts, 0.003)["inverse"])
+
+
+def test_point_beyond_the_sampled_grid() -> None:
+    """One far point that the bounds sample skips (a cloud of 200k points is sampled every 3rd row) leaves the
+    packed keys' room: the grid is made again with three-index keys, the same as the reference."""
+    pts, source, _ = tabletop(200_000, seed=7)
+    pts[100_001] = [9000.0, -0.1, 0.2]  # 9 km: beyond 3 km of room at 3 mm
+    assert_grid(pts, 0.003)
+    out = voxelize(pts, source, 0.003)
+    ref = reference(pts, 0.003, source)
+    assert np.array_equal(out[0], ref["means"]) and np.array_equal(out[1], ref["camera"])

@@ -151,38 +151,15 @@ _PACK = 1 << 21
 
 
 @kernel
-def _coord_bounds(points: NDArray[np.floating], keep: NDArray[np.bool_]
-                  ) -> tuple[NDArray[np.floating], NDArray[np.floating], bool, int]:
-    """The bounds lo, hi (3,) of the points (those keep flags, where given), whether all their coordinates are
-    finite, and how many there are."""
-    n = points.shape[0]
-    with_keep = keep.shape[0] == n
-    lo = np.full(3, np.inf, points.dtype)
-    hi = np.full(3, -np.inf, points.dtype)
-    finite = True
-    count = 0
-    for i in range(n):
-        if with_keep and not keep[i]:
-            continue
-        count += 1
-        for k in range(3):
-            c = points[i, k]
-            if not np.isfinite(c):
-                finite = False
-            lo[k] = min(lo[k], c)
-            hi[k] = max(hi[k], c)
-    return lo, hi, finite, count
-
-
-@kernel
 def _packed_fill(points: NDArray[np.floating], voxel: float, source: NDArray[np.int32],
                  normals: NDArray[np.float32], keep: NDArray[np.bool_], base: NDArray[np.int64], x_lo: int,
                  x_hi: int, start: int, table_keys: NDArray[np.int64], table_ids: NDArray[np.int32], shift: int,
                  acc: NDArray[np.float64], m: int, ids: NDArray[np.int64], id_stride: int, id_offset: int, step: int
                  ) -> tuple[int, int]:
-    """_voxel_fill for grids whose span fits _PACK voxels an axis (finite points, base (3,) their lowest grid
-    index): voxels keyed by one packed int64 in a table of keys and voxel + 1 (0: free), 12 bytes a slot.  Every
-    step-th point from start (step > 1: a sample, to size the table)."""
+    """_voxel_fill for grids within _PACK voxels an axis of base (3,): voxels keyed by one packed int64 (grid
+    index - base, 21 bits each) in a table of keys and voxel + 1 (0: free), 12 bytes a slot.  Every step-th point
+    from start (step > 1: a sample, to size the table).  Returns (the point, -1) at the first point outside that
+    grid: the caller falls back to three-index keys."""
     n = points.shape[0]
     mask = table_keys.shape[0] - 1
     limit = min(table_keys.shape[0] >> 1, acc.shape[0])
@@ -199,8 +176,11 @@ def _packed_fill(points: NDArray[np.floating], voxel: float, source: NDArray[np.
         x = _grid_index(points[i, 0], voxel) - base[0]
         if x < x_lo or x > x_hi:
             continue
-        key = (x << 42) | ((_grid_index(points[i, 1], voxel) - base[1]) << 21) | (
-            _grid_index(points[i, 2], voxel) - base[2])
+        y = _grid_index(points[i, 1], voxel) - base[1]
+        z = _grid_index(points[i, 2], voxel) - base[2]
+        if (x < 0) | (x >= _PACK) | (y < 0) | (y >= _PACK) | (z < 0) | (z >= _PACK):
+            return i, -1
+        key = (x << 42) | (y << 21) | z
         h = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(shift))
         while True:
             t = table_ids[h]
@@ -235,9 +215,10 @@ def _packed_fill(points: NDArray[np.floating], voxel: float, source: NDArray[np.
 def _packed_slab(points: NDArray[np.floating], voxel: float, source: NDArray[np.int32], width: int,
                  normals: NDArray[np.float32], keep: NDArray[np.bool_], base: NDArray[np.int64], x_lo: int,
                  x_hi: int, ids: NDArray[np.int64], id_stride: int, id_offset: int, expected: int, step: int = 1
-                 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """_voxel_slab with packed keys (_packed_fill, every step-th point): the voxels' keys (M,), first met first, and
-    acc rows (M,W).  Sized for `expected` voxels at first (grown by doubling)."""
+                 ) -> tuple[NDArray[np.int64], NDArray[np.float64], bool]:
+    """_voxel_slab with packed keys (_packed_fill, every step-th point): the voxels' keys (M,), first met first,
+    acc rows (M,W), and False (nothing else) when a point lies outside the packed grid.  Sized for `expected`
+    voxels at first (grown by doubling)."""
     cap = max(1 << 10, expected)
     bits = 1
     while (1 << bits) < 2 * cap:
@@ -249,6 +230,8 @@ def _packed_slab(points: NDArray[np.floating], voxel: float, source: NDArray[np.
     while True:
         i, m = _packed_fill(points, voxel, source, normals, keep, base, x_lo, x_hi, i, table_keys, table_ids,
                             64 - bits, acc, m, ids, id_stride, id_offset, step)
+        if m < 0:
+            return np.zeros(0, np.int64), np.zeros((0, width)), False
         if i >= points.shape[0]:
             break
         if m == acc.shape[0]:
@@ -273,7 +256,7 @@ def _packed_slab(points: NDArray[np.floating], voxel: float, source: NDArray[np.
     for r in range(table_ids.shape[0]):
         if table_ids[r] != 0:
             keys[table_ids[r] - 1] = table_keys[r]
-    return keys, acc[:m]
+    return keys, acc[:m], True
 
 
 @kernel
@@ -303,7 +286,7 @@ def _lexicographic(cells: NDArray[np.int64]) -> NDArray[np.int64]:
 
 
 #: voxel_sums sizes its tables from every _SAMPLE_STEP-th point's voxels.
-_SAMPLE_STEP = 16
+_SAMPLE_STEP = 32
 
 
 def _expected_voxels(points: NDArray[np.floating], voxel: Any, keep: NDArray[np.bool_], base: NDArray[np.int64],
@@ -316,8 +299,10 @@ def _expected_voxels(points: NDArray[np.floating], voxel: Any, keep: NDArray[np.
     if count < 64 * k:
         return count
     empty = np.zeros(0, np.int64)
-    keys, _ = _packed_slab(points, voxel, np.zeros(0, np.int32), 4, np.zeros((0, 3), np.float32), keep, base,
-                           -(1 << 62), (1 << 62) - 1, empty, 1, 0, count // k, k)
+    keys, _, inside = _packed_slab(points, voxel, np.zeros(0, np.int32), 4, np.zeros((0, 3), np.float32), keep,
+                                   base, -(1 << 62), (1 << 62) - 1, empty, 1, 0, count // k // 4, k)
+    if not inside:
+        return count // 8
     r = len(keys) / count
     if r >= (1.0 - np.exp(-1.0 / k)) - 1e-12:  # nearly every sampled point alone in its voxel
         return count
@@ -341,12 +326,13 @@ def voxel_sums(points: NDArray[np.floating], voxel: float, camera_source: NDArra
 
     One pass over the points hashes each one's grid index (floor(p / voxel) in numpy's arithmetic: float32 for
     float32 points and a Python float) into a table of the occupied voxels, then only those are sorted: no array
-    over the grid's extent, and nothing the size of the cloud but the ids.  A grid under _PACK voxels an axis
-    (a bounds pass first) keys a voxel by one packed int64; a wider one (or non-finite points) by the three
-    indices.  Clouds of twice VOXEL_SLAB_POINTS or more are split into slabs of x (boundaries at quantiles of a
-    sample; `slabs` of them, else one per thread the budget shares out, each of VOXEL_SLAB_POINTS at least) run on
-    the thread budget; a voxel lies in one slab, so its sums are the same float64 additions in point order
-    however the cloud is split."""
+    over the grid's extent, and nothing the size of the cloud but the ids.  Voxels are keyed by one packed int64
+    within _PACK voxels an axis of a sample's bounds (centred on them: 3 km of room each way at 3 mm); a cloud
+    with a point beyond (or non-finite ones) is done again with three-index keys.  Clouds of twice
+    VOXEL_SLAB_POINTS or more are split into slabs of x (boundaries at quantiles of the sample; `slabs` of them,
+    else one per thread the budget shares out, each of VOXEL_SLAB_POINTS at least) run on the thread budget; a
+    voxel lies in one slab, so its sums are the same float64 additions in point order however the cloud is
+    split."""
     pts = np.ascontiguousarray(points if points.dtype in (np.float32, np.float64) else points.astype(np.float64))
     v = np.result_type(pts.dtype, voxel).type(voxel)  # numpy's points / voxel: float32 for a Python float
     n = len(pts)
@@ -356,38 +342,49 @@ def voxel_sums(points: NDArray[np.floating], voxel: float, camera_source: NDArra
     nrm = np.zeros((0, 3), np.float32) if normals is None else np.ascontiguousarray(normals, np.float32)
     flags = np.zeros(0, np.bool_) if keep is None else np.ascontiguousarray(keep, np.bool_)
     width = (4 if normals is None else 7) + (ncam if ncam > 1 else 0)
-    lo, hi, finite, count = _coord_bounds(pts, flags)
+    count = n if keep is None else int(np.count_nonzero(flags))
     if count == 0:
         return np.zeros((0, width)), (np.full(n, -1, np.int64) if with_ids else None)
+    step = max(1, n // 65536)  # the packed grid around a sample's bounds, with room for what it missed
+    sample = pts[::step] if keep is None else pts[::step][flags[::step]]
     with np.errstate(over="ignore", invalid="ignore"):  # float32's largest coordinates over a voxel: inf
-        span = np.floor(hi / v) - np.floor(lo / v)
-        base = np.clip(np.floor(lo / v), -_GRID_LIMIT, _GRID_LIMIT).astype(np.int64)  # the lowest grid index
-    packed = finite and bool(np.all(span < _PACK))
-    offset = base[0] if packed else 0  # slabs in grid x relative to base when packed
-    bounds = [-(1 << 62), 1 << 62]  # slab k: grid x indices bounds[k] .. bounds[k + 1] - 1
+        grid = np.floor(sample / v)
+    grid = grid[np.isfinite(grid).all(axis=1)]
+    base = np.zeros(3, np.int64)
+    packed = len(grid) > 0
+    if packed:
+        low, span = grid.min(axis=0), grid.max(axis=0) - grid.min(axis=0)
+        packed = bool(np.all(span < _PACK // 2) and np.all(np.abs(low) < _GRID_LIMIT / 2))
+        if packed:
+            base = (low - (_PACK - 1 - span) // 2).astype(np.int64)
+    bounds = [-(1 << 62), 1 << 62]  # slab k: grid x indices bounds[k] .. bounds[k + 1] - 1 (less base[0])
     if slabs is None:
         slabs = max(1, min(THREADS.share(), count // VOXEL_SLAB_POINTS))
-    if slabs > 1:
-        sample = pts[:: max(1, n // 4096), 0]
-        gx = np.clip(np.floor(sample[np.isfinite(sample)] / v), -_GRID_LIMIT, _GRID_LIMIT)
-        if len(gx):
-            cuts = np.unique(np.quantile(gx, np.arange(1, slabs) / slabs, method="lower").astype(np.int64))
-            bounds = [-(1 << 62), *(int(c) - int(offset) for c in cuts), 1 << 62]
+    if slabs > 1 and len(grid):
+        cuts = np.unique(np.quantile(grid[:, 0], np.arange(1, slabs) / slabs, method="lower").astype(np.int64))
+        bounds = [-(1 << 62), *(int(c) - int(base[0]) for c in cuts), 1 << 62]
     slabs = len(bounds) - 1
     ids = np.empty(n if with_ids else 0, np.int64)
     expected = _expected_voxels(pts, v, flags, base, count) // slabs if packed else count // 8 // slabs
 
+    def packed_slab(k: int) -> tuple[NDArray[np.int64], NDArray[np.float64], bool]:
+        keys, acc, inside = _packed_slab(pts, v, src, width, nrm, flags, base, bounds[k], bounds[k + 1] - 1, ids,
+                                         slabs, k, expected)
+        order = np.argsort(keys)  # packed keys sort as the grid does
+        return order, acc[order], inside
+
     def slab(k: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        if packed:
-            keys, acc = _packed_slab(pts, v, src, width, nrm, flags, base, bounds[k], bounds[k + 1] - 1, ids, slabs,
-                                     k, expected)
-            order = np.argsort(keys)  # packed keys sort as the grid does
-        else:
-            cells, acc = _voxel_slab(pts, v, src, width, nrm, flags, bounds[k], bounds[k + 1] - 1, ids, slabs, k)
-            order = _lexicographic(cells)
+        cells, acc = _voxel_slab(pts, v, src, width, nrm, flags, bounds[k] + int(base[0]),
+                                 bounds[k + 1] - 1 + int(base[0]), ids, slabs, k)
+        order = _lexicographic(cells)
         return order, acc[order]
 
-    parts = THREADS.map(slab, range(slabs))
+    if packed:
+        results = THREADS.map(packed_slab, range(slabs))
+        packed = all(inside for _, _, inside in results)  # else a point the sample missed lies outside
+        parts = [(order, acc) for order, acc, _ in results]
+    if not packed:
+        parts = THREADS.map(slab, range(slabs))
     rows = parts[0][1] if slabs == 1 else np.concatenate([acc for _, acc in parts])
     if not with_ids:
         return rows, None
