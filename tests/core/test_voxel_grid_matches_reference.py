@@ -170,7 +170,7 @@ def test_huge_coordinates(scale: float) -> None:
 
 
 def test_point_beyond_the_sampled_grid() -> None:
-    """One far point that the bounds sample skips (a cloud of 200k points is sampled every 3rd row) leaves the
+    """One far point that the bounds sample skips (a cloud of 200k points is sampled every 48th row) leaves the
     packed keys' room: the grid is made again with three-index keys, the same as the reference."""
     pts, source, _ = tabletop(200_000, seed=7)
     pts[100_001] = [9000.0, -0.1, 0.2]  # 9 km: beyond 3 km of room at 3 mm

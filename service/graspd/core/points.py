@@ -345,7 +345,7 @@ def voxel_sums(points: NDArray[np.floating], voxel: float, camera_source: NDArra
     count = n if keep is None else int(np.count_nonzero(flags))
     if count == 0:
         return np.zeros((0, width)), (np.full(n, -1, np.int64) if with_ids else None)
-    step = max(1, n // 65536)  # the packed grid around a sample's bounds, with room for what it missed
+    step = max(1, n // 4096)  # the packed grid around a sample's bounds, with room for what it missed
     sample = pts[::step] if keep is None else pts[::step][flags[::step]]
     with np.errstate(over="ignore", invalid="ignore"):  # float32's largest coordinates over a voxel: inf
         grid = np.floor(sample / v)
@@ -353,7 +353,8 @@ def voxel_sums(points: NDArray[np.floating], voxel: float, camera_source: NDArra
     base = np.zeros(3, np.int64)
     packed = len(grid) > 0
     if packed:
-        low, span = grid.min(axis=0), grid.max(axis=0) - grid.min(axis=0)
+        low = grid.min(axis=0)
+        span = grid.max(axis=0) - low
         packed = bool(np.all(span < _PACK // 2) and np.all(np.abs(low) < _GRID_LIMIT / 2))
         if packed:
             base = (low - (_PACK - 1 - span) // 2).astype(np.int64)
