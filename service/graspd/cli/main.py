@@ -396,8 +396,8 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
     d.add_argument("--max-grasps", type=int, default=100)
     d.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
                    help="gravity direction in the cloud frame; enables the top-grasp utility")
-    d.add_argument("--model", help="classifier name in the models directory (default: container15, trained on "
-                   "cluttered scenes and containers)")
+    d.add_argument("--model", help="classifier name in the models directory (default: household15, trained on "
+                   "cluttered scenes, containers and household objects at their true size)")
     d.add_argument("--models-dir", help="directory of ONNX models and cards (default: the shipped models/)")
     d.add_argument("--no-classifier", action="store_true", help="skip scoring (the paper's ablation)")
     d.add_argument("--no-cascade", action="store_true", help="score every candidate with the full model (no first "

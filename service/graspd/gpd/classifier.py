@@ -19,8 +19,9 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-#: The model the service uses when none is named: trained on cluttered scenes (issue 13), 15-channel images, GPD hand.
-DEFAULT_MODEL_NAME = "container15"
+#: The model the service uses when none is named: container15 fine-tuned on scenes half of household objects at their
+#: true size, with Kinect, stereo and time-of-flight noise (models/plan-household.json); 15-channel images, GPD hand.
+DEFAULT_MODEL_NAME = "household15"
 #: Environment variable that overrides the models folder.
 MODELS_DIR_ENV = "GRASPD_MODELS_DIR"
 _REQUIRED_CARD_KEYS = ("name", "representation", "channels", "image_size", "input", "output")
