@@ -87,6 +87,24 @@ def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tu
     return det, body
 
 
+def warm_kernels() -> None:
+    """Run the compiled paths the warm-up scene does not take on tiny inputs, so that numba loads (or, in a fresh
+    install, compiles) them before the first request that needs them: the range window (clouds over a metre
+    across), the admission's voxel count, and the hand search's pair coordinates for large obstacle sets."""
+    from graspd.gpd.placement import slab_coordinates  # noqa: PLC0415 - keeps this module light
+    from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW, region_mask  # noqa: PLC0415
+    from graspd.server.services.budget import occupied_voxels  # noqa: PLC0415
+
+    rng = np.random.default_rng(0)
+    wide = ViewpointCloud(points=rng.uniform(-1.5, 1.5, (64, 3)).astype(np.float32),
+                          viewpoints=np.array([[0.0, 0.0, 2.0]], np.float32))
+    region_mask(wide, None, DEFAULT_RANGE_WINDOW)
+    occupied_voxels(wide, 0.003, None, DEFAULT_RANGE_WINDOW)
+    pts = wide.points[:8]
+    slab_coordinates(pts, pts[:2], np.tile(np.eye(3, dtype=np.float32), (2, 1, 1)), np.zeros(4, np.int64),
+                     np.arange(4, dtype=np.int64), 0.01)
+
+
 def warm_up(registry: ModelRegistry, executor: Executor | None = None, workers: int = 1,
             timeout: float = 120.0) -> float:
     """Run warm_detection(registry) here, or once on each of the `workers` threads of `executor` (the engine's
@@ -95,6 +113,7 @@ def warm_up(registry: ModelRegistry, executor: Executor | None = None, workers: 
     working, merely cold, service."""
     t = time.perf_counter()
     try:
+        warm_kernels()
         if executor is None:
             dets = [warm_detection(registry)[0]]
         else:
