@@ -87,13 +87,23 @@ def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tu
     return det, body
 
 
-def warm_kernels() -> None:
-    """Run the compiled paths the warm-up scene does not take on tiny inputs, so that numba loads (or, in a fresh
-    install, compiles) them before the first request that needs them: the range window (clouds over a metre
-    across), the admission's voxel count, and the hand search's pair coordinates for large obstacle sets."""
+def warm_paths() -> None:
+    """Run the paths the warm-up request does not take on tiny inputs, so that their first use (numba loading or,
+    in a fresh install, compiling a kernel; a reader's first call) is not paid by a robot's request: file uploads
+    (ASCII and binary PCD, parsed as an upload is), the range window (clouds over a metre across), the
+    admission's voxel count, and the hand search's pair coordinates for large obstacle sets."""
     from graspd.gpd.placement import slab_coordinates  # noqa: PLC0415 - keeps this module light
     from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW, region_mask  # noqa: PLC0415
+    from graspd.server.requests import parse_body  # noqa: PLC0415
     from graspd.server.services.budget import occupied_voxels  # noqa: PLC0415
+
+    for data in (b"binary\n" + np.arange(12, dtype="<f4").tobytes(), b"ascii\n0 0 0.5\n0.1 0 0.5\n0 0.1 0.5\n"):
+        kind = data[: data.index(b"\n")].decode()
+        header = (f"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 4\nHEIGHT 1\n"
+                  f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {4 if kind == 'binary' else 3}\nDATA {kind}\n").encode()
+        if kind == "ascii":
+            header = header.replace(b"WIDTH 4", b"WIDTH 3")
+        parse_body(header + data[data.index(b"\n") + 1:], "application/octet-stream", {}, [])
 
     rng = np.random.default_rng(0)
     wide = ViewpointCloud(points=rng.uniform(-1.5, 1.5, (64, 3)).astype(np.float32),
@@ -113,7 +123,7 @@ def warm_up(registry: ModelRegistry, executor: Executor | None = None, workers: 
     working, merely cold, service."""
     t = time.perf_counter()
     try:
-        warm_kernels()
+        warm_paths()
         if executor is None:
             dets = [warm_detection(registry)[0]]
         else:
