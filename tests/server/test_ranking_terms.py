@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 
 from graspd.core.grasp import RANKING_RULE
 
-TERMS = ("classifier", "utility", "width", "unknown", "centring")
+TERMS = ("classifier", "utility", "width", "unknown")
 
 
 def _check_terms(out: dict[str, Any]) -> list[dict[str, float]]:

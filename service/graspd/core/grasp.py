@@ -30,12 +30,10 @@ def rotation_to_quat_xyzw(rotations: F64) -> F64:
 
 
 #: How selection combines the ranking terms (the response's ranking_rule says the same to a person).
-RANKING_RULE = ("key = classifier x utility x width x unknown x centring: classifier is the model's probability (1 "
-                "when unscored), utility J(h) of the IJRR paper (top approaches and high grasps first, from the "
+RANKING_RULE = ("key = classifier x utility x width x unknown: classifier is the model's probability (1 when "
+                "unscored), utility J(h) of the IJRR paper (top approaches and high grasps first, from the "
                 "support up), width in [0.2, 1] (a grasp whose object fills the opening ranks lower), unknown = "
-                "1 - the share of the hand in space no camera saw, centring in [0.5, 1] (a grasp whose closing line "
-                "passes far from its object's centre, where a heavy or long object twists out, ranks lower); "
-                "grasps are sorted by key, best first")
+                "1 - the share of the hand in space no camera saw; grasps are sorted by key, best first")
 
 
 @dataclass(frozen=True)
@@ -46,17 +44,15 @@ class Ranking:
     utility: F64
     width: F64
     unknown: F64
-    centring: F64
     key: F64
 
-    FIELDS = ("classifier", "utility", "width", "unknown", "centring", "key")
-
     def __getitem__(self, index: Any) -> Ranking:
-        return Ranking(*(getattr(self, f)[index] for f in self.FIELDS))
+        return Ranking(*(getattr(self, f)[index] for f in ("classifier", "utility", "width", "unknown", "key")))
 
     def to_dicts(self) -> list[dict[str, float]]:
-        cols = [getattr(self, f) for f in self.FIELDS]
-        return [{f: float(v) for f, v in zip(self.FIELDS, row, strict=True)} for row in zip(*cols, strict=True)]
+        cols = (self.classifier, self.utility, self.width, self.unknown, self.key)
+        return [{"classifier": float(c), "utility": float(u), "width": float(w), "unknown": float(k),
+                 "key": float(y)} for c, u, w, k, y in zip(*cols, strict=True)]
 
 
 @dataclass(frozen=True)

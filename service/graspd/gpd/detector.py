@@ -353,8 +353,7 @@ class GraspDetector:
                                   support=plane, support_clearance=env.clearance, clearance=p.clearance)
         scene = replace(scene, focus=hand_focus(prepared.points, sampling, h, p.approach_distance))
         return Prepared(cloud=prepared, environment=env, scene=scene, sampling=sampling,
-                        selection=replace(p.selection(h, env), objects=segmentation.objects),
-                        segmentation=segmentation, target=target)
+                        selection=p.selection(h, env), segmentation=segmentation, target=target)
 
     @staticmethod
     def search(prep: Prepared, sampling: SamplingParams, p: DetectionParams, h: HandGeometry

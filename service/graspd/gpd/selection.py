@@ -5,9 +5,8 @@ approach direction within a cone.  Clustering follows GPD: two hands agree when 
 within axis_angle_deg and one's position lies within axis_distance of the other's axis line (and
 within max_distance); each cluster keeps its best member (with its own classifier score) and is
 ranked by the sum of its members' scores (or their count when unscored).  That rank is multiplied
-by the utility J(h) of the IJRR paper when a gravity direction is given, by a width preference, by the share
-of the hand in space the cameras saw and by how near its closing line passes to its object's centre
-(grasp.RANKING_RULE); the terms travel with the grasps (GraspSet.ranking).
+by the utility J(h) of the IJRR paper when a gravity direction is given, by a width preference and by the share
+of the hand in space the cameras saw (grasp.RANKING_RULE); the terms travel with the grasps (GraspSet.ranking).
 The ranked list then covers the table (cover_order): the best grasp first, and no object gets more than
 max_per_object grasps before every other object with a grasp has one.
 """
@@ -20,15 +19,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graspd.core.grasp import GraspSet, Ranking
-from graspd.gpd.objects import SceneObject
 from graspd.gpd.preprocess import Workspace
 
 Vec3 = tuple[float, float, float]
 WIDTH_FLOOR = 0.2
-#: The centring term of a grasp whose closing line passes at (or beyond) its object's half size from the object's
-#: centre: a heavy or long object held far from its middle twists out when lifted; the term falls linearly from 1
-#: (through the centre) to this.
-CENTRING_FLOOR = 0.5
 #: Grasps one object gets before every other graspable object has one (0 = off: pure key order).  Chosen on
 #: tables of eight training objects (bench/targets.py --tuning, bench/results/targets-tuning.md): 1 covers 7.6
 #: objects in the top 10 against 3.3 with the cap off, with the same P@1 (the first grasp never moves) and P@5;
@@ -59,8 +53,6 @@ class SelectionParams:
     table_height: float | None = None
     width_margin: float | None = None
     max_per_object: int = 0
-    objects: tuple[SceneObject, ...] = ()
-    centring_floor: float | None = CENTRING_FLOOR
 
 
 def feasible_mask(grasps: GraspSet, params: SelectionParams) -> NDArray[np.bool_]:
@@ -147,28 +139,6 @@ def width_preference(grasps: GraspSet, params: SelectionParams) -> NDArray[np.fl
     return WIDTH_FLOOR + (1.0 - WIDTH_FLOOR) * np.clip(free, 0.0, 1.0)
 
 
-def centring(grasps: GraspSet, params: SelectionParams) -> NDArray[np.float64]:
-    """A factor in [centring_floor, 1] per grasp: 1 when the closing line (through the grasp's sample point along
-    its binormal) passes through the centre of the scene object it closes on (params.objects, by id), falling
-    linearly to centring_floor when it passes half the object's size (half its bounds' diagonal) or more from it.
-    All ones when off, and for grasps on no known object."""
-    out = np.ones(len(grasps))
-    if params.centring_floor is None or not params.objects or len(grasps) == 0:
-        return out
-    by_id = {o.id: o for o in params.objects}
-    ids = grasps.object_ids
-    rows = np.flatnonzero([int(i) in by_id for i in ids])
-    if len(rows) == 0:
-        return out
-    centres = np.array([by_id[int(i)].centre for i in ids[rows]], np.float64)
-    half = np.array([float(np.linalg.norm(by_id[int(i)].extent)) / 2.0 for i in ids[rows]])
-    rel = centres - grasps.samples[rows]
-    b = grasps.binormal[rows]
-    off = np.linalg.norm(rel - np.einsum("ij,ij->i", rel, b)[:, None] * b, axis=1)  # centre to the closing line
-    out[rows] = 1.0 - (1.0 - params.centring_floor) * np.clip(off / np.maximum(half, 1e-6), 0.0, 1.0)
-    return out
-
-
 def cover_order(objects: NDArray[np.int64], cap: int) -> NDArray[np.int64]:
     """The order (a permutation) that puts ranked grasps (best first, their object ids (M,); -1 for none, which
     count as one more object) into rounds: each round takes up to cap grasps of every object, best first, and
@@ -202,9 +172,8 @@ def select(grasps: GraspSet, params: SelectionParams, use_selection: bool = True
         g, _, rank = cluster(g[np.sort(top)], params)
     util, width = utility(g, params, params.table_height), width_preference(g, params)
     seen = 1.0 - np.clip(np.nan_to_num(g.unknown_share, nan=0.0), 0.0, 1.0)
-    centred = centring(g, params)
-    key = rank * util * width * seen * centred
+    key = rank * util * width * seen
     ranked = replace(g, ranking=Ranking(classifier=np.asarray(rank, np.float64), utility=util, width=width,
-                                        unknown=seen, centring=centred, key=key))
+                                        unknown=seen, key=key))
     ranked = ranked[np.argsort(-np.nan_to_num(key, nan=-np.inf), kind="stable")]
     return ranked[cover_order(ranked.object_ids, params.max_per_object)][: params.max_grasps]

@@ -812,9 +812,6 @@ class RankingOut(BaseModel):
     width: float | None = Field(description="width preference in [0.2, 1]: lower when the object fills the opening")
     unknown: float | None = Field(description="1 - the share of the hand and its approach path in space no camera "
                                   "saw (1: all seen)")
-    centring: float | None = Field(None, description="centring in [0.5, 1]: 1 when the closing line passes through "
-                                   "the centre of the object the grasp closes on, lower the farther it passes (a "
-                                   "heavy or long object held far from its middle twists out); 1 on no object")
     key: float | None = Field(description="the product of the terms: grasps are sorted by it, best first")
 
 

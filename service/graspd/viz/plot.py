@@ -212,7 +212,7 @@ def grasp_caption(grasps: GraspSet, k: int) -> str:
     r = grasps.ranking
     if r is not None:
         line += (f"  key {r.key[k]:.3f} = {r.classifier[k]:.3f} x {r.utility[k]:.2f} x {r.width[k]:.2f} x "
-                 f"{r.unknown[k]:.2f} x {r.centring[k]:.2f}")
+                 f"{r.unknown[k]:.2f}")
     return line
 
 
@@ -385,9 +385,8 @@ def plot_grasps(cloud: ViewpointCloud, grasps: GraspSet, hand: HandGeometry, pat
         table_ax.text(c / len(cols), 1.0, "\n".join(chunk), fontsize=7, va="top", family="monospace",
                       transform=table_ax.transAxes)
     if g.ranking is not None:
-        table_ax.text(0.0, -0.05, "key = classifier x utility J(h) x width preference x share of the hand seen x "
-                      "centring on the object: the grasps are numbered by key, so a lower score can rank higher",
-                      fontsize=7, va="top",
+        table_ax.text(0.0, -0.05, "key = classifier x utility J(h) x width preference x share of the hand seen: "
+                      "the grasps are numbered by key, so a lower score can rank higher", fontsize=7, va="top",
                       transform=table_ax.transAxes, color="#333333")
     fig.suptitle(title or f"top {len(g)} grasps", fontsize=10)
     for k, (text, colour) in enumerate(notes):
