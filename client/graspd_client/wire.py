@@ -1,4 +1,4 @@
-"""Field names, limits and the request builder of the graspd wire contract (DESIGN.md), shared by
+"""Field names, limits and the request builder of the graspd wire contract, shared by
 client and server so there is one definition.
 
 Frames and units: metres, right-handed, everything in the frame of the cloud the caller sends;

@@ -1,4 +1,4 @@
-"""A family of containers and supports for the simulated world (issue 22): trays, deep bins, thin-walled
+"""A family of containers and supports for the simulated world: trays, deep bins, thin-walled
 boxes, two-wall corners, raised platforms, shelves and lidless totes, each with a random size, wall
 height, wall thickness, floor height and yaw drawn from ranges.
 
@@ -14,7 +14,7 @@ container, so the cameras see table around it, as in a robot cell.
 This module holds only geometry (no pybullet): graspd_lab.sim.world builds the bodies from
 ContainerSpec.boxes() and drops the objects in.
 
-THE SPLIT (the one place it is written down; DESIGN.md: the benchmark's headline counts only styles and
+THE SPLIT (the one place it is written down; the design notes: the benchmark's headline counts only styles and
 parameter ranges held out of training and tuning):
 
 - TRAINING_STYLES = ("tray", "deep_bin", "platform", "tote", "shelf"): scene data for training and any tuning draw

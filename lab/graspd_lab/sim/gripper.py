@@ -1,6 +1,6 @@
 """A free-floating parallel-jaw hand built from pybullet boxes to match a HandGeometry, and grasp execution.
 
-Hand frame = grasp frame of DESIGN.md: x approach, y closing (binormal), z axis; origin at the centre of
+Hand frame = grasp frame of graspd.core.grasp: x approach, y closing (binormal), z axis; origin at the centre of
 the hand base.  The palm is a box hand.palm_depth deep behind x = 0; two finger boxes span x in
 [0, hand_depth] and slide
 along y on prismatic joints.  A fixed constraint to the world moves the base (a stiff, force-limited arm).

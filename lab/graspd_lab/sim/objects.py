@@ -1,5 +1,5 @@
 """The simulator's objects: the benchmark's held-out test objects, pybullet_data random_urdfs 900-999
-(DESIGN.md), and the training objects 000-899 of the scene training data, loaded through
+(the project's design notes), and the training objects 000-899 of the scene training data, loaded through
 graspd_lab.world.objects (the one catalogue and held-out guard), scaled to fit the hand; and the household
 models (ids graspd_lab.world.household.HOUSEHOLD_ID_BASE + k) at their true size (scale 1), with the inertia
 and centre of mass of their collision mesh (pybullet reads them from the URDF: load_flags).  Which ids a world

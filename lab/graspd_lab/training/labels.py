@@ -47,7 +47,7 @@ class LabelParams:
     ray spacing (m) over finger faces and the palm; palm_depth (m) how far behind the hand base the palm
     rays start (None = the hand's own palm model, HandGeometry.palm_depth).  The default 0.01 is what the
     shipped datasets and models were labelled with; HandGeometry's default palm is 0.02 m deep, so None
-    would change the labels of the default hand (issue 12: kept, not silently changed).  approach_path (m): the
+    would change the labels of the default hand (kept, not silently changed).  approach_path (m): the
     palm and finger columns must also be free this far back along the approach, the path the open hand
     travels to the grasp (scene data: the service's approach_distance; 0 for the single-object data)."""
 

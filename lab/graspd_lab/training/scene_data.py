@@ -1,4 +1,4 @@
-"""Labelled grasp images from cluttered scenes, made as the service sees them (issue 13).
+"""Labelled grasp images from cluttered scenes, made as the service sees them.
 
 One scene and camera model for training and evaluation: the clutter benchmark's pybullet scenes
 (graspd_lab.sim.world.build_scene: objects poured into a tray, VGN piles, packed rows, single objects), its
@@ -74,7 +74,7 @@ from graspd_lab.world.render import MeshScene
 
 #: Scene kinds and their share of the scenes: the benchmark's trays and piles, packed rows, lone objects.
 SCENE_MIX: tuple[tuple[str, float], ...] = (("pour", 0.4), ("pile", 0.35), ("packed", 0.1), ("single", 0.15))
-#: Container scenes (issue 22): the container family's training styles (graspd_lab.sim.containers.TRAINING_STYLES,
+#: Container scenes: the container family's training styles (graspd_lab.sim.containers.TRAINING_STYLES,
 #: their training ranges) with objects dropped in, beside some of the benchmark's trays and piles.  A kind
 #: "container:STYLE" draws the scene's container from its seed.
 CONTAINER_MIX: tuple[tuple[str, float], ...] = (("container:tray", 0.2), ("container:deep_bin", 0.15),

@@ -1,4 +1,4 @@
-"""Precision at the top of the ranking on cluttered scenes, measured against the true meshes (issue 13).
+"""Precision at the top of the ranking on cluttered scenes, measured against the true meshes.
 
 A robot executes the first grasp the service returns, so what counts is whether the top 1, 5 and 10 are
 grasps.  For each evaluation scene (graspd_lab.training.scene_data.scene_views: the clutter benchmark's

@@ -5,7 +5,7 @@ Every catalogue object is an open3d TriangleMesh in metres, centred on its bound
 two-finger hand can close on it (smallest bounding extent at most `fit` x the hand's max aperture),
 and tagged with a category as in the IJRR paper's dataset: box-like, cylinder-like or other.
 
-pybullet_data random_urdfs 900-999 are the project's held-out test objects (DESIGN.md, "Data
+pybullet_data random_urdfs 900-999 are the project's held-out test objects (the project's design notes, "Data
 rules"). The rule is written once, in urdf_folder: every loader of a random_urdfs file (the training
 meshes, the sized meshes of scripted scenes, the simulator's URDFs and extents) goes through it and
 is refused a held-out object unless the caller says it is the held-out evaluation (held_out_ok).

@@ -1,4 +1,4 @@
-"""GraspSet: a batch of 6-DOF grasps as numpy arrays, in the grasp convention of DESIGN.md.
+"""GraspSet: a batch of 6-DOF grasps as numpy arrays, in the project's grasp convention.
 
 Rotation columns are [approach, binormal, axis] (hand x, y, z); position is the centre of the
 hand base; fingertips are at position + hand_depth * approach.  Everything is in the frame of
@@ -178,7 +178,7 @@ class GraspSet:
         )
 
     def to_dicts(self) -> list[dict[str, Any]]:
-        """One JSON-ready dict per grasp, with the field names of DESIGN.md (gpd_ros GraspConfig)."""
+        """One JSON-ready dict per grasp, with the wire contract's field names (gpd_ros GraspConfig)."""
         quats = self.quat_xyzw
         poses = self.poses
         out = []

@@ -71,7 +71,7 @@ def card_fits_hand(card: dict[str, Any], hand: dict[str, float]) -> bool:
     return all(abs(float(made_for.get(k, float("nan"))) - float(hand[k])) <= 1e-4 for k in IMAGE_HAND_FIELDS)
 
 
-#: The cascade's cheap first pass (issue 15): scores every candidate so the full model scores only the best.
+#: The cascade's cheap first pass: scores every candidate so the full model scores only the best.
 DEFAULT_CASCADE_MODEL = "scene3"
 
 

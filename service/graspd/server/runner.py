@@ -36,7 +36,7 @@ def guarded_h11_protocol(header_timeout_s: float, max_connections: int = 1 << 30
     connection forever.  Bodies are timed by the routes (routers.detect.read_capped) and by
     guards.UploadRateGuard (minimum rate).
 
-    Connection caps (issue 23): at most max_connections open connections, at most max_per_peer from one client
+    Connection caps: at most max_connections open connections, at most max_per_peer from one client
     address.  A connection over a cap closes the oldest connection (of that address, for the per-peer cap) that
     is still waiting for its request headers; only when none is waiting is the new one refused (closed).  So
     300 slow-header connections cannot lock out a load balancer's /healthz: they are the first to go."""

@@ -80,7 +80,7 @@ def _outcome_columns_v1() -> list[sa.Column[Any]]:
         sa.Column("created_at", sa.Float, nullable=False),
         sa.Column("heights", sa.LargeBinary, nullable=False),
         sa.Column("types", sa.LargeBinary, nullable=False),
-        sa.Column("pose", sa.LargeBinary, nullable=False),  # float64 4x4 grasp pose (DESIGN.md convention)
+        sa.Column("pose", sa.LargeBinary, nullable=False),  # float64 4x4 grasp pose (graspd.core.grasp convention)
         sa.Column("width", sa.Float, nullable=False),
     ]
 

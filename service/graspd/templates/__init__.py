@@ -26,7 +26,7 @@ graspd.core.errors.FieldError (a ValueError) whose .field names the offending fi
                                                     #  "template_entry", "mismatch"], "timings": {...},
                                                     #  "num_candidates", "num_points", "num_entries",
                                                     #  "detection_id"}
-                             det.grasps is a graspd.core.grasp.GraspSet (DESIGN.md convention, best first,
+                             det.grasps is a graspd.core.grasp.GraspSet (its grasp convention, best first,
                              score = 1 / (1 + m) in (0, 1]); det.grasp_ids[k] is the id for feedback.
                              The library's hand is used (a per-request hand override does not apply).
                              An empty library answers no grasps (num_entries = 0).

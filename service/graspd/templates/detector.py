@@ -1,6 +1,6 @@
 """Template detection (Herzog et al. 2012, Fig. 2): candidate templates on the object, matched against the
 library with eq. 2, ranked by their best match; each candidate's best library grasp is set into the
-candidate's template frame and returned in the common grasp convention (DESIGN.md)."""
+candidate's template frame and returned in the common grasp convention (graspd.core.grasp)."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@ visualization_msgs MarkerArray (RViz grippers) and moveit_msgs Grasp; plus fast 
 sends (PointCloud2, CloudSources, CloudIndexed, CloudSamples) for tests, benchmarks and clients.
 
 Everything is in the frame of the input cloud (header.frame_id, carried through with its stamp), in metres.
-Grasps follow DESIGN.md: position = hand base centre, rotation columns [approach, binormal, axis].
+Grasps follow graspd.core.grasp: position = hand base centre, rotation columns [approach, binormal, axis].
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""ASGI guards of the HTTP entrance that uvicorn cannot express (issue 23):
+"""ASGI guards of the HTTP entrance that uvicorn cannot express:
 
 - HealthFastPath answers GET/HEAD /healthz itself, on the event loop, before routing, dependencies, the thread
   pool or any middleware that reads bodies: detection work (worker threads) and a flood of routes waiting on

@@ -41,7 +41,7 @@ class ModelRegistry:
         cascade: the first-pass model's name (used only if it loaded; else logged and off)."""
 
         models, errors = classifier.load_models_checked(models_dir, threads=threads)
-        errors = {name: scrub(why) for name, why in errors.items()}  # answers and logs hold no path (issue 23)
+        errors = {name: scrub(why) for name, why in errors.items()}  # answers and logs hold no path
         for name, why in sorted(errors.items()):
             log.error("model failed to load", extra={"model": name, "error": why})
         wanted = default or classifier.default_model_name()
