@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-F64 = NDArray[np.float64]
+from graspd.core.types import F64
 
 STYLES = ("tray", "deep_bin", "thin_box", "corner", "platform", "shelf", "tote")
 TRAINING_STYLES: tuple[str, ...] = ("tray", "deep_bin", "platform", "tote", "shelf")

@@ -12,17 +12,16 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.core.points import voxel_downsample
+from graspd.core.types import F64
 from graspd.gpd.detector import DetectionParams, GraspDetector
 from graspd_client import GraspClient
 
-F64 = NDArray[np.float64]
 Workspace = tuple[float, float, float, float, float, float]
 
 

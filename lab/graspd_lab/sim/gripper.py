@@ -13,14 +13,13 @@ from enum import StrEnum
 
 import numpy as np
 import pybullet as pb
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd.core.types import F64
 from graspd_lab.sim.world import SimWorld
 
-F64 = NDArray[np.float64]
 PARK = np.array([0.0, 0.0, 2.0])
 
 

@@ -16,9 +16,8 @@ from numpy.typing import NDArray
 
 from graspd.core.camera import Camera, active_cameras, passive_cameras, side_camera
 from graspd.core.cloud import ViewpointCloud
+from graspd.core.types import F64
 from graspd_lab.world.noise import DepthNoise, SensorNoise, Surfaces, noisy_depth
-
-F64 = NDArray[np.float64]
 
 #: The clutter benchmark's sensor noise (its figures were measured with it) and exact depth.
 SIM_NOISE = DepthNoise.benchmark()

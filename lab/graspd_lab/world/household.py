@@ -26,14 +26,12 @@ from pathlib import Path
 
 import numpy as np
 import open3d as o3d
-from numpy.typing import NDArray
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
+from graspd.core.types import F64
 from graspd_lab.world.held_out import HeldOutObjectError
 from graspd_lab.world.meshes import clean_mesh
-
-F64 = NDArray[np.float64]
 
 #: The vendored models (package data of graspd-lab).
 HOUSEHOLD_DIR = Path(__file__).resolve().parents[1] / "data" / "household"

@@ -6,9 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
-from numpy.typing import NDArray
 
-F64 = NDArray[np.float64]
+from graspd.core.types import F64
 
 
 def clean_mesh(mesh: o3d.geometry.TriangleMesh, centre: bool = True) -> o3d.geometry.TriangleMesh:

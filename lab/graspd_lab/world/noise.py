@@ -35,8 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
+from graspd.core.types import F32, F64
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,8 @@ from numpy.typing import NDArray
 
 from graspd.core.camera import Camera
 from graspd.core.cloud import ViewpointCloud
+from graspd.core.types import F64
 from graspd_lab.world.noise import DepthNoise, apply_depth_noise
-
-F64 = NDArray[np.float64]
 
 
 @dataclass

@@ -11,15 +11,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
-from numpy.typing import NDArray
 
 from graspd.core.camera import tabletop_cameras
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
+from graspd.core.types import F64
 from graspd_lab.world.objects import HELD_OUT_URDFS, PROCEDURAL_KINDS, procedural_object, random_urdf_mesh
 from graspd_lab.world.render import render_scene
-
-F64 = NDArray[np.float64]
 
 #: Table-top frame: the table's top face is z = 0, gravity is -z, cameras look down from ~0.7 m.
 GRAVITY = (0.0, 0.0, -1.0)

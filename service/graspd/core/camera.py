@@ -12,8 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graspd.core.cloud import CloudError
+from graspd.core.types import F64
 
-F64 = NDArray[np.float64]
 FovAxis = Literal["horizontal", "vertical"]
 PAPER_CAMERA_SEPARATION_DEG = 53.0  # IJRR paper: registered clouds from two viewpoints 53 degrees apart
 

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from graspd.core.errors import FieldError
 from graspd.core.limits import MAX_COORDINATE, MAX_VIEWPOINTS
+from graspd.core.types import F64
 
 PointsFrame = Literal["camera", "robot"]
 #: What `points_frame` may say.
@@ -40,7 +41,6 @@ MAX_TRANSLATION = MAX_COORDINATE
 ORTHONORMAL_TOL = 1e-3
 QUATERNION_TOL = 1e-2
 
-F64 = NDArray[np.float64]
 
 
 def quaternion_matrix(quat_xyzw: Sequence[float] | NDArray[np.floating]) -> F64:

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-F64 = NDArray[np.float64]
+from graspd.core.types import F64
 
 
 def _empty(*shape: int) -> F64:

@@ -30,9 +30,9 @@ from scipy.spatial import ConvexHull, QhullError
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
 from graspd.core.parallel import THREADS
+from graspd.core.types import F64
 from graspd.core.warning import DetectionWarning
 
-F64 = NDArray[np.float64]
 EnvironmentMode = Literal["auto", "declared", "none"]
 ENVIRONMENT_MODES: tuple[str, ...] = ("auto", "declared", "none")
 

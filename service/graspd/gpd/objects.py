@@ -14,10 +14,8 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from graspd.core.points import eps_clusters
+from graspd.core.types import F64, I64
 from graspd.gpd.scene import ClosingRegionPoints
-
-F64 = NDArray[np.float64]
-I64 = NDArray[np.int64]
 
 #: Object points at most this far apart (m) belong to one object: two voxels of the default 3 mm grid, less than
 #: the 1 cm a finger needs to pass between two objects.

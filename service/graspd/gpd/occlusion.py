@@ -19,9 +19,9 @@ from numpy.typing import NDArray
 from graspd.core.hand import HandGeometry
 from graspd.core.jit import kernel
 from graspd.core.parallel import THREADS
+from graspd.core.types import F64
 from graspd.gpd.scene import VoxelGrid
 
-F64 = NDArray[np.float64]
 F32 = np.float32
 UnknownSpace = Literal["avoid", "allow"]
 UNKNOWN_SPACE_MODES: tuple[str, ...] = ("avoid", "allow")

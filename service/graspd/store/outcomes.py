@@ -22,9 +22,8 @@ import sqlalchemy as sa
 from numpy.typing import NDArray
 from sqlalchemy.engine import Connection
 
+from graspd.core.types import F64
 from graspd.store.database import Database, StoreError, outcomes
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

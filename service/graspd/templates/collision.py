@@ -8,10 +8,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graspd.core.hand import HandGeometry
+from graspd.core.types import F64
 from graspd.gpd.scene import ball_pairs, closing_region_points
 from graspd.templates.geometry import TemplateScene
-
-F64 = NDArray[np.float64]
 
 
 def hand_collisions(scene: TemplateScene, positions: F64, rotations: F64, hand: HandGeometry) -> NDArray[np.bool_]:

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd.core.types import F32, F64
 from graspd.gpd.images import encode_images
 from graspd.gpd.preprocess import PreprocessParams, preprocess
 from graspd.gpd.scene import Scene
@@ -31,8 +32,6 @@ from graspd.templates.geometry import (
     rotated_frames,
 )
 
-F64 = NDArray[np.float64]
-F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
 
 

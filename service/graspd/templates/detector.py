@@ -14,13 +14,13 @@ from numpy.typing import NDArray
 from graspd.core.cloud import CloudError, ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd.core.types import F64
 from graspd.gpd.preprocess import voxelize
 from graspd.templates.collision import closing_widths, hand_collisions
 from graspd.templates.geometry import TemplateError, candidate_templates, prepare_scene
 from graspd.templates.library import TemplateLibrary
 from graspd.templates.matching import match
 
-F64 = NDArray[np.float64]
 Workspace = tuple[float, float, float, float, float, float]
 
 

@@ -27,9 +27,8 @@ from graspd.core.cloud import ViewpointCloud
 from graspd.core.errors import FieldError
 from graspd.core.hand import HandGeometry
 from graspd.core.points import ransac_plane, voxel_downsample
+from graspd.core.types import F32, F64
 
-F64 = NDArray[np.float64]
-F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
 
 SURFACE, VOID, OCCLUSION, BACKGROUND = 0, 1, 2, 3

@@ -21,6 +21,7 @@ from sqlalchemy.engine import Connection, Engine
 
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
+from graspd.core.types import F32, F64
 from graspd.gpd.images import REPRESENTATIONS
 from graspd.store.database import (
     SCHEMA_VERSION,
@@ -39,8 +40,6 @@ from graspd.templates.demonstration import cloud_from_arrays, demonstration_temp
 from graspd.templates.geometry import TemplateError, TemplateGeometry, prepare_scene
 from graspd.templates.matching import entry_gammas
 
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
 
 DEFAULT_URL = "sqlite:///graspd-templates.db"

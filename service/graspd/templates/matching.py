@@ -16,10 +16,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from graspd.core.types import F32, F64
 from graspd.templates.geometry import SURFACE
 
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
 
 #: The paper's weights by (type of c, type of l), in the order surface, void, occlusion, background.

@@ -24,9 +24,8 @@ from scipy.spatial import ConvexHull, QhullError
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
+from graspd.core.types import F64
 from graspd.gpd.environment import Box, Environment, Label
-
-F64 = NDArray[np.float64]
 
 #: Display name and colour of each point label (light colours for the environment, a strong one for objects).
 LABEL_STYLE: dict[Label, tuple[str, str]] = {

@@ -23,10 +23,10 @@ from graspd.core.limits import (
     MAX_TARGET_TRIANGLES,
     MAX_TARGET_VERTICES,
 )
+from graspd.core.types import F64
 from graspd.io.ros.decode import RosDecodeError, _Reader
 from graspd.io.ros.types import Header
 
-F64 = NDArray[np.float64]
 #: Bytes of one geometry_msgs/Pose (7 float64), the least a shape_msgs/SolidPrimitive and a shape_msgs/Mesh take
 #: (a type byte, two sequence lengths; two sequence lengths), a vertex and a triangle.
 POSE_BYTES, PRIMITIVE_MIN_BYTES, MESH_MIN_BYTES, VERTEX_BYTES, TRIANGLE_BYTES = 56, 9, 8, 24, 12

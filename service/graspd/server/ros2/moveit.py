@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from graspd.core.types import F64
 from graspd.gpd.target import OrientedBox
 from graspd.io.ros.planning import PlanTarget
 
@@ -41,7 +42,6 @@ FRAME_TRANSFORM_FAILURE, INVALID_OBJECT_NAME, FAILURE, TIMED_OUT = -21, -19, 999
 #: shape_msgs/SolidPrimitive types.
 BOX, SPHERE, CYLINDER, CONE, PRISM = 1, 2, 3, 4, 5
 
-F64 = NDArray[np.float64]
 
 
 class PlanningError(Exception):

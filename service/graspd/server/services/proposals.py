@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-F64 = NDArray[np.float64]
+from graspd.core.types import F64
 
 
 def finger_centres(positions: F64, approach: F64, hand_depth: float) -> F64:
