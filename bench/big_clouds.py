@@ -12,7 +12,7 @@ again) of big clouds as binary PCDs, num_samples=300, the loads one after the ot
 - volumetric 1M: the blobs with 1M points (~0.8M voxels): volumes the server can finish within the deadline.
 
 For each load: the statuses and times, the slowest answer (s), whether each 503 carried Retry-After, the 4xx
-fields, the peak RSS of the service process (psutil, every 10 ms) and /healthz latencies (every 100 ms on a fresh
+fields, the peak RSS of the service process (psutil, every 2 ms) and /healthz latencies (every 100 ms on a fresh
 connection from another process while the load runs; p50, p99).  Targets: every answer within 60 s, no 504, at
 least half 200, peak RSS <= 4 GB, /healthz p99 <= 1 s.  Puts a section into bench/results/big-clouds.md (--label
 names it, e.g. before or after a change; a section of the same label is replaced) with the command, the commit
@@ -38,10 +38,9 @@ from typing import Any
 
 import httpx
 import numpy as np
-import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from hostile import free_port, pcd  # noqa: E402  (the bench folder's own helpers)
+from hostile import RssPeak, free_port, pcd  # noqa: E402  (the bench folder's own helpers)
 
 ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "big-clouds-bench-" + os.urandom(6).hex()
@@ -152,29 +151,6 @@ def tabletop_scan(points: int, seed: int = 0, noise: float = 0.0005) -> np.ndarr
     return out[:points]
 
 
-class Rss:
-    """The peak RSS (bytes) of one process, sampled every 10 ms on a thread."""
-
-    def __init__(self, pid: int) -> None:
-        self.proc = psutil.Process(pid)
-        self.peak = self.proc.memory_info().rss
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.wait(0.01):
-            try:
-                self.peak = max(self.peak, self.proc.memory_info().rss)
-            except psutil.Error:
-                return
-
-    def close(self) -> int:
-        self._stop.set()
-        self._thread.join()
-        return self.peak
-
-
 @dataclass
 class Answer:
     """One request's answer: HTTP status (-1: no answer), seconds, Retry-After (503), field (4xx), error text."""
@@ -222,7 +198,7 @@ def run_load(url: str, pid: int, name: str, body: bytes, clients: int, per_clien
                 if answer.status == 503 and answer.retry_after:
                     time.sleep(float(answer.retry_after))
 
-    rss = Rss(pid)
+    rss = RssPeak(pid)
     stop = multiprocessing.Event()
     latencies: multiprocessing.Queue[list[float]] = multiprocessing.Queue()
     prober = multiprocessing.Process(target=probe_health, args=(url, stop, latencies), daemon=True)
@@ -237,7 +213,8 @@ def run_load(url: str, pid: int, name: str, body: bytes, clients: int, per_clien
     stop.set()
     result.health = latencies.get(timeout=30)
     prober.join(timeout=30)
-    result.peak_rss = rss.close()
+    result.peak_rss = rss.peak()
+    rss.close()
     return result
 
 

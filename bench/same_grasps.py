@@ -39,14 +39,14 @@ def child(out: Path, model: str, samples: int) -> None:
     from graspd.server.services.warmup import warmup_cloud  # noqa: PLC0415
 
     sys.path.insert(0, str(REPO / "bench"))
-    from speed import own_tabletop_scan  # noqa: PLC0415 - the speed bench's rendered tabletop scan
+    from kernels import tabletop_scan  # noqa: PLC0415 - the kernel bench's rendered two-camera tabletop scan
 
     scorer = load_model(model, REPO / "models", threads=2)
     detector = GraspDetector(scorer)
     cases: list[tuple[str, ViewpointCloud]] = [(f.stem, read_cloud(f)) for f in sorted(REAL.glob("*.pcd"))]
     cases.append(("warmup_scene", warmup_cloud()))
     for n in (100_000, 300_000):
-        pts, src, eyes = own_tabletop_scan(n)
+        pts, src, eyes = tabletop_scan(n)
         cases.append((f"scan_{n // 1000}k", ViewpointCloud(points=pts, viewpoints=eyes, camera_source=src)))
     for name, cloud in cases:
         t = time.perf_counter()

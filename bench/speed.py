@@ -10,7 +10,7 @@ WARNING logs, as bench/perf.py starts it):
   service says ready (/readyz), then warm requests;
 - kinect 307k: the organised Kinect cloud milk_cartoon_all_small_clorox.pcd (640x480, binary_compressed), as the
   file is, default samples;
-- scan 1M / 5M: synthetic tabletop scans (bench/kernels.py tabletop_scan where present, else the copy here: two
+- scan 1M / 5M: synthetic tabletop scans (bench/kernels.py tabletop_scan: two
   cameras 0.8 m above a 1.2 x 0.8 m table, boxes, a sphere and a can, 0.5 mm Gaussian noise), binary PCD with
   both camera positions as viewpoint parameters, 300 samples;
 - 16 concurrent: the rendered 66k-point tabletop of bench/load.py (graspd_lab cluttered_tabletop, 8 objects, seed
@@ -65,7 +65,6 @@ TABLE_MUG = REAL / "table_mug.pcd"
 KINECT = REAL / "milk_cartoon_all_small_clorox.pcd"
 RESULTS = ROOT / "bench" / "results"
 DEFAULT_BASE = "d7f6f3f"
-NOISE = 0.0005
 SERVICE_SETTINGS = {"GRASPD_ZENOH_ENABLED": "false", "GRASPD_DEADLINE_S": "300", "GRASPD_LOG_LEVEL": "WARNING"}
 
 
@@ -87,94 +86,15 @@ def workload() -> float:
 # --- inputs -----------------------------------------------------------------------------------------------------
 
 
-def _look_at(eye: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    return np.stack([x, np.cross(z, x), z], axis=1)
-
-
-def _cast(origin: NDArray[np.float64], rays: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Distance along each unit ray from origin to the nearest surface (inf: none): the table top (z = 0,
-    1.2 x 0.8 m), two boxes, a sphere and an upright can."""
-    t = np.full(len(rays), np.inf)
-
-    def take(hit: NDArray[np.float64]) -> None:
-        np.minimum(t, np.where(hit > 1e-9, hit, np.inf), out=t)
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tz = -origin[2] / rays[:, 2]
-        p = origin + tz[:, None] * rays
-        take(np.where((np.abs(p[:, 0]) <= 0.6) & (np.abs(p[:, 1]) <= 0.4), tz, np.inf))
-        for lo, hi in (((-0.35, -0.15, 0.0), (-0.15, 0.05, 0.12)), ((0.1, 0.1, 0.0), (0.3, 0.18, 0.25))):
-            t0 = (np.asarray(lo) - origin) / rays
-            t1 = (np.asarray(hi) - origin) / rays
-            near, far = np.minimum(t0, t1).max(axis=1), np.maximum(t0, t1).min(axis=1)
-            take(np.where(near <= far, near, np.inf))
-        centre, r = np.array([0.0, -0.2, 0.07]), 0.07
-        oc = origin - centre
-        b = rays @ oc
-        disc = b * b - (oc @ oc - r * r)
-        take(np.where(disc >= 0.0, -b - np.sqrt(disc), np.inf))
-        axis, r, h = np.array([0.0, 0.2]), 0.04, 0.18
-        o2, d2 = origin[:2] - axis, rays[:, :2]
-        a = (d2 * d2).sum(axis=1)
-        b = d2 @ o2
-        disc = b * b - a * (o2 @ o2 - r * r)
-        ts = (-b - np.sqrt(disc)) / a
-        zs = origin[2] + ts * rays[:, 2]
-        take(np.where((disc >= 0.0) & (zs >= 0.0) & (zs <= h), ts, np.inf))
-        tt = (h - origin[2]) / rays[:, 2]
-        pt = origin[:2] + tt[:, None] * d2 - axis
-        take(np.where((pt * pt).sum(axis=1) <= r * r, tt, np.inf))
-    return t
-
-
-def own_tabletop_scan(num_points: int, seed: int = 0
-                      ) -> tuple[NDArray[np.float32], NDArray[np.int32], NDArray[np.float32]]:
-    """A two-camera tabletop scan of about num_points points (table frame, z up), 0.5 mm noise: points, camera
-    index per point, camera positions (2,3)."""
-    rng = np.random.default_rng(seed)
-    eyes = [np.array([-0.27, -0.35, 0.75]), np.array([0.27, -0.35, 0.75])]
-    per_camera = num_points // 2
-    side = int(np.sqrt(per_camera / 0.55)) + 1
-    points, sources = [], []
-    for c, eye in enumerate(eyes):
-        rot = _look_at(eye, np.array([0.0, 0.0, 0.05]))
-        f = side / 2 / np.tan(np.radians(35.0))
-        v, u = np.mgrid[0:side, 0:side]
-        rays = np.stack([(u.ravel() - side / 2) / f, (v.ravel() - side / 2) / f, np.ones(side * side)], axis=1)
-        rays = rays @ rot.T
-        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-        hits = []
-        for a in range(0, len(rays), 1 << 20):
-            t = _cast(eye, rays[a:a + (1 << 20)])
-            ok = np.isfinite(t)
-            hits.append(eye + t[ok, None] * rays[a:a + (1 << 20)][ok])
-        pts = np.concatenate(hits)
-        keep = np.linspace(0, len(pts) - 1, min(per_camera, len(pts))).astype(np.int64)
-        points.append(pts[keep])
-        sources.append(np.full(len(keep), c, np.int32))
-    pts = np.concatenate(points)
-    pts += rng.normal(0.0, NOISE, pts.shape)
-    return pts.astype(np.float32), np.concatenate(sources), np.array(eyes, np.float32)
-
-
 def tabletop_scan(num_points: int) -> tuple[NDArray[np.float32], NDArray[np.float32], str]:
-    """(points, camera positions, which generator): bench/kernels.py's tabletop_scan where it imports, else
-    own_tabletop_scan."""
+    """(points, camera positions, which generator): bench/kernels.py's two-camera tabletop scan."""
     sys.path.insert(0, str(ROOT / "bench"))
     try:
-        from kernels import tabletop_scan as theirs  # type: ignore[import-not-found]  # noqa: PLC0415
-
-        points, _, eyes = theirs(num_points)
-        return points, eyes, "bench/kernels.py tabletop_scan"
-    except Exception:  # noqa: BLE001 - absent or broken: this script's own copy
-        points, _, eyes = own_tabletop_scan(num_points)
-        return points, eyes, "bench/speed.py own_tabletop_scan"
+        from kernels import tabletop_scan as scan  # noqa: PLC0415 - a sibling bench script
     finally:
         sys.path.remove(str(ROOT / "bench"))
+    points, _, eyes = scan(num_points)
+    return points, eyes, "bench/kernels.py tabletop_scan"
 
 
 def binary_pcd(points: NDArray[np.float32], viewpoint: NDArray[np.float32]) -> bytes:

@@ -46,6 +46,22 @@ def _slot(x: int | np.int64, y: int | np.int64, z: int | np.int64, shift: int) -
 
 
 @kernel
+def _add_point(acc: NDArray[np.float64], v: int, i: int, points: NDArray[np.floating], normals: NDArray[np.float32],
+               source: NDArray[np.int32], with_normals: bool, with_votes: bool, vote0: int) -> None:
+    """Add point i to voxel v's row of acc: its count, coordinate sums, [normal sums,] and its camera's vote."""
+    acc[v, 0] += 1.0
+    acc[v, 1] += points[i, 0]
+    acc[v, 2] += points[i, 1]
+    acc[v, 3] += points[i, 2]
+    if with_normals:
+        acc[v, 4] += normals[i, 0]
+        acc[v, 5] += normals[i, 1]
+        acc[v, 6] += normals[i, 2]
+    if with_votes:
+        acc[v, vote0 + source[i]] += 1.0
+
+
+@kernel
 def _voxel_fill(points: NDArray[np.floating], voxel: float, source: NDArray[np.int32],
                 normals: NDArray[np.float32], keep: NDArray[np.bool_], x_lo: int, x_hi: int, start: int,
                 table: NDArray[np.int64], shift: int, acc: NDArray[np.float64], m: int, ids: NDArray[np.int64],
@@ -89,16 +105,7 @@ def _voxel_fill(points: NDArray[np.floating], voxel: float, source: NDArray[np.i
             if (table[b] == x) & (table[b + 1] == y) & (table[b + 2] == z):  # no branch per coordinate
                 break
             h = (h + 1) & mask
-        acc[v, 0] += 1.0
-        acc[v, 1] += points[i, 0]
-        acc[v, 2] += points[i, 1]
-        acc[v, 3] += points[i, 2]
-        if with_normals:
-            acc[v, 4] += normals[i, 0]
-            acc[v, 5] += normals[i, 1]
-            acc[v, 6] += normals[i, 2]
-        if with_votes:
-            acc[v, vote0 + source[i]] += 1.0
+        _add_point(acc, v, i, points, normals, source, with_normals, with_votes, vote0)
         if with_ids:
             ids[i] = v * id_stride + id_offset
     return n, m
@@ -196,16 +203,7 @@ def _packed_fill(points: NDArray[np.floating], voxel: float, source: NDArray[np.
                 v = t - 1
                 break
             h = (h + 1) & mask
-        acc[v, 0] += 1.0
-        acc[v, 1] += points[i, 0]
-        acc[v, 2] += points[i, 1]
-        acc[v, 3] += points[i, 2]
-        if with_normals:
-            acc[v, 4] += normals[i, 0]
-            acc[v, 5] += normals[i, 1]
-            acc[v, 6] += normals[i, 2]
-        if with_votes:
-            acc[v, vote0 + source[i]] += 1.0
+        _add_point(acc, v, i, points, normals, source, with_normals, with_votes, vote0)
         if with_ids:
             ids[i] = v * id_stride + id_offset
     return n, m

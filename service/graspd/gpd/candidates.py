@@ -20,6 +20,7 @@ closes symmetrically, and an object off the middle would be pushed sideways.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -154,26 +155,40 @@ def search_hands(scene: Scene, hand: HandGeometry, params: SamplingParams | None
 
 @dataclass(frozen=True)
 class _Obstacles:
-    """The points the hands are tested against: scene indices (None = every scene point), their coordinates
-    (m, cloud frame) in float32 and float64, their largest coordinate (m, at least 1) and a kd-tree over them."""
+    """The points the hands are tested against: scene indices (None = every scene point) and their coordinates
+    (m, cloud frame, float32); what only slab_pairs' kd-tree and dense paths use (float64 coordinates, columns,
+    the largest coordinate, a kd-tree) is made on first use, so a search that scans its pairs builds none of it."""
 
     index: NDArray[np.int64] | None
     points: NDArray[np.float32]
-    points64: NDArray[np.float64]
-    columns: NDArray[np.float32]  # (3, N): x, y and z rows, contiguous
-    scale: float
-    tree: cKDTree
+    scene_tree: cKDTree | None = None  # the scene's own tree, when the obstacles are every scene point
 
     @staticmethod
     def of(scene: Scene, mask: NDArray[np.bool_] | None) -> _Obstacles:
         if mask is None:
-            index, pts, tree = None, scene.points, scene.tree
-        else:
-            index = np.flatnonzero(mask)
-            pts = scene.points[index]
-            tree = cKDTree(pts, balanced_tree=False)  # counts, and pairs sorted after: the tree's shape is moot
-        scale = max(float(np.abs(pts).max()), 1.0) if len(pts) else 1.0
-        return _Obstacles(index, pts, pts.astype(np.float64), np.ascontiguousarray(pts.T), scale, tree)
+            return _Obstacles(None, scene.points, scene.tree)
+        index = np.flatnonzero(mask)
+        return _Obstacles(index, scene.points[index])
+
+    @cached_property
+    def points64(self) -> NDArray[np.float64]:
+        return self.points.astype(np.float64)
+
+    @cached_property
+    def columns(self) -> NDArray[np.float32]:
+        """(3, N): x, y and z rows, contiguous."""
+        return np.ascontiguousarray(self.points.T)
+
+    @cached_property
+    def scale(self) -> float:
+        """The largest absolute coordinate (m, at least 1)."""
+        return max(float(np.abs(self.points).max()), 1.0) if len(self.points) else 1.0
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        if self.scene_tree is not None:
+            return self.scene_tree
+        return cKDTree(self.points, balanced_tree=False)  # counts, and pairs sorted after: the tree's shape is moot
 
 
 #: The dense pair test (every obstacle point against every sample, by matrix products) runs when it tests at

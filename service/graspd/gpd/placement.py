@@ -153,6 +153,7 @@ def _choose(tip: NDArray[np.float32], valid: NDArray[np.bool_], starts: NDArray[
     closing-region points and their y bounds (m, inf/-inf where none) at that placement."""
     n_s, n_phi, n_y = tip.shape
     roomy = np.empty(n_y, np.bool_)
+    no_local, no_element = np.empty((0, 3), np.float32), np.empty(0, np.int64)  # counting only: nothing written
     for s in range(n_s):
         for k in range(n_phi):
             n_valid = 0
@@ -169,7 +170,8 @@ def _choose(tip: NDArray[np.float32], valid: NDArray[np.bool_], starts: NDArray[
             for j in range(n_y):
                 if valid[s, k, j] and abs(j - mean_j) < best:
                     bj, best = j, abs(j - mean_j)
-            cnt, lo, hi = _region_bounds(s, k, bj, tip, starts, lx, ly, z, cos, sin, s_grid, hd, half_w, half_h)
+            cnt, lo, hi = _closing_region(s, k, bj, tip, starts, lx, ly, z, cos, sin, s_grid, hd, half_w, half_h,
+                                          no_local, no_element, -1)
             if centre:
                 middle = s_grid[bj] + ((lo + hi) / 2.0 if cnt > 0 else 0.0)
                 floor32 = F32(F32(tip[s, k, bj]) - F32(1e-3))
@@ -185,8 +187,8 @@ def _choose(tip: NDArray[np.float32], valid: NDArray[np.bool_], starts: NDArray[
                             cj, cbest = j, g
                 if cj != bj:
                     bj = cj
-                    cnt, lo, hi = _region_bounds(s, k, bj, tip, starts, lx, ly, z, cos, sin, s_grid, hd, half_w,
-                                                 half_h)
+                    cnt, lo, hi = _closing_region(s, k, bj, tip, starts, lx, ly, z, cos, sin, s_grid, hd, half_w,
+                                                  half_h, no_local, no_element, -1)
             chosen[s, k] = bj
             counts[s, k] = cnt
             ymin[s, k] = lo
@@ -194,12 +196,14 @@ def _choose(tip: NDArray[np.float32], valid: NDArray[np.bool_], starts: NDArray[
 
 
 @kernel
-def _region_bounds(s: int, k: int, j: int, tip: NDArray[np.float32], starts: NDArray[np.int64],
-                   lx: NDArray[np.float32], ly: NDArray[np.float32], z: NDArray[np.float32],
-                   cos: NDArray[np.float32], sin: NDArray[np.float32], s_grid: NDArray[np.float64],
-                   hd: float, half_w: float, half_h: float) -> tuple[int, float, float]:
+def _closing_region(s: int, k: int, j: int, tip: NDArray[np.float32], starts: NDArray[np.int64],
+                    lx: NDArray[np.float32], ly: NDArray[np.float32], z: NDArray[np.float32],
+                    cos: NDArray[np.float32], sin: NDArray[np.float32], s_grid: NDArray[np.float64],
+                    hd: float, half_w: float, half_h: float, local: NDArray[np.float32], element: NDArray[np.int64],
+                    at: int) -> tuple[int, float, float]:
     """How many slab points of sample s lie in the closing region of its hand at orientation k, placement j, and
-    their least and greatest y (m, hand frame)."""
+    their least and greatest y (m, hand frame); with at >= 0 their hand-frame x, y, z (m) and slab rows are also
+    written to local and element from row at, in slab order."""
     shift = np.float64(tip[s, k, j]) - hd
     across = s_grid[j]
     c, sn = cos[k], sin[k]
@@ -211,6 +215,11 @@ def _region_bounds(s: int, k: int, j: int, tip: NDArray[np.float32], starts: NDA
         hx = np.float64(c * lx[t] + sn * ly[t]) - shift
         hy = np.float64(-sn * lx[t] + c * ly[t]) - across
         if hx >= 0.0 and hx <= hd and abs(hy) <= half_w:
+            if at >= 0:
+                local[at + cnt, 0] = F32(hx)
+                local[at + cnt, 1] = F32(hy)
+                local[at + cnt, 2] = z[t]
+                element[at + cnt] = t
             cnt += 1
             lo = min(lo, hy)
             hi = max(hi, hy)
@@ -226,27 +235,11 @@ def _fill_regions(tip: NDArray[np.float32], chosen: NDArray[np.int64], offsets: 
     """The closing-region points of every chosen hand, at offsets (S, Phi) into local (hand frame x, y, z; m) and
     element (the slab row), each hand's points in slab order."""
     n_s, n_phi, _ = tip.shape
-    hh = F32(half_h)
     for s in range(n_s):
         for k in range(n_phi):
-            j = chosen[s, k]
-            if j < 0:
-                continue
-            shift = np.float64(tip[s, k, j]) - hd
-            across = s_grid[j]
-            c, sn = cos[k], sin[k]
-            o = offsets[s, k]
-            for t in range(starts[s], starts[s + 1]):
-                if not abs(z[t]) <= hh:
-                    continue
-                hx = np.float64(c * lx[t] + sn * ly[t]) - shift
-                hy = np.float64(-sn * lx[t] + c * ly[t]) - across
-                if hx >= 0.0 and hx <= hd and abs(hy) <= half_w:
-                    local[o, 0] = F32(hx)
-                    local[o, 1] = F32(hy)
-                    local[o, 2] = z[t]
-                    element[o] = t
-                    o += 1
+            if chosen[s, k] >= 0:
+                _closing_region(s, k, chosen[s, k], tip, starts, lx, ly, z, cos, sin, s_grid, hd, half_w, half_h,
+                                local, element, offsets[s, k])
 
 
 def place_hands(starts: NDArray[np.int64], lx: NDArray[np.float32], ly: NDArray[np.float32],
