@@ -17,15 +17,45 @@ class CloudError(FieldError):
     """The cloud is malformed; `field` names the offending one (e.g. "cloud.points")."""
 
 
+@dataclass(frozen=True, eq=False)
+class CloudGrid:
+    """Where an organised cloud's points lie on its camera's image: height x width pixels, and each kept point's
+    row-major pixel index (N,) int64 (rows with no depth were dropped, so the index is not the row number).  Lets
+    image-neighbour filters and normals work on the grid instead of searching 3-D neighbours."""
+
+    height: int
+    width: int
+    pixel: NDArray[np.int64]
+
+    def __post_init__(self) -> None:
+        h, w = int(self.height), int(self.width)
+        if h < 1 or w < 1:
+            raise CloudError("cloud.shape", f"height and width must be positive, got {h}x{w}")
+        pix = np.ascontiguousarray(np.asarray(self.pixel).astype(np.int64, copy=False)).reshape(-1)
+        if pix.size and (int(pix.min()) < 0 or int(pix.max()) >= h * w):
+            raise CloudError("cloud.shape", f"pixel indices must lie in [0, {h * w - 1}] ({h}x{w} image)")
+        object.__setattr__(self, "height", h)
+        object.__setattr__(self, "width", w)
+        object.__setattr__(self, "pixel", pix)
+
+    @classmethod
+    def of_rows(cls, height: int, width: int, kept: NDArray[np.bool_] | None = None) -> CloudGrid:
+        """The grid of height*width rows as received (row-major), of which the rows `kept` remain (None: all)."""
+        pixel = np.arange(int(height) * int(width), dtype=np.int64) if kept is None else np.flatnonzero(kept)
+        return cls(height, width, pixel)
+
+
 @dataclass(frozen=True)
 class ViewpointCloud:
     """Points (N,3) float32, optional unit normals (N,3) pointing toward the observing camera,
-    per-point camera index camera_source (N,) int32 into viewpoints (K,3) float32 camera positions."""
+    per-point camera index camera_source (N,) int32 into viewpoints (K,3) float32 camera positions, and for an
+    organised cloud (one camera's image) the grid its points lie on (None: unorganised)."""
 
     points: FloatArray
     viewpoints: FloatArray
     camera_source: IntArray = field(default_factory=lambda: np.zeros(0, np.int32))
     normals: FloatArray | None = None
+    grid: CloudGrid | None = None
 
     def __post_init__(self) -> None:
         pts = np.ascontiguousarray(np.asarray(self.points, dtype=np.float32))
@@ -51,6 +81,9 @@ class ViewpointCloud:
             nrm = np.ascontiguousarray(np.asarray(nrm, dtype=np.float32))
             if nrm.shape != pts.shape:
                 raise CloudError("cloud.normals", f"must have shape {pts.shape}, got {nrm.shape}")
+        if self.grid is not None and len(self.grid.pixel) != pts.shape[0]:
+            raise CloudError("cloud.shape", f"the grid must hold one pixel index per point ({pts.shape[0]}), "
+                             f"got {len(self.grid.pixel)}")
         object.__setattr__(self, "points", pts)
         object.__setattr__(self, "viewpoints", vps)
         object.__setattr__(self, "camera_source", src)
@@ -70,10 +103,11 @@ class ViewpointCloud:
             points=self.points[mask_or_index],
             camera_source=self.camera_source[mask_or_index],
             normals=None if self.normals is None else self.normals[mask_or_index],
+            grid=None if self.grid is None else replace(self.grid, pixel=self.grid.pixel[mask_or_index]),
         )
 
     def transformed(self, rotation: NDArray[np.floating], translation: NDArray[np.floating]) -> ViewpointCloud:
-        """The cloud moved rigidly: p -> R p + t (viewpoints and normals too)."""
+        """The cloud moved rigidly: p -> R p + t (viewpoints and normals too; the grid indexes rows, so it stays)."""
         r = np.asarray(rotation, np.float64)
         t = np.asarray(translation, np.float64)
         return ViewpointCloud(
@@ -81,4 +115,5 @@ class ViewpointCloud:
             viewpoints=(self.viewpoints @ r.T + t).astype(np.float32),
             camera_source=self.camera_source,
             normals=None if self.normals is None else (self.normals @ r.T).astype(np.float32),
+            grid=self.grid,
         )

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.cloud import CloudError, CloudGrid, ViewpointCloud
 from graspd.core.frames import (
     FRAME_CLOUD,
     FRAME_ROBOT,
@@ -70,6 +70,18 @@ def keep_finite(points: NDArray[np.floating],
     return (None if dropped == 0 else keep), dropped
 
 
+def check_shape(shape: tuple[int, int] | None, received: int, field: str = "cloud.shape") -> None:
+    """An organised cloud's (height, width) must cover the rows as received, height * width == received
+    (before non-finite rows are dropped).  CloudError naming field otherwise."""
+    if shape is None:
+        return
+    if len(shape) != 2 or min(int(shape[0]), int(shape[1])) < 1:
+        raise CloudError(field, f"[height, width] of positive pixel counts expected, got {list(shape)}")
+    if int(shape[0]) * int(shape[1]) != received:
+        raise CloudError(field, f"{shape[0]}x{shape[1]} = {int(shape[0]) * int(shape[1])} pixels, but {received} "
+                         "points were sent: an organised cloud sends one row per pixel (NaN where there is no depth)")
+
+
 @dataclass(frozen=True)
 class CloudInput:
     """The cloud a detection runs on, in `frame` ("robot" with camera poses, else "cloud"), and how many
@@ -103,16 +115,18 @@ def apply_frames(cloud: ViewpointCloud, camera_poses: NDArray[np.float64] | None
     if points_frame == "camera":
         points, normals = to_robot(cloud.points, cloud.camera_source, camera_poses, cloud.normals)
     moved = ViewpointCloud(points=points, viewpoints=camera_positions(camera_poses).astype(np.float32),
-                           camera_source=cloud.camera_source, normals=normals)
+                           camera_source=cloud.camera_source, normals=normals, grid=cloud.grid)
     return moved, FRAME_ROBOT
 
 
 def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_source: ArrayLike | None = None,
                 normals: ArrayLike | None = None, *, camera_poses: object = None, points_frame: str | None = None,
-                field: str = "cloud") -> CloudInput:
+                field: str = "cloud", shape: tuple[int, int] | None = None) -> CloudInput:
     """The detector's cloud from arrays as a caller has them (CLI, files): non-finite rows dropped and counted,
     then frames applied.  viewpoints (K, 3) are camera positions in the cloud's frame (default the origin);
-    camera_poses (see graspd.core.frames.pose_matrices) replace them.  CloudError naming the field at fault."""
+    camera_poses (see graspd.core.frames.pose_matrices) replace them.  shape (height, width): the points are an
+    organised cloud's image rows, row-major, before non-finite rows are dropped (the cloud then carries its
+    grid).  CloudError naming the field at fault."""
     pts = np.asarray(points, np.float32)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise CloudError(f"{field}.points", f"must have shape (N, 3), got {pts.shape}")
@@ -133,6 +147,7 @@ def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_s
     check_camera_source(points_frame, 0 if poses is None else len(poses), src is not None, f"{field}.camera_source")
     if src is not None and len(src) != len(pts):
         raise CloudError(f"{field}.camera_source", f"must have one entry per point ({len(pts)}), got {len(src)}")
+    check_shape(shape, len(pts), f"{field}.shape")
     received = len(pts)
     keep, dropped = keep_finite(pts, nrm, f"{field}.points")
     if keep is not None:
@@ -143,7 +158,8 @@ def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_s
         vps = np.zeros((len(poses), 3), np.float32)  # placeholders with the right count: apply_frames sets them
     if src is None and len(vps) > 1 and poses is None:
         src = nearest_camera(pts, vps)
+    grid = None if shape is None else CloudGrid.of_rows(shape[0], shape[1], keep)
     cloud = ViewpointCloud(points=pts, viewpoints=vps, camera_source=np.zeros(0, np.int32) if src is None else src,
-                           normals=nrm)
+                           normals=nrm, grid=grid)
     moved, frame = apply_frames(cloud, poses, points_frame)
     return CloudInput(moved, frame, dropped, received, keep)

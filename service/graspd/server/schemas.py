@@ -28,7 +28,7 @@ from pydantic import (
     model_validator,
 )
 
-from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.cloud import CloudError, CloudGrid, ViewpointCloud
 from graspd.core.errors import FieldError
 from graspd.core.frames import check_camera_source, check_points_frame, pose_matrix
 from graspd.core.grasp import RANKING_RULE
@@ -52,7 +52,7 @@ from graspd.gpd.environment import Box, EnvironmentParams, Plane
 from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW
 from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT
 from graspd.gpd.target import OrientedBox, Target, TargetKind
-from graspd.io.inputs import CloudInput, apply_frames, finite_rows, keep_finite
+from graspd.io.inputs import CloudInput, apply_frames, check_shape, finite_rows, keep_finite
 from graspd.io.png import check_image_size, decode_png_rgb, png_size
 from graspd.templates import TemplateDetection
 from graspd.templates.demonstration import check_hand_pose
@@ -167,6 +167,10 @@ class Cloud(BaseModel):
         "crops.camera_pose) is then in the robot frame")
     camera_source: CameraSource | None = None  # type: ignore[valid-type]
     normals: Normals | None = None  # type: ignore[valid-type]
+    shape: tuple[Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]] | None = Field(
+        None, description="[height, width] of an organised cloud (a depth image's grid): points are its pixels in "
+        "row-major order, height * width of them, NaN where there is no depth.  Lets detection use image "
+        "neighbours (mixed-pixel filter, normals); leave out for an unorganised cloud")
     _dropped: int = PrivateAttr(default=0)
     _kept: np.ndarray | None = PrivateAttr(default=None)
     _received: int = PrivateAttr(default=0)
@@ -224,6 +228,10 @@ class Cloud(BaseModel):
             raise WireError(".viewpoints", "give camera_poses or viewpoints, not both (with camera poses the "
                             "viewpoints are the cameras' positions in the robot frame)")
         self._received = len(self.points)
+        try:
+            check_shape(self.shape, self._received, ".shape")
+        except CloudError as exc:
+            raise WireError(".shape", exc.message) from None
         keep, self._dropped = keep_finite(self.points, self.normals, ".points")
         self._kept = keep
         if keep is not None:
@@ -243,9 +251,10 @@ class Cloud(BaseModel):
         try:
             viewpoints = (np.zeros((len(poses), 3), np.float32) if poses is not None
                           else np.asarray(self.viewpoints, np.float32))
+            grid = None if self.shape is None else CloudGrid.of_rows(self.shape[0], self.shape[1], self._kept)
             cloud = ViewpointCloud(points=self.points, viewpoints=viewpoints,
                                    camera_source=(np.zeros(0, np.int32) if self.camera_source is None
-                                                  else self.camera_source), normals=self.normals)
+                                                  else self.camera_source), normals=self.normals, grid=grid)
             moved, frame = apply_frames(cloud, poses, self.points_frame)
         except CloudError as exc:  # the validators above check what ViewpointCloud does; kept as a 422
             raise WireError(exc.field or "cloud", exc.message) from None
