@@ -48,15 +48,21 @@ class ExecutionParams:
     hold_seconds: float = 0.5
     arm_force: float = 300.0
     reach_tolerance: float = 0.01
+    #: A lifted object that turned more than this (deg) in the fingers between closing and the end of the hold
+    #: slipped; None: only a drop is a slip (the clutter protocol: an object lifted out is cleared however it hangs).
+    max_turn_deg: float | None = None
 
 
 @dataclass(frozen=True)
 class Attempt:
-    """What happened: outcome, the object the hand went for (None if none near) and those lifted out."""
+    """What happened: outcome, the object the hand went for (None if none near), those lifted out, and turn_deg:
+    the most any object still in the fingers after the hold turned relative to the hand since closing (deg;
+    NaN when nothing was lifted)."""
 
     outcome: Outcome
     target: int | None
     removed: tuple[int, ...] = ()
+    turn_deg: float = float("nan")
 
 
 def _rot_quat(rotation: F64) -> list[float]:
@@ -117,6 +123,11 @@ class Gripper:
             pb.resetJointState(self.body, j, 0.0, physicsClientId=self.world.client)
         self._set_fingers(2 * self.travel, self.params.finger_force)
 
+    def remove(self) -> None:
+        """Take the hand out of the world (its body and arm constraint): the world is as it was before it."""
+        pb.removeConstraint(self.constraint, physicsClientId=self.world.client)
+        pb.removeBody(self.body, physicsClientId=self.world.client)
+
     def park(self) -> None:
         """Move the hand far above the scene, fingers open."""
         self._teleport(PARK, [0.0, 0.0, 0.0, 1.0])
@@ -156,6 +167,13 @@ class Gripper:
         per_finger = [{c[2] for c in self._contacts(link)} for link in (0, 1)]
         return (per_finger[0] & per_finger[1]) & set(self.world.objects)
 
+    def _in_hand(self, body: int) -> Rotation:
+        """The object's orientation in the hand's frame (hand-to-world inverse times object-to-world)."""
+        c = self.world.client
+        hand_q = pb.getBasePositionAndOrientation(self.body, physicsClientId=c)[1]
+        obj_q = pb.getBasePositionAndOrientation(body, physicsClientId=c)[1]
+        return Rotation.from_quat(hand_q).inv() * Rotation.from_quat(obj_q)
+
     def _nearest_object(self, point: F64, within: float = 0.05) -> int | None:
         best, best_d = None, within
         for body in self.world.objects:
@@ -167,8 +185,11 @@ class Gripper:
         return best
 
     # --- one attempt ---------------------------------------------------------------------------------
-    def execute(self, grasps: GraspSet, index: int = 0) -> Attempt:
-        """Pre-grasp, approach, close, lift, hold; remove what stayed in the hand.  The grasp is in world frame."""
+    def execute(self, grasps: GraspSet, index: int = 0, clear: bool = True) -> Attempt:
+        """Pre-grasp, approach, close, lift, hold; remove what stayed in the hand.  The grasp is in world frame.
+        A lift slips when nothing stays in the fingers above half the lift height, or (params.max_turn_deg) when
+        what stays turned more than that in the hand.  clear=False leaves every object in the world and skips
+        the settling after (a caller that restores a saved state: graspd_lab.sim.lift)."""
         p = self.params
         pos = grasps.positions[index].astype(np.float64)
         rot = grasps.rotations[index].astype(np.float64)
@@ -202,6 +223,7 @@ class Gripper:
                 return Attempt(Outcome.EMPTY, target)
             if target not in held:
                 target = min(held)
+            gripped = {b: self._in_hand(b) for b in self.world.objects}
             up = pos + np.array([0.0, 0.0, p.lift_height])
             self._move(pos, up, quat, p.lift_speed, stop_on_static=False)
             self.world.step(p.hold_seconds)
@@ -209,10 +231,15 @@ class Gripper:
             lifted = tuple(b for b in still if self.world.object_position(b)[2] > 0.5 * p.lift_height)
             if not lifted:
                 return Attempt(Outcome.SLIPPED, target)
+            turn = max(float(np.degrees((gripped[b].inv() * self._in_hand(b)).magnitude())) for b in lifted)
+            if p.max_turn_deg is not None and turn > p.max_turn_deg:
+                return Attempt(Outcome.SLIPPED, target, turn_deg=turn)
             ids = tuple(self.world.objects[b] for b in lifted)
-            for b in lifted:
-                self.world.remove_object(b)
-            return Attempt(Outcome.SUCCESS, target, ids)
+            if clear:
+                for b in lifted:
+                    self.world.remove_object(b)
+            return Attempt(Outcome.SUCCESS, target, ids if clear else (), turn)
         finally:
             self.park()
-            self.world.settle(max_seconds=1.0)
+            if clear:
+                self.world.settle(max_seconds=1.0)
