@@ -811,33 +811,66 @@ def statistical_inliers(points: NDArray[np.floating], neighbours: int, std_ratio
     return np.flatnonzero(valid & (mean < threshold))
 
 
-def ransac_plane(points: NDArray[np.floating], distance: float, iterations: int = 200, seed: int = 0,
-                 batch: int = 25) -> tuple[NDArray[np.float64], int]:
+#: RANSAC hypotheses scored together by one task of plane_inlier_counts.
+HYPOTHESES_PER_TASK = 50
+
+
+def plane_inlier_counts(points: NDArray[np.float64], normals: NDArray[np.float64], offsets: NDArray[np.float64],
+                        distance: float) -> NDArray[np.int64]:
+    """How many of the points (N,3) lie within distance (m) of each plane (K unit normals, K offsets), in chunks of
+    HYPOTHESES_PER_TASK planes on the process's thread budget (each plane's count depends on that plane alone)."""
+
+    def part(a: int) -> NDArray[np.int64]:
+        b = a + HYPOTHESES_PER_TASK
+        return np.asarray((np.abs(points @ normals[a:b].T + offsets[a:b]) <= distance).sum(axis=0), np.int64)
+
+    return np.concatenate(THREADS.map(part, range(0, len(normals), HYPOTHESES_PER_TASK)))
+
+
+def best_plane(points: NDArray[np.float64], triplets: NDArray[np.int64], distance: float,
+               vertical_to: NDArray[np.float64] | None = None, max_tilt_deg: float = 90.0
+               ) -> tuple[NDArray[np.float64], int] | None:
+    """The RANSAC plane fit: of the planes through the point triplets (K,3 indices into points (N,3)), the first
+    with most points within distance (m), refit by least squares (SVD) to those points.  Returns (a, b, c, d; unit
+    normal, a x + b y + c z + d = 0) and the hypothesis' inlier count, or None when no triplet spans a plane (or,
+    with vertical_to given, none stands within max_tilt_deg of upright to it: walls) or the fit has under 3 points.
+    Callers draw the triplets from their own seeded generator, so the same cloud and seed give the same plane."""
+    tri = points[triplets]  # (K, 3 points, xyz)
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    ok = length > 1e-9
+    if not ok.any():
+        return None
+    normals = normals[ok] / length[ok, None]
+    offsets = -np.einsum("kj,kj->k", normals, tri[ok, 0])
+    if vertical_to is not None:  # only planes standing up (walls): a slice across a wall would eat its points
+        upright = np.abs(normals @ vertical_to) <= np.sin(np.radians(max_tilt_deg))
+        if not upright.any():
+            return None
+        normals, offsets = normals[upright], offsets[upright]
+    counts = plane_inlier_counts(points, normals, offsets, distance)
+    best = int(np.argmax(counts))
+    inliers = points[np.abs(points @ normals[best] + offsets[best]) <= distance]
+    if len(inliers) < 3:
+        return None
+    centre = inliers.mean(axis=0)
+    _, _, vt = np.linalg.svd(inliers - centre, full_matrices=False)
+    normal = vt[-1] / np.linalg.norm(vt[-1])
+    return np.append(normal, -float(normal @ centre)), int(counts[best])
+
+
+def ransac_plane(points: NDArray[np.floating], distance: float, iterations: int = 200, seed: int = 0
+                 ) -> tuple[NDArray[np.float64], int]:
     """The plane (a, b, c, d; unit normal, a x + b y + c z + d = 0) through the most points within distance
-    (m) among `iterations` seeded 3-point hypotheses, refit by least squares to those points; and how many
-    there were.  Hypotheses are scored in batches (a matrix product each).  Needs at least 3 points."""
+    (m) among `iterations` seeded hypotheses, each through 3 distinct points (best_plane); and how many there
+    were ((0, 0, 1, 0) and 0 when none spans a plane).  Needs at least 3 points."""
     pts = np.asarray(points, np.float64)
     rng = np.random.default_rng(seed)
     tri = np.stack([rng.choice(len(pts), 3, replace=False) for _ in range(iterations)])
-    p0, p1, p2 = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
-    normals = np.cross(p1 - p0, p2 - p0)
-    norm = np.linalg.norm(normals, axis=1)
-    good = norm > 1e-12
-    normals, p0 = normals[good] / norm[good, None], p0[good]
-    offsets = -np.einsum("ij,ij->i", normals, p0)
-    best, best_count = -1, -1
-    for start in range(0, len(normals), batch):
-        counts = (np.abs(pts @ normals[start:start + batch].T + offsets[start:start + batch]) <= distance).sum(axis=0)
-        i = int(np.argmax(counts)) if len(counts) else -1
-        if i >= 0 and counts[i] > best_count:
-            best, best_count = start + i, int(counts[i])
-    if best < 0:
+    fit = best_plane(pts, tri, distance)
+    if fit is None:
         return np.array([0.0, 0.0, 1.0, 0.0]), 0
-    inliers = pts[np.abs(pts @ normals[best] + offsets[best]) <= distance]
-    centre = inliers.mean(axis=0)
-    _, vecs = np.linalg.eigh(np.cov((inliers - centre).T))
-    normal = vecs[:, 0]
-    return np.append(normal, -float(normal @ centre)), best_count
+    return fit
 
 
 def eps_clusters(points: NDArray[np.floating], eps: float) -> NDArray[np.int64]:

@@ -1,0 +1,167 @@
+"""Walls (near-vertical planar patches longer than anything graspable) and rims (long thin lines of points
+above the support: sheet walls seen from above), each modelled as a box (cloud frame, metres)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graspd.core.types import F64
+from graspd.gpd.environment.planes import fit_plane, gap_free_runs, in_plane_axes
+from graspd.gpd.environment.types import Box, EnvironmentParams, Plane
+
+
+def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: EnvironmentParams,
+               min_length: float, rng: np.random.Generator, candidates: NDArray[np.bool_] | None = None,
+               level_heights: tuple[float, ...] = (0.0,)) -> list[tuple[Box, Plane, float, int, float, bool]]:
+    """Walls: near-vertical planar patches at least min_length long, among the candidate points.
+
+    Each box spans the patch's longest gap-free run along the support, from below the support to a little
+    above the patch's top, and from just in front of the visible face to the far face when the wall's other
+    side is seen (its parallel, opposite-facing points), else wall_thickness behind it.  Returns (box, plane,
+    length, points, top height, stands) per wall: stands is whether its foot is within wall_base_gap of a
+    support level (level_heights: heights above the support, m); a patch that does not stand is still a
+    solid larger than anything graspable, and lowers the stage's confidence."""
+    up = support.normal
+    height = support.distance(points)
+    # only points on steep surfaces can belong to a wall: RANSAC then never wastes rounds on object tops
+    steep = np.abs(normals @ up) < 0.5
+    pool = (height > params.support_distance) & steep
+    if candidates is not None:
+        pool &= candidates
+    remaining = points[pool]
+    walls: list[tuple[Box, Plane, float, int, float, bool]] = []
+    min_points = 30
+    # a wall is among the largest planes left: fewer hypotheses on fewer points find it (half the cost)
+    wall_ransac = replace(params, ransac_points=min(params.ransac_points, 3000),
+                          ransac_iterations=min(params.ransac_iterations, 120))
+    for _ in range(params.wall_rounds):
+        if len(remaining) < min_points or len(walls) >= params.max_walls:
+            break
+        plane = fit_plane(remaining, wall_ransac, rng, vertical_to=up)
+        if plane is None:
+            break
+        inliers = np.abs(plane.distance(remaining)) <= params.plane_distance
+        if inliers.sum() < params.wall_min_points:
+            break  # the largest plane left is too small to be a wall: the rest are objects' faces
+        patch = remaining[inliers]
+        remaining = remaining[~inliers]
+        if abs(float(plane.normal @ up)) > np.sin(np.radians(params.wall_max_tilt_deg)):
+            continue  # not vertical: an object's top, or a second level
+        across = plane.normal - (plane.normal @ up) * up  # the face's horizontal normal, toward the cameras
+        across /= np.linalg.norm(across)
+        if float((cameras.mean(axis=0) - patch.mean(axis=0)) @ across) < 0.0:
+            across = -across
+        along = np.cross(up, across)
+        runs = gap_free_runs(patch @ along, gap=0.04, min_count=10)
+        if not runs or max(b - a for a, b in runs) < min_length:
+            continue
+        longest = max(b - a for a, b in runs)
+        # the longest gap-free run makes it a wall; objects in front may hide parts of it, so it spans all runs
+        s0, s1 = min(a for a, _ in runs), max(b for _, b in runs)
+        run = patch[(patch @ along >= s0) & (patch @ along <= s1)]
+        h = support.distance(run)
+        if not _level_top(run @ along, h):
+            continue  # faces of several objects that happen to line up: their tops are at many heights
+        foot = float(np.percentile(h, 1.0))
+        stands = any(abs(foot - lv) <= params.wall_base_gap or foot <= lv + params.wall_base_gap
+                     for lv in level_heights)
+        face = float(np.median(run @ across))
+        # the wall's other face: steep points just behind this one, facing the other way (a wall seen from both
+        # sides, or a thin sheet): the box ends there instead of wall_thickness behind
+        behind = (points @ across) - face
+        strip = ((points @ along >= s0) & (points @ along <= s1) & steep & (behind < -params.plane_distance)
+                 & (behind > -params.wall_thickness - 0.01) & ((normals @ across) < -0.7))
+        back = params.wall_thickness
+        if strip.sum() >= 20:
+            back = min(back, float(-np.percentile(behind[strip], 10.0)) + 0.003)
+        front = params.plane_distance + 0.002
+        base, top = -0.02, float(np.percentile(h, 99.0)) + 0.01
+        centre = (along * (s0 + s1) / 2.0 + across * (face + (front - back) / 2.0)
+                  + up * ((base + top) / 2.0 - support.offset))
+        rotation = np.stack([across, along, up], axis=1)
+        half = np.array([(front + back) / 2.0, (s1 - s0) / 2.0 + 0.01, (top - base) / 2.0])
+        walls.append((Box(centre, rotation, half), Plane(across, -face), longest, len(run), top - 0.01, stands))
+    return walls
+
+
+def freestanding_sheet(box: Box, length: float, min_length: float, p: EnvironmentParams) -> bool:
+    """Whether a lone wall (no other wall, no raised floor) is too short to be more than a long object standing
+    on the table: its gap-free run is under 2.5 x min_length (a container shows two walls or a floor, a fence
+    or a backboard runs longer)."""
+    return bool(length < 2.5 * min_length)
+
+
+def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0.015, share: float = 0.7) -> bool:
+    """Whether a vertical patch has a straight, level top as a wall has: in step-wide (m) slices along it, the
+    highest point lies within tolerance (m) of the median top in at least share of the slices."""
+    cells = np.floor((along - along.min()) / step).astype(np.int64)
+    tops = np.full(int(cells.max()) + 1, -np.inf)
+    np.maximum.at(tops, cells, height)
+    tops = tops[np.isfinite(tops)]
+    return bool(len(tops) >= 3 and np.mean(np.abs(tops - np.median(tops)) <= tolerance) >= share)
+
+
+def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentParams, min_length: float,
+              rng: np.random.Generator, candidates: NDArray[np.bool_]) -> list[tuple[Box, F64, F64, float, int]]:
+    """Rims: long, thin, horizontal lines of points above the support (a thin wall's top seen from above, its
+    faces unseen), each at least min_length gap-free with nothing else at its height beside it.  Returns (box
+    down to the support, point on the line, direction, length, points) per rim."""
+    up = support.normal
+    h = support.distance(points)
+    idx = np.flatnonzero(candidates & (h > 0.015) & (normals @ up > 0.7))  # a rim's top faces up
+    rims: list[tuple[Box, F64, F64, float, int]] = []
+    if len(idx) < 20:
+        return rims
+    sub = idx if len(idx) <= 1500 else rng.choice(idx, 1500, replace=False)
+    axes2 = in_plane_axes(up)
+    for _ in range(3):
+        if len(sub) < 20:
+            break
+        pairs = rng.integers(0, len(sub), size=(150, 2))
+        a, b = points[sub[pairs[:, 0]]], points[sub[pairs[:, 1]]]
+        dh = (b - a) @ up
+        d2 = (b - a) @ axes2.T  # (K,2)
+        length = np.linalg.norm(d2, axis=1)
+        ok = (length > 0.05) & (np.abs(dh) < 0.01)
+        if not ok.any():
+            break
+        dirs = d2[ok] / length[ok, None]
+        origin = a[ok] @ axes2.T
+        heights = a[ok] @ up
+        pxy = points[sub] @ axes2.T
+        ph = points[sub] @ up
+        off = np.abs((pxy[None, :, 0] - origin[:, None, 0]) * dirs[:, None, 1]
+                     - (pxy[None, :, 1] - origin[:, None, 1]) * dirs[:, None, 0])
+        band = (off <= params.rim_width) & (np.abs(ph[None, :] - heights[:, None]) <= 0.01)
+        k = int(np.argmax(band.sum(axis=1)))
+        d3 = dirs[k] @ axes2
+        o3 = a[ok][k]
+        # verify on every candidate point
+        rel = points[idx] - o3
+        t = rel @ d3
+        lateral = rel - np.outer(t, d3) - np.outer(rel @ up, up)
+        off_all = np.linalg.norm(lateral, axis=1)
+        same_h = np.abs(rel @ up) <= 0.01
+        on = same_h & (off_all <= params.rim_width)
+        beside = same_h & (off_all > 2 * params.rim_width) & (off_all <= 0.03)
+        sub = np.setdiff1d(sub, idx[on])
+        if on.sum() < 15:
+            continue
+        runs = gap_free_runs(t[on], gap=0.03, min_count=10)
+        if not runs:
+            continue
+        s0, s1 = max(runs, key=lambda r: r[1] - r[0])
+        length_run = s1 - s0
+        near_run = (t >= s0) & (t <= s1)
+        if length_run < min_length or (beside & near_run).sum() > 0.3 * (on & near_run).sum():
+            continue
+        top = float(np.percentile(h[idx[on & near_run]], 90.0)) + 0.01
+        across = np.cross(up, d3)
+        centre = o3 + d3 * (s0 + s1) / 2.0 + up * ((top - 0.02) / 2.0 - float(support.distance(o3[None])[0]))
+        rotation = np.stack([across, d3, up], axis=1)
+        half = np.array([params.rim_width + 0.004, length_run / 2.0 + 0.01, (top + 0.02) / 2.0])
+        rims.append((Box(centre, rotation, half), o3, d3, float(length_run), int((on & near_run).sum())))
+    return rims
