@@ -16,7 +16,7 @@ from __future__ import annotations
 import io
 from collections.abc import Iterator
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -29,7 +29,7 @@ from rosbags.rosbag2 import Reader as Rosbag2Reader
 
 from graspd.core.cloud import CloudError
 from graspd.io import bag_limits
-from graspd.io.depth import DEFAULT_DEPTH_SCALE, depth_points
+from graspd.io.depth import DEFAULT_DEPTH_SCALE, depth_pixels, depth_points
 from graspd.io.inputs import CloudInput, cloud_input
 from graspd.io.ros.decode import RosDecodeError, pointcloud2_rows
 from graspd.io.ros.sensors import CameraInfo, decode_camera_info, decode_depth_image, decode_tf_message
@@ -74,8 +74,8 @@ class BagQuery:
 class BagCloud:
     """One message's cloud: points (N,3) float32 and normals, in frame_id (m): a PointCloud2's every row
     (non-finite ones included, in pixel order; shape (height, width) when organised), a depth image's pixels that
-    have depth; camera_pose (4,4) of
-    frame_id in pose_frame from /tf_static (None: the bag has no chain for frame_id)."""
+    have depth (shape the image's, pixel each point's row-major pixel index); camera_pose (4,4) of frame_id in
+    pose_frame from the bag's transforms at the message's stamp (None: the bag has no chain for frame_id)."""
 
     topic: str
     index: int
@@ -86,13 +86,15 @@ class BagCloud:
     shape: tuple[int, int] | None = None
     camera_pose: NDArray[np.float64] | None = None
     pose_frame: str | None = None
+    pixel: NDArray[np.int64] | None = None
 
     def cloud_input(self) -> CloudInput:
         """The detector's cloud (graspd.io.inputs.cloud_input: non-finite rows dropped and counted): in
-        pose_frame with the camera pose, else in frame_id with the camera at its origin."""
+        pose_frame with the camera pose, else in frame_id with the camera at its origin; organised ones with their
+        grid."""
         poses = None if self.camera_pose is None else [self.camera_pose.tolist()]
         return cloud_input(self.points, normals=self.normals, camera_poses=poses,
-                           points_frame="camera" if poses else None)
+                           points_frame="camera" if poses else None, shape=self.shape, pixel=self.pixel)
 
     def describe(self) -> dict[str, Any]:
         """The message an answer came from: topic, index, stamp, frame_id, and the frame of the grasps."""
@@ -276,7 +278,8 @@ def _decode(raw: bytes, msgtype: str, ros1: bool, query: BagQuery, info: CameraI
         raise CloudError("info_topic", f"the CameraInfo is for {info.width}x{info.height} images; message {index} "
                          f"of {topic} is {width}x{height}")
     points = depth_points(image.depth, info.intrinsics())  # pixels without depth (0) left out, as in a depth PNG
-    return BagCloud(topic, index, image.header.stamp, image.header.frame_id.lstrip("/"), points)
+    return BagCloud(topic, index, image.header.stamp, image.header.frame_id.lstrip("/"), points,
+                    shape=(height, width), pixel=depth_pixels(image.depth))
 
 
 def read_bag(source: str | Path | bytes, query: BagQuery, max_inflate: int | None = None) -> Iterator[BagCloud]:
@@ -344,5 +347,4 @@ def _posed(cloud: BagCloud, tree: TfTree, frame: str | None) -> BagCloud:
     pose, target = tree.pose(cloud.frame_id, None if frame is None else frame.lstrip("/"))
     if target == cloud.frame_id:
         return cloud
-    return BagCloud(cloud.topic, cloud.index, cloud.stamp, cloud.frame_id, cloud.points, cloud.normals, cloud.shape,
-                    pose, target)
+    return replace(cloud, camera_pose=pose, pose_frame=target)

@@ -17,7 +17,7 @@ from graspd.core.camera import Intrinsics
 from graspd.core.cloud import CloudError, ViewpointCloud
 from graspd.io.calibration import CameraCalibration
 from graspd.io.camera_source import nearest_camera
-from graspd.io.depth import DEFAULT_DEPTH_SCALE, depth_metres, depth_points, read_depth_png
+from graspd.io.depth import DEFAULT_DEPTH_SCALE, depth_metres, depth_pixels, depth_points, read_depth_png
 from graspd.io.file_cloud import FileCloud
 from graspd.io.inputs import CloudInput, cloud_input
 from graspd.io.npy import NPY_MAGIC, parse_npy_bytes
@@ -63,9 +63,13 @@ CLOUD_SUFFIXES = (".pcd", ".ply", ".npz", ".npy", ".png")
 
 def file_arrays(cloud: FileCloud) -> dict[str, Any]:
     """The detector's arrays of a PCD or PLY file: points, the header's camera position, the file's normals when
-    they are usable (FileCloud.usable_normals: otherwise the detector estimates them)."""
-    return {"points": cloud.points, "viewpoints": None if cloud.viewpoint is None else cloud.viewpoint.reshape(1, 3),
-            "normals": cloud.usable_normals()}
+    they are usable (FileCloud.usable_normals: otherwise the detector estimates them), and an organised cloud's
+    shape [height, width] (cloud.shape; absent when unorganised)."""
+    arrays: dict[str, Any] = {"points": cloud.points, "normals": cloud.usable_normals(),
+                              "viewpoints": None if cloud.viewpoint is None else cloud.viewpoint.reshape(1, 3)}
+    if cloud.shape is not None:
+        arrays["shape"] = cloud.shape
+    return arrays
 
 
 def depth_cloud(depth: NDArray[np.float32], intrinsics: Sequence[float] | CameraCalibration,
@@ -85,13 +89,14 @@ def read_input(path: str | Path, viewpoints: NDArray[np.floating] | None = None,
     """The detector's cloud from a file, as the service makes it of the same upload (graspd.io.inputs.cloud_input:
     non-finite rows dropped and counted, camera poses applied).
 
-    .pcd, .ply: points; .npz: points plus optional viewpoints, camera_source, normals, camera_poses; .npy: (N,3)
-    points, an organised (H,W,3) cloud, or with intrinsics an (H,W) depth image (float: metres; integer:
-    depth_scale units); .png: a 16-bit depth image (depth_scale metres a unit, default millimetres) with
-    intrinsics (fx, fy, cx, cy, or the camera's calibration, graspd.io.calibration).  A PCD's or PLY's normals
-    are used when usable (FileCloud.usable_normals).  A depth image is in its camera's optical frame; a camera
-    pose (one) makes it points_frame "camera".  Camera positions come, in order of precedence, from
-    `viewpoints`, from the file (PCD VIEWPOINT header; NPZ viewpoints), else the origin (a camera-frame cloud)."""
+    .pcd, .ply: points; .npz: points plus optional viewpoints, camera_source, normals, camera_poses, shape;
+    .npy: (N,3) points, an organised (H,W,3) cloud, or with intrinsics an (H,W) depth image (float: metres;
+    integer: depth_scale units); .png: a 16-bit depth image (depth_scale metres a unit, default millimetres)
+    with intrinsics (fx, fy, cx, cy, or the camera's calibration, graspd.io.calibration).  Organised inputs (PCD
+    with HEIGHT > 1, (H,W,3), depth images) keep their grid (ViewpointCloud.grid).  A PCD's or PLY's normals are
+    used when usable (FileCloud.usable_normals).  A depth image is in its camera's optical frame; a camera pose
+    (one) makes it points_frame "camera".  Camera positions come, in order of precedence, from `viewpoints`,
+    from the file (PCD VIEWPOINT header; NPZ viewpoints), else the origin (a camera-frame cloud)."""
     path = Path(path)
     suffix = path.suffix.lower()
     data = path.read_bytes()
@@ -106,9 +111,11 @@ def read_input(path: str | Path, viewpoints: NDArray[np.floating] | None = None,
             if image is None:
                 raise CloudError("intrinsics", "a depth PNG needs the camera's intrinsics fx, fy, cx, cy (pixels)")
             arrays = {"points": array_cloud(image)}
+            if image.ndim == 3:
+                arrays["shape"] = image.shape[:2]
         else:
             depth = read_depth_png(data, depth_scale) if image is None else depth_metres(image, depth_scale)
-            arrays = {"points": depth_cloud(depth, intrinsics)}
+            arrays = {"points": depth_cloud(depth, intrinsics), "shape": depth.shape, "pixel": depth_pixels(depth)}
             points_frame = points_frame or ("camera" if camera_poses is not None else None)
     else:
         raise CloudError("cloud", f"unsupported cloud file type {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")
@@ -121,7 +128,17 @@ def read_input(path: str | Path, viewpoints: NDArray[np.floating] | None = None,
     vps = arrays.get("viewpoints")
     return cloud_input(arrays["points"], None if vps is None else np.asarray(vps, np.float32).reshape(-1, 3),
                        arrays.get("camera_source"), arrays.get("normals"), camera_poses=arrays.get("camera_poses"),
-                       points_frame=points_frame)
+                       points_frame=points_frame, shape=_shape(arrays.get("shape")), pixel=arrays.get("pixel"))
+
+
+def _shape(shape: Any) -> tuple[int, int] | None:
+    """An organised cloud's (height, width) as two ints (an .npz member is an array), None when not given."""
+    if shape is None:
+        return None
+    values = np.asarray(shape).reshape(-1)
+    if len(values) != 2 or not np.all(values == np.round(values)):
+        raise CloudError("cloud.shape", f"[height, width] expected, got {values.tolist()}")
+    return int(values[0]), int(values[1])
 
 
 def read_cloud(path: str | Path, viewpoints: NDArray[np.floating] | None = None) -> ViewpointCloud:
@@ -131,7 +148,8 @@ def read_cloud(path: str | Path, viewpoints: NDArray[np.floating] | None = None)
 
 
 def save_npz(path: str | Path, cloud: ViewpointCloud) -> None:
-    """Write a cloud as .npz (points, viewpoints, camera_source, optional normals)."""
+    """Write a cloud as .npz (points, viewpoints, camera_source, optional normals; not the grid, whose shape
+    counts the dropped pixels too)."""
     arrays = {"points": cloud.points, "viewpoints": cloud.viewpoints, "camera_source": cloud.camera_source}
     if cloud.normals is not None:
         arrays["normals"] = cloud.normals

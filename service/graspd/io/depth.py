@@ -86,3 +86,9 @@ def depth_points(depth: NDArray[np.floating], intrinsics: Intrinsics) -> NDArray
         raise CloudError("body", "the depth image has no pixel with depth (all 0)")
     points = backproject(z, intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy)
     return points[has_depth]
+
+
+def depth_pixels(depth: NDArray[np.floating]) -> NDArray[np.int64]:
+    """The row-major pixel index of each point depth_points gives (the pixels with depth, in its order): with the
+    image's (H, W), the grid of the organised cloud (graspd.core.cloud.CloudGrid)."""
+    return np.flatnonzero(np.asarray(depth).reshape(-1) != 0)

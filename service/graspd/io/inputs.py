@@ -121,12 +121,14 @@ def apply_frames(cloud: ViewpointCloud, camera_poses: NDArray[np.float64] | None
 
 def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_source: ArrayLike | None = None,
                 normals: ArrayLike | None = None, *, camera_poses: object = None, points_frame: str | None = None,
-                field: str = "cloud", shape: tuple[int, int] | None = None) -> CloudInput:
+                field: str = "cloud", shape: tuple[int, int] | None = None,
+                pixel: ArrayLike | None = None) -> CloudInput:
     """The detector's cloud from arrays as a caller has them (CLI, files): non-finite rows dropped and counted,
     then frames applied.  viewpoints (K, 3) are camera positions in the cloud's frame (default the origin);
     camera_poses (see graspd.core.frames.pose_matrices) replace them.  shape (height, width): the points are an
     organised cloud's image rows, row-major, before non-finite rows are dropped (the cloud then carries its
-    grid).  CloudError naming the field at fault."""
+    grid); pixel (N,), with shape: each row's pixel index instead, where rows are only some of the pixels (a depth
+    image's pixels with depth).  CloudError naming the field at fault."""
     pts = np.asarray(points, np.float32)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise CloudError(f"{field}.points", f"must have shape (N, 3), got {pts.shape}")
@@ -147,7 +149,11 @@ def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_s
     check_camera_source(points_frame, 0 if poses is None else len(poses), src is not None, f"{field}.camera_source")
     if src is not None and len(src) != len(pts):
         raise CloudError(f"{field}.camera_source", f"must have one entry per point ({len(pts)}), got {len(src)}")
-    check_shape(shape, len(pts), f"{field}.shape")
+    pix = None if pixel is None else np.asarray(pixel, np.int64).reshape(-1)
+    if pix is None:
+        check_shape(shape, len(pts), f"{field}.shape")
+    elif shape is None or len(pix) != len(pts):
+        raise CloudError(f"{field}.shape", "pixel indices need the image's shape and one index per point")
     received = len(pts)
     keep, dropped = keep_finite(pts, nrm, f"{field}.points")
     if keep is not None:
@@ -158,7 +164,10 @@ def cloud_input(points: ArrayLike, viewpoints: ArrayLike | None = None, camera_s
         vps = np.zeros((len(poses), 3), np.float32)  # placeholders with the right count: apply_frames sets them
     if src is None and len(vps) > 1 and poses is None:
         src = nearest_camera(pts, vps)
-    grid = None if shape is None else CloudGrid.of_rows(shape[0], shape[1], keep)
+    grid = None
+    if shape is not None:
+        grid = (CloudGrid.of_rows(shape[0], shape[1], keep) if pix is None
+                else CloudGrid(shape[0], shape[1], pix if keep is None else pix[keep]))
     cloud = ViewpointCloud(points=pts, viewpoints=vps, camera_source=np.zeros(0, np.int32) if src is None else src,
                            normals=nrm, grid=grid)
     moved, frame = apply_frames(cloud, poses, points_frame)

@@ -49,6 +49,7 @@ NPZ_MEMBERS = (
     NpzMember("camera_source", MAX_POINTS),
     NpzMember("normals", 3 * MAX_POINTS),
     NpzMember("camera_poses", 16 * MAX_VIEWPOINTS, 4, (2, 3), f"(K, 4, 4): at most {MAX_VIEWPOINTS} camera poses"),
+    NpzMember("shape", 2, 2, (1,), "(2,): an organised cloud's [height, width], points being its pixels row-major"),
 )
 NPZ_ARRAYS = tuple(m.name for m in NPZ_MEMBERS)
 

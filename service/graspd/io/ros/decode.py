@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.cloud import CloudError, CloudGrid, ViewpointCloud
 from graspd.core.limits import MAX_NUM_SAMPLES, MAX_POINTS, MAX_TARGET_INDICES
 from graspd.io.inputs import finite_rows
 from graspd.io.ros.types import CLOUD_INDEXED, CLOUD_SAMPLES, CLOUD_SOURCES, POINTCLOUD2, Header
@@ -269,12 +269,16 @@ def _viewpoint_cloud(raw: _RawCloud, camera_source: NDArray[np.int64] | None, vi
             raise RosDecodeError(f"{prefix}camera_source", f"indices must lie in [0, {k - 1}] (one per view point), "
                                                            f"got [{lo}, {hi}]")
         src = camera_source.astype(np.int32)
+    height, width = raw.shape
+    # an organised cloud (height > 1) of one camera keeps its grid: image-neighbour filters and normals use it
+    grid = CloudGrid.of_rows(height, width, keep) if height > 1 and k == 1 else None
     try:
         return ViewpointCloud(
             points=raw.points if keep is None else raw.points[keep],
             viewpoints=view_points.astype(np.float32),
             camera_source=src if keep is None else src[keep],
             normals=raw.normals if raw.normals is None or keep is None else raw.normals[keep],
+            grid=grid,
         )
     except CloudError as exc:  # unreachable after the checks above; kept so nothing escapes unnamed
         raise RosDecodeError(f"{prefix}cloud", str(exc)) from None

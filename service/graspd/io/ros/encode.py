@@ -316,8 +316,12 @@ class _Writer:
         return b"".join(self.chunks)
 
 
-def _write_pointcloud2(w: _Writer, points: ArrayLike, header: Header, normals: ArrayLike | None) -> int:
+def _write_pointcloud2(w: _Writer, points: ArrayLike, header: Header, normals: ArrayLike | None,
+                       shape: tuple[int, int] | None = None) -> int:
     pts = np.asarray(points, np.float32).reshape(-1, 3)
+    height, width = (1, len(pts)) if shape is None else (int(shape[0]), int(shape[1]))
+    if height * width != len(pts):
+        raise ValueError(f"shape {height}x{width} does not hold the {len(pts)} points")
     names = list("xyz")
     cols = [pts]
     if normals is not None:
@@ -326,8 +330,8 @@ def _write_pointcloud2(w: _Writer, points: ArrayLike, header: Header, normals: A
     packed = np.ascontiguousarray(np.concatenate(cols, axis=1), "<f4")
     step = 4 * len(names)
     w.header(header)
-    w.scalar("u4", 1)
-    w.scalar("u4", len(pts))
+    w.scalar("u4", height)
+    w.scalar("u4", width)
     w.scalar("u4", len(names))
     for k, name in enumerate(names):
         w.string(name)
@@ -336,7 +340,7 @@ def _write_pointcloud2(w: _Writer, points: ArrayLike, header: Header, normals: A
         w.scalar("u4", 1)
     w.scalar("u1", 0)  # is_bigendian
     w.scalar("u4", step)
-    w.scalar("u4", step * len(pts))
+    w.scalar("u4", step * width)
     w.scalar("u4", packed.nbytes)
     w.raw(packed.tobytes())
     w.scalar("u1", int(bool(np.isfinite(packed).all())))  # is_dense
@@ -351,11 +355,13 @@ def _write_cloud_sources(w: _Writer, points: ArrayLike, viewpoints: ArrayLike, c
     w.sequence(np.ascontiguousarray(np.asarray(viewpoints, "<f8").reshape(-1, 3)))
 
 
-def encode_pointcloud2(points: ArrayLike, header: Header | None = None, normals: ArrayLike | None = None) -> bytes:
-    """CDR sensor_msgs/PointCloud2, unorganised, float32 x y z (+ normal_x/y/z) of points (N, 3) in
-    header.frame_id (m): what a ROS 2 camera driver publishes."""
+def encode_pointcloud2(points: ArrayLike, header: Header | None = None, normals: ArrayLike | None = None,
+                       shape: tuple[int, int] | None = None) -> bytes:
+    """CDR sensor_msgs/PointCloud2, float32 x y z (+ normal_x/y/z) of points (N, 3) in header.frame_id (m): what
+    a ROS 2 camera driver publishes; unorganised (height 1), or organised with shape (height, width), the points
+    then its pixels row-major (NaN where there is no depth)."""
     w = _Writer()
-    _write_pointcloud2(w, points, header or Header(), normals)
+    _write_pointcloud2(w, points, header or Header(), normals, shape)
     return w.getvalue()
 
 
