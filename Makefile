@@ -3,7 +3,7 @@ VENV := .venv/bin
 PY := $(VENV)/python
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup demo serve test lint typecheck test-slow bench openapi clean
+.PHONY: setup demo serve test lint typecheck docs test-slow bench openapi clean
 
 setup:
 	@bash scripts/setup.sh
@@ -20,7 +20,11 @@ lint: setup
 typecheck: setup
 	$(VENV)/mypy
 
-test: lint typecheck
+# The documentation site (mkdocs.yml, docs/): strict, so a broken link or a missing page fails; offline.
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(VENV)/mkdocs build --strict -d out/site
+
+test: lint typecheck docs
 	$(VENV)/pytest
 
 test-slow: setup
