@@ -17,8 +17,11 @@ REF = "#/components/schemas/"
 
 
 def cell(text: object) -> str:
-    """Text made safe for one Markdown table cell."""
-    return re.sub(r"\s*\n\s*", " ", str(text)).replace("|", "\\|").strip()
+    """Text made safe for one Markdown table cell: one line, pipes escaped, and angle brackets outside code spans
+    shown as text (a description's `<name>.onnx` is not an HTML tag, its `{"preset": string}` no attribute list)."""
+    parts = re.sub(r"\s*\n\s*", " ", str(text)).replace("|", "\\|").strip().split("`")
+    return "`".join(part if i % 2 else part.replace("<", "&lt;").replace(">", "&gt;").replace("{", "&#123;")
+                    for i, part in enumerate(parts))
 
 
 def anchor(name: str) -> str:
@@ -35,7 +38,7 @@ def type_of(schema: dict[str, Any], models: str = "") -> str:
         if key in schema:
             return " or ".join(type_of(s, models) for s in schema[key])
     if "enum" in schema:
-        return " \\| ".join(f"`{json.dumps(v)}`" for v in schema["enum"])
+        return " or ".join(f"`{json.dumps(v)}`" for v in schema["enum"])
     if "const" in schema:
         return f"`{json.dumps(schema['const'])}`"
     kind = schema.get("type", "any")

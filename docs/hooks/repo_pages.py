@@ -75,7 +75,8 @@ def results_index(pages: list[tuple[str, Path]], pictures: list[Path]) -> str:
         name = uri.rsplit("/", 1)[-1]
         title = title_of(path.read_text(encoding="utf-8"), path.stem).replace("|", "\\|")
         lines.append(f"| [{name}]({name}) | {title} |")
-    lines += ["", "## Pictures", "", "A picture written under a results file's name is also drawn at the end of that file's page.", ""]
+    lines += ["", "## Pictures", "",
+              "A picture written under a results file's name is also drawn at the end of that file's page.", ""]
     for path in pictures:
         rel = path.relative_to(ROOT / "bench" / "results").as_posix()
         lines.append(f"- [{rel}]({rel})")
