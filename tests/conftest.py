@@ -1,5 +1,6 @@
 """Shared test setup: paths to the real clouds beside the repository; small rendered scenes of a 5 x 10 x 8 cm
-box on a table seen by one camera from above and aside (grasp templates, the service's template endpoints)."""
+box on a table seen by one camera from above and aside (grasp templates, the service's template endpoints),
+ray cast in numpy (box_scene), so the service's tests need no lab."""
 
 from __future__ import annotations
 
@@ -11,10 +12,9 @@ import httpx
 import numpy as np
 import pytest
 
+from box_scene import pose_from, render_boxes, rot_z, table_box
 from error_text import leaks
 from graspd.core.cloud import ViewpointCloud
-from graspd_lab.world.meshes import pose_from, posed_box, rot_z, table_mesh
-from graspd_lab.world.render import render_cloud
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_DATA = REPO.parent / "shared" / "data" / "real"
@@ -52,8 +52,8 @@ BOX = (0.05, 0.10, 0.08)
 
 def _render(pose: np.ndarray, extents: tuple[float, float, float] = BOX, cameras: np.ndarray = CAMERA,
             noise: float = 0.0, seed: int = 0) -> ViewpointCloud:
-    return render_cloud([table_mesh(), posed_box(extents, pose)], cameras, (0.0, 0.0, 0.04), width=320,
-                        height=240, noise=noise, seed=seed)
+    return render_boxes([table_box(), (extents, pose)], cameras, (0.0, 0.0, 0.04), width=320, height=240,
+                        noise=noise, seed=seed)
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,6 @@
 """Scripted hand poses on the synthetic box scenes of the template tests (tests/conftest.py renders them with
-graspd_lab.world): a top-down and a side grasp on a box, and the angle between two hand orientations.
-Metres, world frame, z up; hand rotation columns [approach, binormal, axis] (DESIGN.md).
+box_scene): a top-down and a side grasp on a box, and the angle between two hand orientations.
+Metres, world frame, z up; hand rotation columns [approach, binormal, axis].
 
 Importable as `fixtures` (pyproject.toml: [tool.pytest.ini_options] pythonpath = ["tests"])."""
 
@@ -16,7 +16,7 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 
-from graspd_lab.world.meshes import pose_from
+from box_scene import pose_from
 
 F64 = NDArray[np.float64]
 
@@ -24,7 +24,7 @@ F64 = NDArray[np.float64]
 def box_top_grasp(box_pose: F64, extents: tuple[float, float, float], hand_depth: float = 0.06,
                   bite: float = 0.02) -> F64:
     """A vertical hand pose on a box (pose 4x4, extents m) closing across its local x side, fingertips
-    bite (m) below the top face; rotation columns [approach, binormal, axis] (DESIGN.md)."""
+    bite (m) below the top face; rotation columns [approach, binormal, axis]."""
     approach = np.array([0.0, 0.0, -1.0])
     binormal = box_pose[:3, :3] @ np.array([1.0, 0.0, 0.0])
     rot = np.column_stack([approach, binormal, np.cross(approach, binormal)])
