@@ -61,6 +61,26 @@ class SimWorld:
                 world._add_static(world._box(list(box.half), list(box.centre), rgba=rgba, yaw=box.yaw), box.name)
         return world
 
+    def replica(self) -> SimWorld:
+        """A second physics client with this world's static boxes (names, poses, extents) and objects (ids, scales,
+        poses, velocities) as they are now: grasps tried in it leave this world, and every later step of it,
+        exactly as they would have been (adding and removing a hand here would not).  Close it after."""
+        client = pb.connect(pb.DIRECT)
+        pb.setGravity(0, 0, -9.81, physicsClientId=client)
+        pb.setTimeStep(TIME_STEP, physicsClientId=client)
+        copy = SimWorld(client=client, tray=self.tray, has_tray=self.has_tray, container=self.container)
+        for name, centre, rot, half in self.static_boxes():
+            yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))  # static boxes turn about z only
+            copy._add_static(copy._box(half.tolist(), centre.tolist(), yaw=yaw), name)
+        for body, object_id in self.objects.items():
+            pos, quat = pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+            new = copy.add_object(object_id, np.asarray(pos), np.asarray(quat), self.scales.get(body, 1.0))
+            # loadURDF places the link frame, the base pose is the inertial frame's: set it as read
+            pb.resetBasePositionAndOrientation(new, pos, quat, physicsClientId=client)
+            linear, angular = pb.getBaseVelocity(body, physicsClientId=self.client)
+            pb.resetBaseVelocity(new, linear, angular, physicsClientId=client)
+        return copy
+
     def _add_static(self, body: int, name: str) -> None:
         self.static_bodies.append(body)
         self.static_names[body] = name

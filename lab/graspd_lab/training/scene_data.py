@@ -15,7 +15,10 @@ Every view is cropped to the benchmark's workspace box and goes through the dete
 (GraspDetector.prepare and search with default DetectionParams): the candidates are exactly those the
 service would score on that cloud.  Each is labelled against the true meshes of the objects, the floor
 and the tray walls (graspd_lab.training.labels with graspable = objects only and the approach path checked):
-positive only if its contacts are antipodal on one object and the hand, on its way in, hits nothing.
+positive only if its contacts are antipodal on one object and the hand, on its way in, hits nothing.  With
+--slip-labels the kept positives are then lifted in physics by the benchmark's hand (graspd_lab.sim.lift, with the
+objects' simulated mass and inertia) and stay positive only if the object does not slip: heavy or long objects
+grasped far from their centre of mass turn or drop out of the fingers.
 
 The output has the single-object dataset's format (graspd_lab.training.dataset: manifest.json, chunks,
 splits/view.json and splits/object.json), so training, evaluation and the benchmarks read both; here a
@@ -29,6 +32,7 @@ than positives, and the highest-scoring ones are what precision at the top depen
   ... --workers 2 --ray              (Ray tasks on this machine; graspd-lab[cluster])
   ... --ray --address auto           (a Ray cluster; --out must be a folder every node sees)
   ... --mix household --household-share 0.5 --sensors mixed   (household models, mixed sensors)
+  ... --slip-labels                  (positives must also hold through a lift in physics)
 
 The chunks depend only on the parameters: one process, a pool or Ray write the same bytes (graspd_lab.cluster).
 """
@@ -39,6 +43,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -117,7 +122,8 @@ class SceneParams:
     hard_negatives_per_view: hands the detector itself rejects (rim and wall pinches, grasps on the support,
     hands in unseen space) added to each view's candidates before the draw.  household_share: the expected share
     of a scene's objects that are household models (true size); sensor_mix: (sensor, weight) each scene's sensor
-    is drawn from ("kinect" is `noise`, the others graspd_lab.world.noise.sensor_noise)."""
+    is drawn from ("kinect" is `noise`, the others graspd_lab.world.noise.sensor_noise).  slip_labels: every kept
+    positive is also lifted in physics (graspd_lab.sim.lift) and is 0 unless it holds the object without slipping."""
 
     seed: int = 0
     scenes: int = 600
@@ -137,6 +143,7 @@ class SceneParams:
     labels: LabelParams = field(default_factory=scene_labels)
     household_share: float = 0.0
     sensor_mix: tuple[tuple[str, float], ...] = SENSOR_MIXES["kinect"]
+    slip_labels: bool = False
 
     def __post_init__(self) -> None:
         if self.scenes < 1 or self.views_per_scene < 1:
@@ -174,8 +181,12 @@ class SceneParams:
         return "test" if u < self.part_fractions[0] else "val" if u < sum(self.part_fractions) else "train"
 
     def to_dict(self) -> dict[str, Any]:
+        """The parameters as JSON-able values; slip_labels only when set, so earlier datasets' params.json still
+        match their parameters (and resume)."""
         d = asdict(self)
         d["hand"] = self.hand.to_dict()
+        if not self.slip_labels:
+            del d["slip_labels"]
         return d
 
 
@@ -205,13 +216,22 @@ def scene_views(kind: str, object_ids: list[int], seed: int, views: int, hand: H
     """Build a scene of the objects (pybullet, settled) and see it `views` times, removing one random object
     between views (never the last).  The benchmark builds the same scenes from held-out objects
     (held_out_ok, evaluation only); training never does."""
-    from graspd_lab.sim.sensing import observe  # noqa: PLC0415 - pybullet is the lab distribution graspd-lab
-    from graspd_lab.sim.world import build_scene  # noqa: PLC0415 - pybullet
+    world = _scene_world(kind, object_ids, seed, hand, held_out_ok)
+    try:
+        return list(_views_of(world, kind, seed, views, noise, sensing_mix))
+    finally:
+        world.close()
+
+
+def _scene_world(kind: str, object_ids: list[int], seed: int, hand: HandGeometry, held_out_ok: bool = False
+                 ) -> Any:
+    """The settled pybullet world (graspd_lab.sim.world.SimWorld) of scene_views; the caller closes it.
+    ValueError for a held-out object or container style (unless held_out_ok) or a scene that cannot be built."""
+    from graspd_lab.sim.world import build_scene  # noqa: PLC0415 - pybullet is the lab distribution graspd-lab
 
     if not held_out_ok:
         for oid in object_ids:
             check_not_held_out(int(oid))
-    rng = np.random.default_rng([seed, 13])
     scene_kind = "pile" if kind == "single" else kind
     container = None
     if kind.startswith("container:"):
@@ -221,35 +241,42 @@ def scene_views(kind: str, object_ids: list[int], seed: int, views: int, hand: H
             raise ValueError(f"container style {style!r} is held out of training (graspd_lab.sim.containers)")
         container = sample_container(style, np.random.default_rng([seed, 22]), "training")
         scene_kind = "container"
-    world = build_scene(scene_kind, len(object_ids), seed, hand, object_ids=tuple(int(i) for i in object_ids),
-                        container=container)
-    out: list[SceneView] = []
-    try:
-        region = world.workspace()
-        for v in range(views):
+    return build_scene(scene_kind, len(object_ids), seed, hand, object_ids=tuple(int(i) for i in object_ids),
+                       container=container)
+
+
+def _views_of(world: Any, kind: str, seed: int, views: int, noise: DepthNoise | SensorNoise,
+              sensing_mix: tuple[tuple[str, float], ...]) -> Iterator[SceneView]:
+    """scene_views' views of an open world, one at a time: the world stays as the view saw it until the next is
+    asked for (a physics labeller lifts grasps in it meanwhile, restoring it)."""
+    from graspd_lab.sim.sensing import observe  # noqa: PLC0415 - pybullet
+
+    rng = np.random.default_rng([seed, 13])
+    region = world.workspace()
+    for v in range(views):
+        if not world.objects:
+            break
+        if v > 0 and len(world.objects) > 1:
+            world.remove_object(int(rng.choice(sorted(world.objects))))
+            world.settle(1.0)
+            world.remove_outside()
             if not world.objects:
                 break
-            if v > 0 and len(world.objects) > 1:
-                world.remove_object(int(rng.choice(sorted(world.objects))))
-                world.settle(1.0)
-                world.remove_outside()
-                if not world.objects:
-                    break
-            sensing = _choice(sensing_mix, rng)
-            cloud = observe(world.client, sensing_cameras(sensing), noise, rng, region)
-            static = world.static_meshes()
-            posed = [m for _, m in world.object_meshes()]
-            graspable = np.r_[np.zeros(len(static), bool), np.ones(len(posed), bool)]
-            out.append(SceneView(cloud=cloud, workspace=region, truth=MeshScene(static + posed), graspable=graspable,
-                                 kind=kind, sensing=sensing, num_objects=len(posed)))
-    finally:
-        world.close()
-    return out
+        sensing = _choice(sensing_mix, rng)
+        cloud = observe(world.client, sensing_cameras(sensing), noise, rng, region)
+        static = world.static_meshes()
+        posed = [m for _, m in world.object_meshes()]
+        graspable = np.r_[np.zeros(len(static), bool), np.ones(len(posed), bool)]
+        yield SceneView(cloud=cloud, workspace=region, truth=MeshScene(static + posed), graspable=graspable,
+                        kind=kind, sensing=sensing, num_objects=len(posed))
 
 
-def _view_rows(view: SceneView, scene_id: int, view_id: int, params: SceneParams, rng: np.random.Generator
-               ) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
-    """Labelled rows of one view (all candidates the detector would score, capped at per_view) and its record."""
+def _view_rows(view: SceneView, scene_id: int, view_id: int, params: SceneParams, rng: np.random.Generator,
+               world: Any = None) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+    """Labelled rows of one view (all candidates the detector would score, capped at per_view) and its record.
+    world: the open pybullet world the view saw (graspd_lab.sim.world.SimWorld); given, the kept positives are
+    lifted in it (graspd_lab.sim.lift.lift_labels) and those that do not hold become 0 (the record counts how
+    they ended: "lifts")."""
     record: dict[str, Any] = {"object_id": scene_id, "view_id": view_id, "sensing": view.sensing,
                               "num_objects": view.num_objects, "num_points": len(view.cloud), "num_candidates": 0,
                               "num_positive": 0, "num_negative": 0, "kept": 0}
@@ -277,9 +304,18 @@ def _view_rows(view: SceneView, scene_id: int, view_id: int, params: SceneParams
     images = encode_images(prep.scene, chosen, params.hand, STORED_REPRESENTATION, region=region.subset(mask))
     record["kept"] = len(keep)
     n = len(keep)
+    labels = lab.grasp[keep].astype(np.uint8)
+    if world is not None:
+        from graspd_lab.sim.lift import lift_labels  # noqa: PLC0415 - pybullet
+
+        positive = np.flatnonzero(labels)
+        with world.replica() as copy:  # the scene's own world goes on to its next view untouched
+            lifted = lift_labels(copy, chosen[positive], params.hand)
+        labels[positive[~lifted.held]] = 0
+        record["lifts"] = lifted.counts()
     rows: dict[str, NDArray[Any]] = {
         "images": images,
-        "labels": lab.grasp[keep].astype(np.uint8),
+        "labels": labels,
         "object_ids": np.full(n, scene_id, np.int32),
         "view_ids": np.full(n, view_id, np.int32),
         "categories": np.full(n, 2, np.uint8),  # "other": scene rows carry no object category
@@ -362,17 +398,23 @@ def _generate_chunk(task: tuple[int, list[dict[str, Any]], SceneParams, str]
     scenes = []
     for spec in specs:
         rng = np.random.default_rng([params.seed, 15, spec["id"]])
+        seed = params.seed * 100_003 + spec["id"]
         try:
-            seen = scene_views(spec["source"], spec["objects"], params.seed * 100_003 + spec["id"],
-                               params.views_per_scene, params.hand, scene_noise(spec, params), params.sensing_mix)
+            world = _scene_world(spec["source"], spec["objects"], seed, params.hand)
         except ValueError as exc:
             scenes.append({**spec, "skipped": str(exc)})
             continue
         scenes.append(spec)
-        for view_id, view in enumerate(seen):
-            rows, record = _view_rows(view, spec["id"], view_id, params, rng)
-            views.append({**record, "sensor": spec.get("sensor", "kinect")})
-            parts.append(rows)
+        try:  # each view is labelled while the world is as it saw it (the lifts need it)
+            seen = _views_of(world, spec["source"], seed, params.views_per_scene, scene_noise(spec, params),
+                             params.sensing_mix)
+            for view_id, view in enumerate(seen):
+                rows, record = _view_rows(view, spec["id"], view_id, params, rng,
+                                          world if params.slip_labels else None)
+                views.append({**record, "sensor": spec.get("sensor", "kinect")})
+                parts.append(rows)
+        finally:
+            world.close()
     arrays = {k: np.concatenate([p[k] for p in [_empty_rows(), *parts]]) for k in CHUNK_KEYS}
     digest = write_npz(Path(out_dir) / name, arrays)
     labels = arrays["labels"]
@@ -481,6 +523,9 @@ def main(argv: list[str] | None = None) -> int:
                     "active stereo and ToF, drawn per scene)")
     ap.add_argument("--hard-negatives", type=int, default=0, metavar="N",
                     help="per view, add up to N hands the detector rejects (rims, walls, support, unseen space)")
+    ap.add_argument("--slip-labels", action="store_true",
+                    help="lift every kept positive in physics (the benchmark's hand) and label it 0 unless the "
+                    "object stays in the fingers, turning at most 15 degrees (graspd_lab.sim.lift)")
     args = ap.parse_args(argv)
     try:
         params = SceneParams(seed=args.seed, scenes=args.scenes, views_per_scene=args.views,
@@ -488,7 +533,7 @@ def main(argv: list[str] | None = None) -> int:
                              per_view=args.per_view, scenes_per_chunk=args.scenes_per_chunk,
                              hand=hand_preset(args.hand), scene_mix=MIXES[args.mix],
                              hard_negatives_per_view=args.hard_negatives, household_share=args.household_share,
-                             sensor_mix=SENSOR_MIXES[args.sensors])
+                             sensor_mix=SENSOR_MIXES[args.sensors], slip_labels=args.slip_labels)
         runner = runner_from_args(args, args.workers, context="spawn")
     except (ValueError, KeyError, RayMissingError) as exc:
         ap.error(str(exc))
