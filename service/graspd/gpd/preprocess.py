@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.grid import clean_normals
 from graspd.core.jit import kernel
 from graspd.core.points import pca_normals, ransac_plane, statistical_inliers, voxel_sums
 
@@ -236,13 +237,33 @@ def orient_toward_cameras(points: NDArray[np.float32], normals: NDArray[np.float
     return out
 
 
+def organised(cloud: ViewpointCloud, kept: Region, p: PreprocessParams) -> tuple[ViewpointCloud, Region]:
+    """An organised cloud's region without its mixed (flying) pixels (graspd.core.grid.veil_points), and with
+    normals from its image neighbours (graspd.core.grid.grid_normals, toward the camera; per point, so voxelize
+    averages them) unless the cloud brought its own or recompute_normals is set; points with no usable image
+    neighbour along a row or a column (isolated pixels) are left out with them.  The bounds stay the region's
+    (a box around what is kept: preprocess asks only whether everything lies in one voxel)."""
+    assert cloud.grid is not None
+    estimate = cloud.normals is None or p.recompute_normals
+    mixed, normals = clean_normals(cloud.points, cloud.camera_source, cloud.viewpoints, cloud.grid,
+                                   p.normal_radius if estimate else None, kept.mask)
+    mask = kept.mask & ~mixed
+    if normals is not None:
+        mask &= np.isfinite(normals[:, 0])
+        cloud = replace(cloud, normals=normals)
+    return cloud, Region(mask, int(np.count_nonzero(mask)), kept.lo, kept.hi)
+
+
 def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) -> ViewpointCloud:
     """Keep the finite points of the region (region_mask: the workspace, else the range window) whose normals, if
     given, are finite too; voxelize, remove outliers, and give every point an oriented normal.  The selection is
     a mask voxelize reads through (region, one pass for the mask and the kept points' bounds): a 5M-point cloud
-    is not copied first."""
+    is not copied first.  An organised cloud (one with a grid) loses its mixed pixels first and takes its normals
+    from the grid (organised)."""
     p = params or PreprocessParams()
     kept = region(cloud, p.workspace, p.range_window, finite_normals=True)
+    if cloud.grid is not None and kept.count:
+        cloud, kept = organised(cloud, kept, p)
     if kept.count == 0:
         return cloud.__class__(points=np.zeros((0, 3), np.float32), viewpoints=cloud.viewpoints,
                                normals=np.zeros((0, 3), np.float32))
@@ -260,7 +281,7 @@ def preprocess(cloud: ViewpointCloud, params: PreprocessParams | None = None) ->
         keep_idx = statistical_inliers(pts, p.outlier_neighbors, p.outlier_std_ratio)
         pts, src = pts[keep_idx], src[keep_idx]
         nrm = None if nrm is None else nrm[keep_idx]
-    if nrm is None or p.recompute_normals:
+    if nrm is None or (p.recompute_normals and cloud.grid is None):
         nrm = estimate_normals(pts, p.normal_radius, p.normal_max_nn) if len(pts) >= 3 else np.zeros_like(pts)
     nrm = orient_toward_cameras(pts, nrm, src, cloud.viewpoints)
     return ViewpointCloud(points=pts, viewpoints=cloud.viewpoints, camera_source=src, normals=nrm)
