@@ -145,10 +145,12 @@ def _usable(rng: NDArray[np.float32], r: float, q: int, p: int, allowed: float) 
 def _normals_pass(ray: NDArray[np.float32], rng: NDArray[np.float32], pitch: float, radius: float, max_step: int,
                   cot: float, v0: int, v1: int, out: NDArray[np.float32]) -> None:
     """out[v, u] for rows v0 <= v < v1 = the unit normal at each pixel toward the camera (against its ray), NaN
-    where it has no usable neighbour along a row or a column (grid_normals).  Each tangent is the difference of
-    the neighbours `step` pixels either side, or of the one usable side and the pixel, or at step 1 when neither
-    side is usable.  A neighbour is across a depth edge (unusable) when its range differs by more than a surface
-    at VEIL_ANGLE_DEG to the ray spans over the step, plus the depth noise (the veil test along the ray)."""
+    where it has no usable neighbour along a row or a column (grid_normals).  Each tangent is the three-point
+    derivative (chord-length weighted) through the pixel and its farthest usable neighbour up to `step` pixels
+    away on either side (step: radius / (pitch * range), 1 to max_step), or the difference with the one side that
+    has one.  A neighbour is across a depth edge (unusable) when its range differs by more than a surface at
+    VEIL_ANGLE_DEG to the ray spans over its distance in pixels, plus the depth noise (the veil test along the
+    ray)."""
     w = rng.shape[1]
     r0 = r1 = r2 = 0.0
     for v in range(v0, v1):
@@ -162,25 +164,33 @@ def _normals_pass(ray: NDArray[np.float32], rng: NDArray[np.float32], pitch: flo
             ok = True
             for axis in range(2):  # 0: along a column (rows), 1: along a row (columns)
                 dv, du = (1, 0) if axis == 0 else (0, 1)
-                step = first
-                while True:
-                    allowed = step * span * cot + noise
-                    qf, pf, qb, pb = v + step * dv, u + step * du, v - step * dv, u - step * du
-                    f = _usable(rng, r, qf, pf, allowed)
-                    b = _usable(rng, r, qb, pb, allowed)
-                    if f or b or step == 1:
-                        break
-                    step = 1  # near a hole or an edge: the next pixels
-                if not (f or b):
+                # each side's farthest usable neighbour up to `first` pixels away: near a hole or an edge the
+                # side that reaches it comes closer, and the three-point derivative allows unequal sides
+                sf = first
+                while sf > 0 and not _usable(rng, r, v + sf * dv, u + sf * du, sf * span * cot + noise):
+                    sf -= 1
+                sb = first
+                while sb > 0 and not _usable(rng, r, v - sb * dv, u - sb * du, sb * span * cot + noise):
+                    sb -= 1
+                if sf == 0 and sb == 0:
                     ok = False
                     break
-                if not f:
-                    qf, pf = v, u
-                if not b:
-                    qb, pb = v, u
-                t0 = np.float64(ray[qf, pf, 0]) - np.float64(ray[qb, pb, 0])
-                t1 = np.float64(ray[qf, pf, 1]) - np.float64(ray[qb, pb, 1])
-                t2 = np.float64(ray[qf, pf, 2]) - np.float64(ray[qb, pb, 2])
+                qf, pf, qb, pb = v + sf * dv, u + sf * du, v - sb * dv, u - sb * du
+                c0, c1, c2 = np.float64(ray[v, u, 0]), np.float64(ray[v, u, 1]), np.float64(ray[v, u, 2])
+                f0, f1, f2 = np.float64(ray[qf, pf, 0]) - c0, np.float64(ray[qf, pf, 1]) - c1, \
+                    np.float64(ray[qf, pf, 2]) - c2
+                b0, b1, b2 = c0 - np.float64(ray[qb, pb, 0]), c1 - np.float64(ray[qb, pb, 1]), \
+                    c2 - np.float64(ray[qb, pb, 2])
+                lf = np.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+                lb = np.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+                if lf > 0.0 and lb > 0.0:
+                    # the derivative of the parabola through the three points, parametrised by chord length:
+                    # exact to first order on a curved surface however unequal the two sides' spans (a central
+                    # difference tilts toward the longer side's curvature)
+                    wf, wb = lb / lf, lf / lb
+                else:
+                    wf, wb = 1.0, 1.0
+                t0, t1, t2 = wf * f0 + wb * b0, wf * f1 + wb * b1, wf * f2 + wb * b2
                 if axis == 0:
                     r0, r1, r2 = t0, t1, t2
             if not ok:
