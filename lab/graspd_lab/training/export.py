@@ -7,6 +7,7 @@ input.offset, to "score" (batch,) = P(grasp) in [0, 1]; graspd.gpd.classifier lo
 from __future__ import annotations
 
 import json
+import re
 import warnings
 from pathlib import Path
 from typing import Any
@@ -78,11 +79,28 @@ def save_weights(net: nn.Module, path: str | Path, architecture: str, channels: 
     return path
 
 
-def write_card(path: str | Path, card: dict[str, Any]) -> Path:
-    """Write a model card as indented JSON, with no directory of this machine in it (card_without_paths): the
-    card ships with the model and is shown by GET /models."""
+def paths_relative_to(value: Any, root: Path) -> Any:
+    """value (a model card, or any part of one) with every absolute path under root written relative to it (root
+    itself as "."): a dataset given as /checkout/data/generated/gpd15 is recorded as data/generated/gpd15."""
+    if isinstance(value, str):
+        prefix = re.escape(str(root).rstrip("/"))
+        inside = rf"(?<![\w.~/:]){prefix}/(?=[\w.+\-@%])"  # a path below root: drop root and its slash
+        itself = rf"(?<![\w.~/:]){prefix}/?(?![\w.+\-@%/])"  # root itself
+        return re.sub(itself, ".", re.sub(inside, "", value))
+    if isinstance(value, dict):
+        return {k: paths_relative_to(v, root) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [paths_relative_to(v, root) for v in value]
+    return value
+
+
+def write_card(path: str | Path, card: dict[str, Any], root: str | Path | None = None) -> Path:
+    """Write a model card as indented JSON with no directory of this machine in it: paths under root (default:
+    the working directory, where `graspd train` runs, the repository's root) relative to it, any other absolute
+    path cut to its last part (card_without_paths).  The card ships with the model and is shown by GET /models."""
     path = Path(path)
-    path.write_text(json.dumps(card_without_paths(card), indent=2, sort_keys=False) + "\n")
+    relative = paths_relative_to(card, Path(root if root is not None else Path.cwd()).resolve())
+    path.write_text(json.dumps(card_without_paths(relative), indent=2, sort_keys=False) + "\n")
     return path
 
 
