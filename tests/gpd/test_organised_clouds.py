@@ -6,6 +6,7 @@ Scenes are depth images ray-cast with numpy (boxes, a plane, a cylinder) and rea
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -50,7 +51,7 @@ def pixel_rays(pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pose[:3, 3], d @ pose[:3, :3].T
 
 
-def render_boxes(pose: np.ndarray, boxes: list[tuple[tuple[float, ...], tuple[float, ...]]],
+def render_boxes(pose: np.ndarray, boxes: Sequence[tuple[tuple[float, float, float], tuple[float, float, float]]],
                  table: float = 0.3) -> np.ndarray:
     """The depth image (H, W; m, 0 where nothing is hit) of boxes on a table square of half-side `table` (m) at
     z = 0, ray-cast (slab test for the boxes)."""
@@ -220,7 +221,7 @@ def test_organised_input_takes_its_normals_from_the_grid(
                            kept)
     kept &= np.isfinite(normals[:, 0])
     pts, src, nrm = voxelize(cloud.points[kept], cloud.camera_source[kept], params.voxel_size, normals[kept])
-    assert nrm is not None
+    assert nrm is not None and got.normals is not None
     assert np.array_equal(got.points, pts)
     assert np.allclose(got.normals, orient_toward_cameras(pts, nrm, src, cloud.viewpoints), atol=1e-6)
     flat = preprocess(replace(cloud, grid=None), params)
