@@ -38,3 +38,7 @@ openapi: setup
 
 clean:
 	rm -rf out .pytest_cache .mypy_cache .ruff_cache
+
+.PHONY: image
+image:  # the container image (podman or docker; scripts/image.sh prepares podman where no registry is reachable)
+	bash scripts/image.sh $${IMAGE:-graspd:latest}

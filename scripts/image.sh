@@ -80,6 +80,15 @@ command -v runc >/dev/null && runtime=(--runtime runc)
 # in no layer, but their empty mount points are, so the final stage is built without them, from the cached build
 # stage (mounts are not part of a layer's cache key).
 build=(podman "${runtime[@]}" build --network=host --format docker)
+if [[ -z "${CONTEXT:-}" ]] && git -C "$ROOT" rev-parse --git-dir >/dev/null 2>&1; then
+    # one snapshot of the checkout (tracked files and untracked ones git does not ignore, as they are now), so that
+    # both builds below see the same files however the checkout changes meanwhile
+    CONTEXT="$(mktemp -d)"
+    cleanup+=("$CONTEXT")
+    git -C "$ROOT" ls-files -z --cached --others --exclude-standard \
+        | tar -C "$ROOT" --null --no-recursion --ignore-failed-read -T - -cf - 2>/dev/null \
+        | tar -C "$CONTEXT" -xf -
+fi
 if [[ -n "${PIP_CERT:-}" && -f "$PIP_CERT" ]]; then
     pipconf="$(mktemp)"
     cleanup+=("$pipconf")
