@@ -124,7 +124,7 @@ class Gripper:
         self._set_fingers(2 * self.travel, self.params.finger_force)
 
     def remove(self) -> None:
-        """Take the hand out of the world (its body and arm constraint): the world is as it was before it."""
+        """Take the hand out of the world (its body and arm constraint); the objects stay as they are."""
         pb.removeConstraint(self.constraint, physicsClientId=self.world.client)
         pb.removeBody(self.body, physicsClientId=self.world.client)
 
