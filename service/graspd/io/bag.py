@@ -1,15 +1,16 @@
 """ROS bags as clouds, with no ROS install (rosbags, pure Python): rosbag2 (an MCAP file, a sqlite3 .db3 file, or
 a bag directory with its metadata.yaml) and ROS 1 .bag.  A topic's sensor_msgs/PointCloud2, or its depth
 sensor_msgs/Image with the CameraInfo of its camera, one message (index) or every Nth (every); the bag's
-/tf_static composed along the whole chain from the cloud's frame_id to the root of its tree (or to a named
-frame) gives the camera's pose.
+/tf_static and /tf composed along the whole chain from the cloud's frame_id to the root of its tree (or to a
+named frame) at the message's stamp gives the camera's pose (graspd.io.tf_tree: /tf transforms interpolated
+between the two that bracket the stamp, else the nearest within 0.1 s).
 
 The raw message bytes are decoded by graspd's own bounded readers (graspd.io.ros.decode, graspd.io.ros.sensors);
 a ROS 1 message is made CDR first (rosbags' ros1_to_cdr).  Every chunk is decompressed under a bound
 (graspd.io.bag_limits); an upload is read from memory under a total.  A bag that cannot be read, or a topic,
 index or frame that is not in it, is a CloudError naming the field (body, topic, info_topic, index, frame).
-Points are in metres; with a pose from /tf_static, the points are in the camera's frame (frame_id) and the pose
-is the camera-to-robot transform, the robot frame being the root (or the named frame)."""
+Points are in metres; with a pose from the transforms, the points are in the camera's frame (frame_id) and the
+pose is the camera-to-robot transform, the robot frame being the root (or the named frame)."""
 
 from __future__ import annotations
 
@@ -47,11 +48,15 @@ MAX_UPLOAD_INFLATE = 256 << 20
 MAX_METADATA_BYTES = 1 << 20
 #: Most /tf_static messages read (each holds up to 10,000 transforms; a bag has one per broadcaster).
 MAX_TF_MESSAGES = 1000
+#: Most /tf messages read (a broadcaster at 100 Hz for 10 minutes): all of them, before the first cloud, since a
+#: message's stamp may lie anywhere in the bag's time.
+MAX_TF_DYNAMIC_MESSAGES = 60_000
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 IMAGE = "sensor_msgs/msg/Image"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 TF_STATIC = "/tf_static"
+TF = "/tf"
 
 
 @dataclass(frozen=True)
@@ -59,8 +64,8 @@ class BagQuery:
     """What to read of a bag: topic (None: the bag's only PointCloud2 topic, else its only depth Image topic);
     info_topic of a depth image (None: the sibling camera_info of its topic); index: the message (0-based, among
     the topic's messages in time order); every: each every-th message from index on instead of one; frame: the
-    frame the camera pose is given in (None: the root of the cloud's /tf_static tree); depth_scale: metres per
-    unit of a 16UC1 depth image."""
+    frame the camera pose is given in (None: the root of the cloud's /tf_static and /tf tree); depth_scale:
+    metres per unit of a 16UC1 depth image."""
 
     topic: str | None = None
     info_topic: str | None = None
@@ -235,19 +240,29 @@ def _messages(reader: Any, topic: str, topics_conns: list[Connection]) -> Iterat
 
 
 def _tf_tree(reader: Any, conns: list[Connection], ros1: bool) -> TfTree:
-    """The bag's /tf_static transforms (empty when it has none)."""
+    """The bag's /tf_static transforms and its /tf ones with their stamps (empty when it has neither)."""
     tree = TfTree()
-    if _topics(conns).get(TF_STATIC) != TF_MESSAGE:
-        return tree
-    for k, raw in enumerate(_messages(reader, TF_STATIC, conns)):
-        if k >= MAX_TF_MESSAGES:
-            raise CloudError("frame", f"the bag has more than {MAX_TF_MESSAGES} {TF_STATIC} messages")
-        try:
-            for t in decode_tf_message(_cdr(raw, TF_MESSAGE, ros1, "frame")):
-                tree.add(t.parent, t.child, t.matrix, "frame")
-        except RosDecodeError as exc:
-            raise CloudError("frame", f"a {TF_STATIC} message is unreadable ({exc})") from None
+    topics = _topics(conns)
+    for topic, cap in ((TF_STATIC, MAX_TF_MESSAGES), (TF, MAX_TF_DYNAMIC_MESSAGES)):
+        if topics.get(topic) != TF_MESSAGE:
+            continue
+        for k, raw in enumerate(_messages(reader, topic, conns)):
+            if k >= cap:
+                raise CloudError("frame", f"the bag has more than {cap} {topic} messages")
+            try:
+                for t in decode_tf_message(_cdr(raw, TF_MESSAGE, ros1, "frame")):
+                    if topic == TF_STATIC:
+                        tree.add(t.parent, t.child, t.matrix, "frame")
+                    else:
+                        tree.add_dynamic(t.parent, t.child, _nanoseconds(t.stamp), t.matrix, "frame")
+            except RosDecodeError as exc:
+                raise CloudError("frame", f"a {topic} message is unreadable ({exc})") from None
     return tree
+
+
+def _nanoseconds(stamp: tuple[int, int]) -> int:
+    """A ROS stamp (sec, nanosec) in ns."""
+    return int(stamp[0]) * 1_000_000_000 + int(stamp[1])
 
 
 def _camera_info(reader: Any, topic: str, conns: list[Connection], ros1: bool) -> CameraInfo:
@@ -322,7 +337,7 @@ def _read_open(reader: Any, conns: list[Connection], ros1: bool, query: BagQuery
         info = _camera_info(reader, _info_topic(query, topic, topics), conns, ros1)
     tree = _tf_tree(reader, conns, ros1)
     if query.frame is not None and query.frame.lstrip("/") not in tree:
-        raise CloudError("frame", f"frame {query.frame!r} is not in the bag's {TF_STATIC} "
+        raise CloudError("frame", f"frame {query.frame!r} is not in the bag's {TF_STATIC} or {TF} "
                          f"({sorted(tree.frames())[:20] or 'none'})")
     found = 0
     for index, raw in enumerate(_messages(reader, topic, conns)):
@@ -338,13 +353,15 @@ def _read_open(reader: Any, conns: list[Connection], ros1: bool, query: BagQuery
 
 
 def _posed(cloud: BagCloud, tree: TfTree, frame: str | None) -> BagCloud:
-    """The cloud with its camera pose from the /tf_static tree (unchanged when its frame is not in the tree and
-    no frame was asked for)."""
+    """The cloud with its camera pose from the /tf_static and /tf tree at the message's stamp (unchanged when its
+    frame is not in the tree and no frame was asked for)."""
     if cloud.frame_id not in tree:
         if frame is not None:
-            raise CloudError("frame", f"the cloud's frame {cloud.frame_id!r} is not in the bag's {TF_STATIC}")
+            raise CloudError("frame", f"the cloud's frame {cloud.frame_id!r} is not in the bag's {TF_STATIC} "
+                             f"or {TF}")
         return cloud
-    pose, target = tree.pose(cloud.frame_id, None if frame is None else frame.lstrip("/"))
+    pose, target = tree.pose(cloud.frame_id, None if frame is None else frame.lstrip("/"), "frame",
+                             _nanoseconds(cloud.stamp))
     if target == cloud.frame_id:
         return cloud
     return replace(cloud, camera_pose=pose, pose_frame=target)

@@ -51,11 +51,13 @@ class CameraInfo:
 
 @dataclass(frozen=True)
 class Transform:
-    """One static transform: the pose (4,4) of child_frame in parent_frame (p_parent = T p_child; m)."""
+    """One transform: the pose (4,4) of child_frame in parent_frame (p_parent = T p_child; m) at stamp (sec,
+    nanosec: its header's)."""
 
     parent: str
     child: str
     matrix: NDArray[np.float64]
+    stamp: tuple[int, int] = (0, 0)
 
 
 def decode_depth_image(payload: bytes | bytearray | memoryview, depth_scale: float = 0.001,
@@ -124,5 +126,5 @@ def decode_tf_message(payload: bytes | bytearray | memoryview) -> list[Transform
         matrix = np.eye(4)
         matrix[:3, :3] = _quaternion_matrix(*values[3:].tolist())
         matrix[:3, 3] = values[:3]
-        out.append(Transform(header.frame_id.lstrip("/"), child.lstrip("/"), matrix))
+        out.append(Transform(header.frame_id.lstrip("/"), child.lstrip("/"), matrix, header.stamp))
     return out
