@@ -348,8 +348,8 @@ def _write_pointcloud2(w: _Writer, points: ArrayLike, header: Header, normals: A
 
 
 def _write_cloud_sources(w: _Writer, points: ArrayLike, viewpoints: ArrayLike, camera_source: ArrayLike | None,
-                         header: Header, normals: ArrayLike | None) -> None:
-    n = _write_pointcloud2(w, points, header, normals)
+                         header: Header, normals: ArrayLike | None, shape: tuple[int, int] | None = None) -> None:
+    n = _write_pointcloud2(w, points, header, normals, shape)
     src = np.zeros(n, "<i8") if camera_source is None else np.asarray(camera_source, "<i8").reshape(-1)
     w.sequence(np.ascontiguousarray(src))
     w.sequence(np.ascontiguousarray(np.asarray(viewpoints, "<f8").reshape(-1, 3)))
@@ -366,11 +366,13 @@ def encode_pointcloud2(points: ArrayLike, header: Header | None = None, normals:
 
 
 def encode_cloud_sources(points: ArrayLike, viewpoints: ArrayLike, camera_source: ArrayLike | None = None,
-                         header: Header | None = None, normals: ArrayLike | None = None) -> bytes:
+                         header: Header | None = None, normals: ArrayLike | None = None,
+                         shape: tuple[int, int] | None = None) -> bytes:
     """CDR gpd_ros/CloudSources: points (N, 3), per point the index into viewpoints (K, 3, camera positions) of
-    the camera that saw it (default all 0), all in header.frame_id (m)."""
+    the camera that saw it (default all 0), all in header.frame_id (m); the cloud organised with shape (height,
+    width) as encode_pointcloud2's."""
     w = _Writer()
-    _write_cloud_sources(w, points, viewpoints, camera_source, header or Header(), normals)
+    _write_cloud_sources(w, points, viewpoints, camera_source, header or Header(), normals, shape)
     return w.getvalue()
 
 
