@@ -8,7 +8,7 @@ Writes OUT/classifier.md (tables) and PNG precision-recall curves:
 
   PYTHONPATH=service .venv/bin/python bench/classifier.py --dataset DATA --models-dir models --out models/evaluation
 
-Issue 13 adds the top of the ranking on cluttered scenes (graspd_lab.training.scene_eval), measured against the
+With --scenes it adds the top of the ranking on cluttered scenes (graspd_lab.training.scene_eval), measured against the
 true meshes: precision@1/5/10 per scene of the service's answer (defaults, the model under test) and of the
 classifier's own score ranking, on scenes of objects no training scene holds, and a reliability diagram with
 the expected calibration error of the scores on those scenes' candidates:
@@ -46,6 +46,16 @@ from graspd_lab.training.rows import load_rows  # noqa: E402
 REPRESENTATIONS = ("15", "12", "3", "herzog")
 CATEGORY_MODELS = {"box": "box15", "cylinder": "cylinder15"}
 SPEED_MODELS = ("lenet15", "generic15")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def shown_path(path: Path) -> str:
+    """A dataset path as the results file records it: relative to the repository when it lies inside it, else its
+    last two parts (never a machine's absolute path in a committed file)."""
+    resolved = path.resolve()
+    if resolved.is_relative_to(ROOT):
+        return resolved.relative_to(ROOT).as_posix()
+    return Path(*resolved.parts[-2:]).as_posix() if len(resolved.parts) > 2 else resolved.name
 
 
 class Evaluator:
@@ -119,8 +129,8 @@ def plot_reliability(curves: list[tuple[str, NDArray[np.float64], NDArray[np.boo
 
 def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str, out: Path, threads: int
                   ) -> tuple[list[str], dict[str, float]]:
-    """The issue-13 tables: precision@k on evaluation scenes for each model, and their reliability diagram.
-    A name FIRST+FULL is the cascade (issue 15): FIRST scores every candidate, FULL the kept ones."""
+    """The scene tables: precision@k on evaluation scenes for each model, and their reliability diagram.
+    A name FIRST+FULL is the two-model cascade: FIRST scores every candidate, FULL the kept ones."""
     from graspd_lab.training.scene_eval import SceneEvalParams, evaluate_scenes, evaluation_views  # noqa: PLC0415
 
     t0 = time.perf_counter()
@@ -168,7 +178,7 @@ def scene_section(models: list[str], models_dir: Path, scenes: int, objects: str
 def scene_data_main(args: argparse.Namespace, ev: Evaluator) -> int:
     """Tables for a scene dataset: every --scene-models model on the view and object splits' test parts
     (accuracy, RA99P, AP, ECE, precision-recall curves), then the scene precision@k section if --scenes."""
-    lines = [f"# Grasp classifier evaluation on scene data\n\nDataset: `{args.dataset}` "
+    lines = [f"# Grasp classifier evaluation on scene data\n\nDataset: `{shown_path(args.dataset)}` "
              "(graspd_lab.training.scene_data); "
              "test parts of its splits: view = new scenes and views of training objects, object = scenes of objects "
              "no training scene holds.  RA99P = recall at 99% precision; ECE = expected calibration error "
@@ -240,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     shipped = set(available_models(args.models_dir))
     found: dict[str, float] = {}
     held = set(available_models(comparison))
-    lines = [f"# Grasp classifier evaluation\n\nDataset: `{args.dataset}`; test parts of its splits. "
+    lines = [f"# Grasp classifier evaluation\n\nDataset: `{shown_path(args.dataset)}`; test parts of its splits. "
              "RA99P = recall at 99% precision.\n"]
 
     lines += ["## Figure 8: representations\n", "| representation | split | model | test exemplars | accuracy | "
@@ -300,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
                ("generic15 view-split RA99P", "generic15 ra99p", ">=", 0.89),
                ("15-channel object-split RA99P (rep15-object)", "rep15-object ra99p", ">=", 0.60),
                ("generic15: s per 1k candidates, 2 threads", "generic15 s", "<=", 0.30)]
-    lines += ["## Targets (issue 3)\n", "| target | measured | goal | met |", "|---|---:|---:|---|"]
+    lines += ["## Targets\n", "| target | measured | goal | met |", "|---|---:|---:|---|"]
     for label, key, op, goal in targets:
         if key in found:
             v = found[key]

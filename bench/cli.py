@@ -1,8 +1,8 @@
 """Start-up time of the graspd command line: `graspd --help`, `graspd --version` and, for scale, a bare Python
 and `graspd detect --help` (which imports nothing more either).  Each command runs N times in a fresh process;
-the table gives the median, the fastest and the slowest wall time (s).  Issue 27 asks `graspd --help` to answer
-in at most 1 s on 2 cores.  With --detect CLOUD it also times a whole `graspd detect CLOUD` (reading the file,
-loading the models, the detection with the CLI's defaults, writing the JSON), which issue 26 asks to take at most
+the table gives the median, the fastest and the slowest wall time (s).  The target: `graspd --help` answers in
+at most 1 s on 2 cores.  With --detect CLOUD it also times a whole `graspd detect CLOUD` (reading the file,
+loading the models, the detection with the CLI's defaults, writing the JSON), whose target is at most
 1.5 s for table_mug.pcd.
 
     python bench/cli.py [--runs 15] [--graspd .venv/bin/graspd] [--detect ../shared/data/real/table_mug.pcd]
@@ -20,9 +20,9 @@ import tempfile
 import time
 from pathlib import Path
 
-#: The target of issue 27 for `graspd --help` (s, median).
+#: The target for `graspd --help` (s, median).
 HELP_BUDGET_S = 1.0
-#: The target of issue 26 for a whole `graspd detect table_mug.pcd` (s, median).
+#: The target for a whole `graspd detect table_mug.pcd` (s, median).
 DETECT_BUDGET_S = 1.5
 
 

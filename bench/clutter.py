@@ -77,7 +77,7 @@ SCENES: dict[str, Setting] = {
 }
 DEFAULT_SETTINGS = ("baseline@pour-passive", "baseline@pour-active", "baseline@pile-side",
                     "gpd-noclass@pour-passive", "gpd-noclass@pour-active", "gpd-noclass@pile-side")
-#: (success, cleared) targets of issue 10 (service defaults, no benchmark-side filters).
+#: (success, cleared) targets of what a robot gets by default (service defaults, no benchmark-side filters).
 TARGETS = {"pour-passive": (0.90, 0.85), "pour-active": (0.90, 0.85), "pile-side": (0.90, 0.95)}
 
 
@@ -235,13 +235,13 @@ def markdown(summaries: dict[str, Summary], meta: dict[str, Any]) -> str:
         lines += ["| Top-5 failures (first detection) | " + " | ".join(
             ", ".join(f"{k} {v}" for k, v in precision[n]["top5"].items() if k != "ok") + f", no grasp "
             f"{precision[n]['no_grasp']}" if n in precision else "" for n in names) + " |"]
-    lines += ["", "Targets (issue 10, service defaults): piles success >= 90% and cleared >= 95%; trays of 10"
+    lines += ["", "Targets (service defaults): piles success >= 90% and cleared >= 95%; trays of 10"
               " success >= 90% and cleared >= 85%.  CIs: percentile bootstrap over rounds."]
     return "\n".join(lines) + "\n"
 
 
 def bar_chart(summaries: dict[str, Summary], path: Path, title: str) -> None:
-    """Grasp success and objects removed per setting with 95% intervals and the issue's targets."""
+    """Grasp success and objects removed per setting with 95% intervals and the targets."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")

@@ -1,4 +1,4 @@
-"""Containers benchmark (issue 22): the clutter protocol and precision@1/5 on the container family's held-out
+"""Containers benchmark: the clutter protocol and precision@1/5 on the container family's held-out
 styles, graspd beside the top-down baseline, one table per style and a headline over held-out styles only.
 
 Scenes: graspd_lab.sim.containers (the split is written down there, once): each round's container is drawn
@@ -98,7 +98,7 @@ TOP_K = 5
 #: How deep (m) the open hand may enter a static body before the check calls it a touch: the labels'
 #: approach tolerance (a hand placed against a noisy cloud stops a little short).
 ENTER_TOLERANCE = 0.002
-#: Issue 22's targets on held-out styles (service defaults, 30 rounds): success, cleared, P@1, P@5.
+#: The targets on held-out styles (service defaults, 30 rounds): success, cleared, P@1, P@5.
 TARGETS = {"success": 0.90, "cleared": 0.85, "p@1": 0.90, "p@5": 0.85}
 REASONS = ("ok", "environment", "collision", "no pinch")
 
@@ -208,7 +208,7 @@ def table(rows: dict[str, tuple[Summary, dict[str, Any]]]) -> list[str]:
 def markdown(per_style: dict[str, dict[str, tuple[Summary, dict[str, Any]]]],
              headline: dict[str, tuple[Summary, dict[str, Any]]], meta: dict[str, Any]) -> str:
     lines = [
-        "# Containers benchmark (issue 22): clutter protocol and precision@k per container style", "",
+        "# Containers benchmark: clutter protocol and precision@k per container style", "",
         f"- command: `{meta['command']}`",
         f"- commit: `{meta['commit']}`, date: {meta['date']}, {meta['cpus']} CPUs, jobs: {meta['jobs']}",
         f"- gpd: {meta['gpd']}; models: " + (", ".join(f"{k}: {v}" for k, v in meta["models"].items() if v)
@@ -225,7 +225,7 @@ def markdown(per_style: dict[str, dict[str, tuple[Summary, dict[str, Any]]]],
     if headline:
         lines += [f"## Headline: held-out styles only ({', '.join(meta['headline_styles'])})", ""]
         lines += table(headline)
-        lines += ["", "Targets (issue 22, service defaults, 30 rounds): success >= 90%, cleared >= 85%, P@1 >= 90%, "
+        lines += ["", "Targets (service defaults, 30 rounds): success >= 90%, cleared >= 85%, P@1 >= 90%, "
                   "P@5 >= 85%.", ""]
     else:
         lines += ["## Headline: none (no held-out style in this run)", ""]

@@ -1,9 +1,9 @@
-"""What the container-aware environment stage and the unseen-space check add to a request (issue 22).
+"""What the container-aware environment stage and the unseen-space check add to a request.
 
 On a 66k-point request (the load benchmark's rendered cluttered tabletop, two cameras, depth noise) and on a
 container scene of the simulator (a tray with its floor raised, walls, table around it), after the detector's
 own preprocessing, this times:
-- the environment stage before issue 22 (model_environment of a baseline commit, read from git) and now;
+- the environment stage before it knew containers (model_environment of a baseline commit, read from git) and now;
 - the unseen-space check: building the unobserved volume (which the 15-channel images needed before, so only
   its move is new) and looking up every candidate's hand samples in it;
 and prints a table in milliseconds (median of --repeats runs) with the added time against the 60 ms target.
@@ -112,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--points", type=int, default=66_000)
-    ap.add_argument("--baseline", default="4941f4d", help="commit of the environment stage before issue 22")
+    ap.add_argument("--baseline", default="4941f4d", help="commit of the environment stage before it knew containers")
     ap.add_argument("--no-containers", action="store_true", help="skip the simulator's container scene")
     args = ap.parse_args(argv)
     old = baseline_environment(args.baseline)

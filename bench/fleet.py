@@ -1,4 +1,4 @@
-"""Fleet benchmark (issue 26, part 4): graspd servers behind HAProxy with the shipped examples/fleet/haproxy.cfg.
+"""Fleet benchmark: graspd servers behind HAProxy with the shipped examples/fleet/haproxy.cfg.
 
 Measures POST /detect requests per second with 1, 2 and 3 servers behind HAProxy (and one server without it, the
 proxy's cost), all on this machine, in rounds that take the setups in turn (the same server processes serve

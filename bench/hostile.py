@@ -1,12 +1,12 @@
 """Hostile-input bench: start the real service (uvicorn in a subprocess on a free port, a token set, Zenoh on
 loopback, a template library that cannot be reached) and attack it.
 
-Issue 11 (small malicious requests, each under 1 MB): PCD headers that lie, huge POINTS, LZF bombs, PLY list bombs,
+Small malicious requests (each under 1 MB): PCD headers that lie, huge POINTS, LZF bombs, PLY list bombs,
 huge PNGs, deep JSON.  A table of each request's status and the server's peak RSS increase while it was handled
 (psutil, sampled every 2 ms), and /healthz latency p50/p99/max while 8 copies of a request are in flight.  Targets:
 no request under 1 MB raises RSS by more than 100 MB, /healthz p99 under 100 ms with 8 malicious requests in flight.
 
-Issue 23 (bounded memory, slow clients, nothing readable without the token, errors that give nothing away): the
+Bounded memory, slow clients, nothing readable without the token, errors that give nothing away: the
 lying 204-byte mesh, 12 parallel uploads of large meshes, 300 slow-header connections, 40 slow uploads, 8 clients
 sending 5M-point clouds, the memory budget over HTTP and Zenoh, anonymous reads of every guarded route and of the
 Zenoh admin space, an unreachable database, a bounded schemathesis run; then every answer and log line is grepped
@@ -469,8 +469,9 @@ def secrets_found(texts: list[str], secrets: dict[str, str]) -> dict[str, int]:
     return {name: sum(value in t for t in texts) for name, value in secrets.items() if value}
 
 
-def issue23(url: str, endpoint: str, pid: int, args: argparse.Namespace) -> tuple[list[str], list[str]]:
-    """The issue-23 attacks: table rows and every answer text seen (for the secrets grep)."""
+def resource_attacks(url: str, endpoint: str, pid: int, args: argparse.Namespace) -> tuple[list[str], list[str]]:
+    """The bounded-memory, slow-client, token and error attacks: table rows and every answer text seen (for the
+    secrets grep)."""
     rows = ["| what was tried | answer | time (s) | server + children peak RSS above baseline (MB) |",
             "|---|---|---:|---:|"]
     answers: list[str] = []
@@ -594,12 +595,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=3.0, help="per /healthz-under-load phase")
     ap.add_argument("--clouds-s", type=float, default=60.0, help="the 5M-point cloud flood's duration (s)")
     ap.add_argument("--fuzz", type=int, default=40, help="schemathesis examples (0: no fuzzing)")
-    ap.add_argument("--skip-issue11", action="store_true", help="only the issue-23 attacks")
-    ap.add_argument("--round3-only", action="store_true",
-                    help="only round three (npz, viewpoints, degenerate geometry, names; the ROS 2 services), "
-                         "written to bench/results/hostile-round3.md unless --out is given")
+    ap.add_argument("--skip-small", "--skip-issue11", dest="skip_small", action="store_true",
+                    help="skip the small malicious requests (--skip-issue11: the old spelling)")
+    ap.add_argument("--formats-only", "--round3-only", dest="formats_only", action="store_true",
+                    help="only the npz, viewpoint, degenerate-geometry and name attacks (the ROS 2 services' are "
+                         "bench/hostile_ros2.py's), written to bench/results/hostile-round3.md unless --out is "
+                         "given (--round3-only: the old spelling)")
     args = ap.parse_args(argv)
-    if args.round3_only and args.out == ap.get_default("out"):
+    if args.formats_only and args.out == ap.get_default("out"):
         args.out = ROOT / "bench" / "results" / "hostile-round3.md"
 
     port, zport = free_port(), free_port()
@@ -632,14 +635,14 @@ def main(argv: list[str] | None = None) -> int:
             if time.monotonic() > deadline or server.poll() is not None:
                 raise SystemExit("server did not start")
             time.sleep(0.2)
-        if not (args.skip_issue11 or args.round3_only):
-            rows += issue11(url, server.pid, args)
-        if not args.round3_only:
-            rows += ["", "## Issue 23: bounded memory, slow clients, tokens, errors", ""]
-            more, answers = issue23(url, f"tcp/127.0.0.1:{zport}", server.pid, args)
+        if not (args.skip_small or args.formats_only):
+            rows += small_requests(url, server.pid, args)
+        if not args.formats_only:
+            rows += ["", "## Bounded memory, slow clients, tokens, errors", ""]
+            more, answers = resource_attacks(url, f"tcp/127.0.0.1:{zport}", server.pid, args)
             rows += more
-        rows += ["", "## Round three: npz and viewpoints, degenerate geometry, names, machine paths", ""]
-        rows += round3(url, server.pid)
+        rows += ["", "## npz and viewpoints, degenerate geometry, names, machine paths", ""]
+        rows += formats_and_names(url, server.pid)
     finally:
         server.terminate()
         try:
@@ -657,14 +660,14 @@ def main(argv: list[str] | None = None) -> int:
              f"answers {found_answers}, logs {found_logs}."]
     print(rows[-1])
     load = os.getloadavg()
-    command = ("--round3-only" if args.round3_only else f"--clouds-s {args.clouds_s:g} --fuzz {args.fuzz}")
+    command = ("--formats-only" if args.formats_only else f"--clouds-s {args.clouds_s:g} --fuzz {args.fuzz}")
     text = ("# Hostile requests\n\n"
             f"Command: `PYTHONPATH=service:client .venv/bin/python bench/hostile.py {command}`\n\n"
             f"Machine: {os.cpu_count()} cores, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end "
             f"(shared with other work: latencies are noisy).  Server: `graspd serve` with GRASPD_TOKEN, Zenoh on "
             f"loopback, an unreachable PostgreSQL template library, a writable copy of the models folder, otherwise "
             f"default settings (workers = cores, queue 32, detection memory budget 2048 MiB).\n\n"
-            + ("" if args.skip_issue11 or args.round3_only else "## Issue 11: small malicious requests\n\n")
+            + ("" if args.skip_small or args.formats_only else "## Small malicious requests\n\n")
             + "\n".join(rows) + "\n")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
@@ -672,8 +675,8 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def issue11(url: str, pid: int, args: argparse.Namespace) -> list[str]:
-    """The issue-11 tables: each small malicious request's status and RSS increase, /healthz under load."""
+def small_requests(url: str, pid: int, args: argparse.Namespace) -> list[str]:
+    """The small-request tables: each small malicious request's status and RSS increase, /healthz under load."""
     rows: list[str] = []
     rss = RssPeak(pid)
     cases = requests()
@@ -725,7 +728,7 @@ def issue11(url: str, pid: int, args: argparse.Namespace) -> list[str]:
 
 
 
-# ---- round three: npz, viewpoints, degenerate geometry, names, machine paths -------------------------------
+# ---- npz, viewpoints, degenerate geometry, names, machine paths -------------------------------
 
 def npy_bytes(array: np.ndarray) -> bytes:
     buf = io.BytesIO()
@@ -760,9 +763,9 @@ def npy_v3_garbage() -> bytes:
     return b"\x93NUMPY\x03\x00" + struct.pack("<I", len(header)) + header + bytes(36)
 
 
-def round3(url: str, pid: int) -> list[str]:
-    """Each round-three input: status, field, seconds and the server's peak RSS increase; then the answers
-    scanned for object reprs and machine paths."""
+def formats_and_names(url: str, pid: int) -> list[str]:
+    """Each npz, viewpoint, geometry or name input: status, field, seconds and the server's peak RSS increase;
+    then the answers scanned for object reprs and machine paths."""
     rng = np.random.default_rng(3)
     p20k = (rng.uniform(-0.1, 0.1, (20_000, 3)) + [0, 0, 0.6]).astype(np.float32)
     p1m = (rng.uniform(-0.3, 0.3, (1_000_000, 3)) + [0, 0, 0.8]).astype(np.float32)

@@ -1,6 +1,6 @@
 """Install sizes: a fresh virtual environment with what the Docker image installs (the client and the server with
 its PostgreSQL extra, non-editable, from the package index or pip's cache), its size on disk and its largest
-packages; and an estimate of the image (no Docker engine needed).  Issue 25's before/after: run it on this checkout
+packages; and an estimate of the image (no Docker engine needed).  For a before/after: run it on this checkout
 and on an older one (--repo).
 
     .venv/bin/python bench/install_size.py [--repo PATH] [--tag NAME]   ->  bench/results/install-NAME.md

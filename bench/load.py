@@ -8,7 +8,7 @@ over a fixed number of requests.  Writes what it prints, with the command and th
 
   PYTHONPATH=service:client .venv/bin/python bench/load.py                  # spawns a server
   PYTHONPATH=service:client .venv/bin/python bench/load.py --url http://host:8000 --zenoh tcp/host:7447 --pid N
-  # issue 26: 16 concurrent 66k-point requests with 300 samples over HTTP (req/s, errors, peak server RSS)
+  # 16 concurrent 66k-point requests with 300 samples over HTTP (req/s, errors, peak server RSS)
   PYTHONPATH=service:client .venv/bin/python bench/load.py --transports http --points 66000 --num-samples 300 \
       --concurrency 16 --duration 30 --overhead-pairs 0 --tag c16-66k-300
 """

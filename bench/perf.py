@@ -9,9 +9,9 @@ number of samples, and peak memory.  Prints markdown tables, writes bench/result
 Also request latency through the service (its own process, as a robot sees it): start-up with and without
 the warm-up, the first request against the warm p50, and 10k / 66k / 300k-point clouds; with --reference-gpd
 a GPD C++ detect_grasps binary runs on the same cloud and samples and the ratio is printed, otherwise the
-issue's reference figures (12.8 s wall, ~770 candidates) stand.
+reference figures of the GPD C++ run on a quiet machine (12.8 s wall, ~770 candidates) stand.
 
-Issue 26 adds: --scaling, the whole detection (the service's default model and cascade) against cloud size
+It also offers: --scaling, the whole detection (the service's default model and cascade) against cloud size
 (10k, 66k, 300k, 1M points, 500 samples) and samples (100 to 2,000 at 66k points), wall and CPU seconds with
 straight-line fits (bench/results/perf-scaling.md, .png); --profile TAG, warm table_mug requests (500 samples)
 through the service's engine in a child process sampled by py-spy (bench/results/profile-TAG.txt); and a GPU row
@@ -114,7 +114,8 @@ def end_to_end(cloud: ViewpointCloud, num_samples: int, repeats: int, scorer) ->
     return {"wall": t, "candidates": res.num_candidates, **{k: v for k, v in res.timings.items() if k != "total"}}
 
 
-REFERENCE = {"wall": 12.8, "candidates": 770}  # issue 15: GPD 2.0 C++ (Eigen LeNet, 2 threads), table_mug, 500 samples
+#: The GPD C++ reference run: GPD 2.0 C++ (Eigen LeNet, 2 threads) on table_mug, 500 samples, a quiet machine.
+REFERENCE = {"wall": 12.8, "candidates": 770}
 
 
 def start_service(warmup: bool = True) -> tuple[subprocess.Popen[bytes], str, float]:
@@ -235,7 +236,7 @@ def service_latency(mug: ViewpointCloud | None, big: ViewpointCloud, repeats: in
         if mug is not None:
             emit(f"\ntable_mug warm p50 {warm_p50:.3f} s through HTTP: {REFERENCE['wall'] / warm_p50:.1f}x faster "
                  f"than the reference GPD C++ figure ({REFERENCE['wall']} s wall, ~{REFERENCE['candidates']} "
-                 "candidates, issue 15, quiet machine).")
+                 "candidates, quiet machine).")
     finally:
         proc.terminate()
         proc.wait(60)
@@ -553,7 +554,7 @@ def main() -> None:
         if args.reference_gpd is not None:
             reference_gpd(args.reference_gpd, args.reference_gpd_config, emit, p50)
         else:
-            emit(f"\nNo --reference-gpd given: the reference is issue 15's quiet-machine run of GPD C++ on table_mug, "
+            emit(f"\nNo --reference-gpd given: the reference is a quiet-machine run of GPD C++ on table_mug, "
                  f"500 samples: {REFERENCE['wall']} s wall, ~{REFERENCE['candidates']} candidates.")
         emit(f"\nMachine load after the service runs: {' '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
         if args.service_only:

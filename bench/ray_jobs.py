@@ -1,4 +1,4 @@
-"""Wall time of a scene-data job as Ray tasks on 1 and 2 workers (issue 26), beside one process and a local pool.
+"""Wall time of a scene-data job as Ray tasks on 1 and 2 workers, beside one process and a local pool.
 
 One small but not trivial job (graspd_lab.training.scene_data: --scenes scenes of the default mix, one chunk per
 scene so the workers share them out) is generated once per runner into a fresh folder; every run must give the
