@@ -93,7 +93,7 @@ class Grasps:
     timings: dict[str, float] = field(default_factory=dict)
     request_id: str | None = None
     #: What the server could not do right for this request, each {"code", "message"} (empty: nothing; see the
-    #: README's "On your robot" for the codes).  Check it: a wrong viewpoint or frame still returns grasps.
+    #: docs/robot/index.md, "On your robot", for the codes).  Check it: a wrong viewpoint or frame still returns grasps.
     warnings: list[dict[str, str]] = field(default_factory=list)
     crops: list[bytes | None] = field(default_factory=list)
     crop_pixels: F64 = field(default_factory=lambda: np.zeros((0, 2)))

@@ -1,5 +1,5 @@
-"""The pictures of the README's "On your robot": table_mug.pcd (a Kinect cloud in the camera's optical frame) sent
-to graspd the right way and with a common mistake, through the service's HTTP app in this process.
+"""The pictures of docs/robot/index.md ("On your robot"): table_mug.pcd (a Kinect cloud in the camera's optical
+frame) sent to graspd the right way and with a common mistake, through the service's HTTP app in this process.
 
 - correct.png: the points as the camera driver gives them (camera frame), with the camera's pose in base_link
   (what TF says) as camera_poses and points_frame "camera"; workspace and gravity in base_link.  The grasps
@@ -9,7 +9,7 @@ to graspd the right way and with a common mistake, through the service's HTTP ap
   (viewpoint_flipped).
 
 Each picture draws what the service answered (its grasps, best first, and its warnings) over the cloud in
-base_link, the environment labelled as the detector labels it.  The camera pose is the one of the README.
+base_link, the environment labelled as the detector labels it.  The camera pose is the one of docs/robot/index.md.
 
     PYTHONPATH=service:client .venv/bin/python examples/robot/pictures.py [--data ../shared/data/real]
 """

@@ -1,4 +1,5 @@
-"""The real Kinect clouds go through `graspd detect` and come out as grasps in the DESIGN.md convention."""
+"""The real Kinect clouds go through `graspd detect` and come out as grasps in the documented convention
+(docs/robot/answer.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Pictures that explain themselves (issue 27, item 10): the title says how many of the returned grasps are
+"""Pictures that explain themselves: the title says how many of the returned grasps are
 drawn, each drawn grasp's line gives the terms of its ranking key, and the colour bar says what the colours
 are (score, or rank for unscored grasps)."""
 

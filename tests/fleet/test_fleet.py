@@ -1,4 +1,4 @@
-"""A fleet behind HAProxy (issue 26, part 4), all real on loopback: graspd servers started with `graspd serve`,
+"""A fleet behind HAProxy, all real on loopback: graspd servers started with `graspd serve`,
 Debian's haproxy running examples/fleet/haproxy.cfg (only its `bind` and `server` lines changed), clients sending
 the real table_mug cloud.  A server SIGKILLed in the middle of a detection costs no request: HAProxy replays it on
 another server; a slow client never reaches a server; servers share one PostgreSQL template library.  The slow

@@ -1,4 +1,4 @@
-"""Any container, any support (issue 22): the environment stage finds raised floors, walls of any height, thin
+"""Any container, any support: the environment stage finds raised floors, walls of any height, thin
 walls and two-wall corners of the container family (graspd_lab.sim.containers), no top grasp closes on or enters
 them, a platform's top is the support, and no hand reaches into space no camera saw unless asked to.
 

@@ -1,5 +1,5 @@
 """The classifier's execution provider (a CUDA GPU when onnxruntime offers one, else the CPU) and the service's
-warm-up taking the path of a real request (issue 26): the model cascade, full batches, the response."""
+warm-up taking the path of a real request: the model cascade, full batches, the response."""
 
 from __future__ import annotations
 

@@ -57,7 +57,7 @@ def test_unknown_suffix_and_broken_header_are_named(tmp_path: Path) -> None:
         read_cloud(tmp_path / "bad.pcd")
 
 
-# ---- headers that lie, caps, binary_compressed (issue 11) -------------------------------------------------------
+# ---- headers that lie, caps, binary_compressed ------------------------------------------------------------------
 def _binary_pcd(points: np.ndarray, **header: object) -> bytes:
     fields = {"WIDTH": len(points), "HEIGHT": 1, "POINTS": len(points), **header}
     text = "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"

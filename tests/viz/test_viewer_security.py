@@ -1,4 +1,4 @@
-"""The viewer as a hostile page would meet it (issue 23 item 4; issue 27 item 8): a strict Content-Security-Policy
+"""The viewer as a hostile page would meet it: a strict Content-Security-Policy
 (only the pages' own hashed scripts run, nothing loads from elsewhere, never framed), nosniff and no referrer; the
 answer shown in a sandboxed frame (no blob URL, no same-origin); a token field, score / top-k / object filters and
 the response's warnings; and, in real headless Chromium, pages that work under their own policy while script hidden

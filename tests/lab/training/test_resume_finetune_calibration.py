@@ -1,4 +1,4 @@
-"""Issue 13: training that survives interruptions (last.pt, --resume), fine-tuning from shipped weights
+"""Training on scenes: training that survives interruptions (last.pt, --resume), fine-tuning from shipped weights
 (init_from, models/NAME.pt), hard-negative mining, and scores calibrated on the validation rows."""
 
 import argparse
