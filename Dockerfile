@@ -5,7 +5,7 @@
 # postgresql+psycopg:// URLs work: the image has the postgres extra)
 # Zenoh listens on the container's loopback only until you secure it: to reach it from the robot, add
 #   -p 7447:7447 -e GRASPD_ZENOH_LISTEN='["tcp/0.0.0.0:7447"]' -e GRASPD_TOKEN=...   (and/or GRASPD_ZENOH_CONFIG
-# with TLS and user/password, README "Securing Zenoh").  A non-loopback listener with no token and no
+# with TLS and user/password, docs/deploy/security.md).  A non-loopback listener with no token and no
 # authentication in the config refuses to start (GRASPD_ZENOH_ALLOW_ANONYMOUS=true overrides, trusted networks).
 # Two stages: the first builds wheels of the server, the client and every dependency and installs them into a venv;
 # the second holds that venv (no compiler, no pip, no pip cache, no sources), only the server (no lab: torch,

@@ -34,9 +34,12 @@ if [[ "$ENGINE" == docker ]]; then
     exec docker build -t "$TAG" "${CONTEXT:-$ROOT}"
 fi
 
-if ! command -v podman >/dev/null || ! command -v runc >/dev/null; then
+# cgroup v1 (no cgroup.controllers): crun refuses it, runc is needed
+cgroup_v1=0
+[[ -f /sys/fs/cgroup/cgroup.controllers ]] || cgroup_v1=1
+if ! command -v podman >/dev/null || { [[ "$cgroup_v1" == 1 ]] && ! command -v runc >/dev/null; }; then
     if [[ "$(id -u)" != 0 ]] || ! command -v apt-get >/dev/null; then
-        echo "podman and runc are missing and cannot be installed here (needs root and apt-get)" >&2
+        echo "podman (and runc on this cgroup v1 host) missing, cannot be installed here (needs root, apt-get)" >&2
         exit 3
     fi
     apt-get update -qq
