@@ -18,7 +18,16 @@ from graspd.server.app import create_app
 from graspd.server.settings import Settings
 from graspd_client import build_demonstration_request, build_detect_request
 from graspd_client.zenoh_client import ZenohGraspClient
-from server.transport_cases import SMALL, agree, check, json_body, mug_points, npy_bytes, options_case
+from server.transport_cases import (
+    SMALL,
+    agree,
+    check,
+    json_body,
+    mug_points,
+    mug_top_grasp,
+    npy_bytes,
+    options_case,
+)
 
 from .conftest import free_port
 
@@ -72,16 +81,12 @@ def test_json_detect_with_options_and_crops_is_the_saved_answer_on_http_and_zeno
 
 
 def test_templates_detect_is_the_saved_answer_on_http_and_zenoh(
-        served: tuple[TestClient, ZenohGraspClient], render_box: Any, box_pose: Any) -> None:
-    from fixtures import box_top_grasp  # noqa: PLC0415 - the tests' own helpers
-
+        served: tuple[TestClient, ZenohGraspClient], mug: np.ndarray) -> None:
     http, zc = served
-    pose = box_pose()
-    cloud = render_box(pose)
-    taught = http.post("/demonstrations", json=build_demonstration_request(
-        cloud.points, box_top_grasp(pose, (0.05, 0.10, 0.08)), cloud.viewpoints, label="box top"))
+    taught = http.post("/demonstrations", json=build_demonstration_request(mug, mug_top_grasp(mug), [[0.0, 0.0, 0.0]],
+                                                                            label="mug top"))
     assert taught.status_code == 200, taught.text
-    body = build_detect_request(cloud.points, cloud.viewpoints, method="templates", max_grasps=5)
+    body = build_detect_request(mug, [[0.0, 0.0, 0.0]], method="templates", max_grasps=5)
     reference = _http(http, body)
     assert reference["method"] == "templates" and len(reference["grasps"]) > 0
     check("templates", reference)

@@ -60,6 +60,28 @@ def json_body(points: np.ndarray, **options: Any) -> dict[str, Any]:
     return {**build_detect_request(points, [[0.0, 0.0, 0.0]]), **options}
 
 
+#: table_mug's support plane as the GPD answer of json_small found it (unit normal toward the camera, offset m):
+#: the templates case's demonstration is placed from it, not from a detection
+MUG_SUPPORT = (np.array([0.017108801510903687, -0.8370736805811262, -0.5468225874899713]), 0.5293914407402468)
+
+
+def mug_top_grasp(points: np.ndarray, hand_depth: float = 0.06, reach: float = 0.03) -> np.ndarray:
+    """A top-down hand pose (4x4, cloud frame, rotation columns [approach, binormal, axis]) over the mug: the
+    points more than 1.5 cm above the support, approached against the support's normal, fingertips `reach` m
+    below the mug's top, centred on its points' mean."""
+    normal, offset = MUG_SUPPORT
+    height = points @ normal + offset
+    mug = points[height > 0.015]
+    centre = mug.mean(axis=0)
+    approach = -normal
+    binormal = np.cross(approach, [1.0, 0.0, 0.0])
+    binormal /= np.linalg.norm(binormal)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([approach, binormal, np.cross(approach, binormal)], axis=1)
+    pose[:3, 3] = centre + normal * (height.max() - (centre @ normal + offset) + hand_depth - reach)
+    return pose
+
+
 def npy_bytes(points: np.ndarray) -> bytes:
     """The points as an NPY file body (float32, N x 3)."""
     buf = io.BytesIO()
