@@ -12,6 +12,8 @@ from fastapi.testclient import TestClient
 
 from graspd.server.logs import JsonFormatter, RequestIdFilter, begin_request
 from graspd.server.requests import parse_request
+from graspd.server.services.mapping import response_json
+from graspd.server.services.outcome import Parsed
 
 
 def test_color_message_does_not_leak() -> None:
@@ -31,12 +33,12 @@ def test_worker_thread_lines_carry_the_request_id(client: TestClient, body: dict
 
     def parse() -> Any:
         worker_log.warning("parsing on a worker")
-        return parse_request(body)
+        return Parsed(parse_request(body))
 
     engine.admit()
     with caplog.at_level(logging.INFO):
         fut, _ = engine.enqueue(parse, {})
-        out = json.loads(fut.result(timeout=120))
+        out = json.loads(response_json(fut.result(timeout=120)))
     line = next(r for r in caplog.records if r.getMessage() == "parsing on a worker")
-    assert line.threadName.startswith("graspd-detect")
+    assert str(line.threadName).startswith("graspd-detect")
     assert line.request_id == ctx.id == out["request_id"]  # type: ignore[attr-defined]

@@ -243,8 +243,9 @@ def test_a_500_names_only_the_request_id(guarded: tuple[TestClient, str], caplog
     def buggy(_payload: bytes) -> Any:
         raise RuntimeError("secret internal state 0xdeadbeef")
 
-    on_query = in_fresh_context(node._on_templates)  # a writer with a bug: the node's guard is what is tested
-    boom = node.session.declare_queryable("graspd/boom", lambda q: on_query(q, "boom", buggy), complete=True)
+    on_query = in_fresh_context(node.queries.on_templates)  # a writer with a bug: the node's guard is tested
+    boom = node.session.declare_queryable("graspd/boom", lambda q: on_query(q, "boom", "graspd/boom", buggy),
+                                          complete=True)
     def outcome_lines() -> list[logging.LogRecord]:
         return [r for r in caplog.records if r.getMessage() == "boom"]
 

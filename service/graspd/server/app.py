@@ -27,7 +27,7 @@ from graspd.server.api.templates import REQUEST_MODELS
 from graspd.server.api.templates import router as templates_router
 from graspd.server.logs import MAX_REQUEST_ID, begin_request, valid_request_id
 from graspd.server.metrics import Metrics
-from graspd.server.problems import Problem
+from graspd.server.problems import Problem, error_body, internal_error
 from graspd.server.requests import dumps
 from graspd.server.schemas import DetectRequest
 from graspd.server.services.engine import DetectionEngine
@@ -72,7 +72,7 @@ def problem_response(exc: Problem, headers: Mapping[str, str] | None = None) -> 
         out["WWW-Authenticate"] = "Bearer"
     if exc.status == 408:
         out["Connection"] = "close"
-    return JSONResponse(exc.body(), status_code=exc.status, headers=out or None)
+    return JSONResponse(error_body(exc), status_code=exc.status, headers=out or None)
 
 
 class RequestGuard:
@@ -114,8 +114,7 @@ class RequestGuard:
             log.error("unhandled error", exc_info=True, extra={"path": scope.get("path"), "error": type(exc).__name__})
             if started:  # nothing can be said any more; uvicorn closes the half-sent response
                 return
-            body = dumps({"error": f"internal error (request {ctx.id}; the server log has the details)",
-                          "field": None, "detail": []})
+            body = dumps(error_body(internal_error(ctx.id)))
             headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
                        (b"x-request-id", ctx.id.encode())]
             await send({"type": "http.response.start", "status": 500, "headers": headers})

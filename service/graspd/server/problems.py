@@ -1,4 +1,7 @@
-"""Error bodies shared by HTTP and Zenoh: {"error": "<field>: <message>", "field", "detail": [...]}."""
+"""The errors a request can get and their one body, shared by every transport: Problem (status, field, message),
+the answers the service gives (500 internal error, 504 deadline, 503 busy with Retry-After, 413 too large, 422
+invalid), built here and nowhere else, and the body every transport sends them as (error_body:
+{"error": "<field>: <message>", "field", "detail": [...]})."""
 
 from __future__ import annotations
 
@@ -83,3 +86,54 @@ def from_error(exc: ValueError, fields: Collection[str], status: int = 422, defa
     if isinstance(exc, CALLER_ERRORS) and exc.field and (exc.field == default or exc.field.split(".", 1)[0] in fields):
         return from_wire(exc, status)
     return Problem(status, str(exc), default)
+
+
+def internal_error(request_id: str) -> Problem:
+    """A genuine server fault: no exception text in the answer (it may hold internals), only a generic message
+    and the request id; the log line with the traceback carries the same id."""
+    return Problem(500, f"internal error (request {request_id}; the server log has the details)")
+
+
+def deadline_passed(deadline_s: float, where: str = "while queued") -> Problem:
+    """504 naming the deadline: it passed before an answer (where: "while queued", ...)."""
+    return Problem(504, f"deadline of {deadline_s} s passed {where}", "deadline")
+
+
+def gave_up(deadline_s: float, deadlines: float) -> Problem:
+    """504 of a waiter whose detection started but ran past `deadlines` deadlines (the answer window)."""
+    return Problem(504, f"no result within {deadlines:g} x the deadline of {deadline_s} s (the detection ran far "
+                        "beyond its estimate)", "deadline")
+
+
+def busy(message: str, retry_after: float) -> Problem:
+    """503 with Retry-After (s): the server cannot take or finish this request now."""
+    return Problem(503, f"server busy{': ' + message if message else ''}", retry_after=retry_after)
+
+
+def shutting_down() -> Problem:
+    """503 of a request that arrives or waits while the server shuts down."""
+    return Problem(503, "server is shutting down", retry_after=1.0)
+
+
+def too_large(what: str, size: int | str, limit: int, field: str) -> Problem:
+    """413 naming the field: `what` of `size` bytes is over `limit`."""
+    return Problem(413, f"{what} of {size} bytes exceeds the limit of {limit}", field)
+
+
+def invalid(message: str, field: str | None, status: int = 422) -> Problem:
+    """A caller's wrong value (422, or 400 for what is not even parsable), naming the field."""
+    return Problem(status, message, field)
+
+
+def error_body(problem: Problem, *, with_status: bool = False, request_id: str | None = None,
+               **extra: Any) -> dict[str, Any]:
+    """The JSON error body every transport sends: {"error": "<field>: <message>", "field", "detail": [...],
+    "retry_after" (503)}; with_status adds the status (Zenoh and ROS 2 have no status line), request_id the id
+    the log lines carry (they have no X-Request-ID header), extra anything else the transport names (topic)."""
+    body = problem.body()
+    if with_status:
+        body["status"] = problem.status
+    body.update(extra)
+    if request_id is not None:
+        body["request_id"] = request_id
+    return body

@@ -547,7 +547,8 @@ class TargetSpec(BaseModel):
     @classmethod
     def _count(cls, v: Any, info: ValidationInfo) -> Any:
         limit = MAX_TARGET_INDICES if info.field_name == "indices" else MAX_TARGET_POINTS
-        n = len(v) if isinstance(v, list) else (v.get("shape") or [0])[0] if isinstance(v, dict) else 0
+        shape = v.get("shape") if isinstance(v, dict) else None  # an encoded array's {"shape": [n, ...]}
+        n = len(v) if isinstance(v, list) else shape[0] if isinstance(shape, list) and shape else 0
         if isinstance(n, int) and n > limit:  # counted from the length sent, before an array is built
             raise ValueError(f"{n} {info.field_name} exceeds the limit of {limit}")
         return v

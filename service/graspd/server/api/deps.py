@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import secrets
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated, Any
 
 from fastapi import Depends, Request
@@ -13,6 +13,7 @@ from graspd.server.metrics import Metrics
 from graspd.server.problems import Problem
 from graspd.server.services.engine import DetectionEngine
 from graspd.server.services.instance_jobs import InstanceJobs
+from graspd.server.services.lifecycle import Lifecycle
 from graspd.server.services.registry import ModelRegistry
 from graspd.server.settings import Settings
 
@@ -27,6 +28,10 @@ class ServiceState:
     engine: DetectionEngine
     jobs: InstanceJobs  # instance models being made (POST /models)
     zenoh: Any = None  # graspd.server.zenoh.node.ZenohNode when enabled
+    lifecycle: Lifecycle = field(init=False)  # a detect request's life, every transport's (lifecycle.py)
+
+    def __post_init__(self) -> None:
+        self.lifecycle = Lifecycle(self.engine, self.metrics)
 
 
 def get_state(request: Request) -> ServiceState:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import logging
 import time
 from typing import Any
 
@@ -15,10 +14,11 @@ from graspd.server.api.deps import Authorized, State
 from graspd.server.problems import Problem
 from graspd.server.requests import parse_body
 from graspd.server.schemas import DetectResponse, ErrorBody
+from graspd.server.services.mapping import response_json
+from graspd.server.services.outcome import Parsed
 from graspd.server.uploads import openapi_parameters
 
 router = APIRouter(tags=["detect"])
-log = logging.getLogger("graspd.server")
 
 OPENAPI_EXTRA: dict[str, Any] = {
     "parameters": openapi_parameters(),  # generated from DetectRequest (uploads.QUERY_PARAMS)
@@ -71,7 +71,7 @@ async def read_capped(request: Request, cap: int, timeout_s: float | None = None
     summary="Ranked 6-DOF grasps for a point cloud",
     description="Grasps in the frame of the cloud (metres), best first.  Each grasp follows gpd_ros GraspConfig: "
                 "position is the centre of the hand base, rotation columns [approach, binormal, axis].",
-    response_model=DetectResponse,  # the engine builds and validates it (DetectResponse.from_detection)
+    response_model=DetectResponse,  # services.mapping builds and validates it
     response_class=Response,
     responses={
         200: {"model": DetectResponse, "description": "grasps, timings, model used",
@@ -88,43 +88,30 @@ async def read_capped(request: Request, cap: int, timeout_s: float | None = None
     openapi_extra=OPENAPI_EXTRA,
 )
 async def detect(request: Request, state: State) -> Response:
-    t0 = time.perf_counter()
-    metrics = state.metrics
-    outcome = "error"
-    status = 500
-    problem: Problem | None = None
+    life = state.lifecycle
+    tracked = life.track("http")
     try:
-        state.engine.admit()  # 503 when full, before the body is read or parsed
+        life.admit()  # 503 when full, before the body is read or parsed
         try:
             data = await read_capped(request, state.settings.max_body_bytes)
         except BaseException:
-            state.engine.release()
+            life.release()
             raise
         q = request.query_params
         content_type, query, viewpoints = request.headers.get("content-type", ""), {k: q[k] for k in q}, \
             q.getlist("viewpoint")
         poses = q.getlist("camera_pose")
-        timings = {"read": time.perf_counter() - t0}
-        body = await state.engine.run_admitted(lambda: parse_body(data, content_type, query, viewpoints, poses),
-                                               timings, size=len(data))
-        outcome, status = "ok", 200
-        return Response(body, media_type="application/json")  # DetectResponse.to_json(), made on the worker
+        timings = {"read": time.perf_counter() - tracked.t0}
+        outcome = await life.detect(lambda: Parsed(parse_body(data, content_type, query, viewpoints, poses)),
+                                    timings, size=len(data))
+        body = await asyncio.to_thread(response_json, outcome)  # off the event loop (~1 ms per 100 grasps)
+        tracked.finish(status=200)
+        return Response(body, media_type="application/json")
     except ClientDisconnect:  # the client went away while sending: nothing to answer (RequestGuard logs it)
-        status, outcome = 499, "disconnected"
+        tracked.finish(status=499, outcome="disconnected")
         raise
     except Problem as exc:
-        problem, status = exc, exc.status
-        outcome = {503: "busy", 504: "deadline", 413: "too_large", 401: "unauthorized"}.get(
-            exc.status, "invalid" if exc.status < 500 else "error")
-        if exc.status == 503 and exc.field == "model":
-            outcome = "model_unavailable"
+        tracked.finish(exc)
         raise
     finally:
-        elapsed = time.perf_counter() - t0
-        metrics.requests.labels("http", outcome).inc()
-        metrics.request_seconds.labels("http").observe(elapsed)
-        extra: dict[str, Any] = {"transport": "http", "status": status, "outcome": outcome,
-                                 "ms": round(elapsed * 1000, 1)}
-        if problem is not None:  # say why: the field and the message (the first of them)
-            extra.update(field=problem.field, error=problem.message)
-        log.info("detect", extra=extra)
+        tracked.finish(status=500, outcome="error")  # anything else: RequestGuard answers 500

@@ -19,17 +19,14 @@ from fastapi.responses import HTMLResponse
 from starlette.datastructures import Headers, UploadFile
 from starlette.formparsers import MultiPartException, MultiPartParser
 
-from graspd.core.cloud import ViewpointCloud
-from graspd.core.hand import HandGeometry
-from graspd.gpd.detector import Detection
 from graspd.gpd.preprocess import PreprocessParams, preprocess
 from graspd.server.api.deps import Authorized, State
 from graspd.server.api.detect import read_capped
 from graspd.server.problems import Problem
 from graspd.server.requests import parse_body
-from graspd.server.schemas import DetectRequest, ErrorBody
+from graspd.server.schemas import ErrorBody
+from graspd.server.services.outcome import GpdResult, Outcome, Parsed
 from graspd.server.uploads import openapi_parameters
-from graspd.templates import TemplateDetection
 from graspd.viz.viewer import DROP_CSP, VIEWER_CSP, drop_page_html, security_headers, targeted_object, viewer_html
 
 router = APIRouter(tags=["viewer"])
@@ -62,15 +59,13 @@ async def multipart_file(headers: Headers, body: bytes, field: str = "file") -> 
         await form.close()
 
 
-def _page(captured: dict[str, Any], name: str, warnings: list[dict[str, Any]]) -> str:
+def _page(outcome: Outcome, name: str, warnings: list[dict[str, Any]]) -> str:
     """The viewer page of a finished detection (on a worker thread: encoding the page takes a while), listing the
     response's warnings."""
-    det: Detection | TemplateDetection = captured["det"]
-    if not isinstance(det, Detection):
+    result = outcome.result
+    if not isinstance(result, GpdResult):
         raise Problem(422, "the viewer draws method \"gpd\" detections", "method")
-    req: DetectRequest = captured["req"]
-    cloud: ViewpointCloud = captured["cloud"]
-    hand: HandGeometry = captured["hand"]
+    det, req, cloud, hand = result.detection, outcome.request, outcome.cloud, result.hand
     params = req.to_params()
     shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
     title = (f"{name}: {len(det.grasps)} grasps from {det.num_candidates} candidates, "
@@ -81,15 +76,9 @@ def _page(captured: dict[str, Any], name: str, warnings: list[dict[str, Any]]) -
                        gravity=params.gravity, warnings=warnings, picked=picked)
 
 
-def _warnings(answer: bytes) -> list[dict[str, Any]]:
-    """The warnings ({code, message}) of a detection's JSON answer."""
-    try:
-        body = json.loads(answer)
-    except ValueError:
-        return []
-    found = body.get("warnings") if isinstance(body, dict) else None
-    return [{"code": str(w.get("code", "")), "message": str(w.get("message", ""))}
-            for w in (found if isinstance(found, list) else []) if isinstance(w, dict)]
+def _warnings(outcome: Outcome) -> list[dict[str, Any]]:
+    """The warnings ({code, message}) of a detection's answer."""
+    return [w.to_dict() for w in outcome.warnings]
 
 
 @router.get("/viewer", response_class=HTMLResponse, summary="A page to drop a point cloud on and see its grasps",
@@ -119,43 +108,31 @@ async def viewer_page() -> HTMLResponse:
                        "properties": {"file": {"type": "string", "format": "binary"}}}}}}},
 )
 async def viewer(request: Request, state: State) -> HTMLResponse:
-    t0 = time.perf_counter()
-    status, problem = 500, None
+    life = state.lifecycle
+    tracked = life.track("http", "viewer")
     try:
-        state.engine.admit()  # 503 when full, before the body is read
+        life.admit()  # 503 when full, before the body is read
         try:
             body = await read_capped(request, state.settings.max_body_bytes)
             data, content_type, name = await multipart_file(request.headers, body)
         except BaseException:
-            state.engine.release()
+            life.release()
             raise
         q = request.query_params
         query, viewpoints, poses = {k: q[k] for k in q}, q.getlist("viewpoint"), q.getlist("camera_pose")
         if query.get("method", "gpd") != "gpd":
-            state.engine.release()
+            life.release()
             raise Problem(422, "the viewer draws method \"gpd\" detections", "method")
-        captured: dict[str, Any] = {}
-
-        def parse() -> DetectRequest:
-            captured["req"] = parse_body(data, content_type, query, viewpoints, poses)
-            return captured["req"]
-
-        def keep(det: Detection | TemplateDetection, cloud: ViewpointCloud, hand: HandGeometry) -> None:
-            captured.update(det=det, cloud=cloud, hand=hand)
-
-        answer = await state.engine.run_admitted(parse, {"read": time.perf_counter() - t0}, keep)
-        warnings = _warnings(answer)
-        page = await asyncio.to_thread(_page, captured, name, warnings)
-        status = 200
+        outcome = await life.detect(lambda: Parsed(parse_body(data, content_type, query, viewpoints, poses)),
+                                    {"read": time.perf_counter() - tracked.t0})
+        warnings = _warnings(outcome)
+        page = await asyncio.to_thread(_page, outcome, name, warnings)
+        tracked.finish(status=200)
         headers = security_headers(VIEWER_CSP)
         headers["X-Graspd-Warnings"] = json.dumps(warnings, ensure_ascii=True)  # the drop page lists them
         return HTMLResponse(page, headers=headers)
     except Problem as exc:
-        status, problem = exc.status, exc
+        tracked.finish(exc)
         raise
     finally:
-        extra: dict[str, Any] = {"transport": "http", "status": status,
-                                 "ms": round((time.perf_counter() - t0) * 1000, 1)}
-        if problem is not None:
-            extra.update(field=problem.field, error=problem.message)
-        log.info("viewer", extra=extra)
+        tracked.finish(status=500, outcome="error")

@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from graspd.core.types import F64
 from graspd.gpd.target import OrientedBox
 from graspd.io.ros.planning import PlanTarget
+from graspd.server.problems import Problem
 
 #: Seconds after which a posture is reached (trajectory point time_from_start).
 POSTURE_TIME_S = 0.5
@@ -44,13 +45,13 @@ BOX, SPHERE, CYLINDER, CONE, PRISM = 1, 2, 3, 4, 5
 
 
 
-class PlanningError(Exception):
-    """A GraspPlanning request that cannot be answered with grasps: the MoveItErrorCodes value and why."""
+class PlanningError(Problem):
+    """A GraspPlanning request that cannot be answered with grasps: the MoveItErrorCodes value and why (a 422
+    to the request's life: the caller's request cannot be planned for)."""
 
     def __init__(self, code: int, message: str) -> None:
-        super().__init__(message)
+        super().__init__(422, message)
         self.code = code
-        self.message = message
 
 
 @dataclass(frozen=True)

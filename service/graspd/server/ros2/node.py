@@ -6,8 +6,8 @@ decoding, options, camera poses, outputs).
 Clouds: the four input topics keep only the newest cloud (a robot wants grasps for what it sees now; a cloud
 replaced before detection is counted in graspd_stream_dropped); one thread detects it and publishes, each with
 the cloud's header: GraspConfigList, PoseArray, one moveit_msgs/Grasp per grasp with finger postures, the scene's
-objects (vision_msgs/Detection3DArray on graspd/objects) and MarkerArray as soon as the grasps are known (from the
-worker), then the JSON answer.  A CloudIndexed's indices and a CloudSamples' samples are the request's target
+objects (vision_msgs/Detection3DArray on graspd/objects) and MarkerArray, then the JSON answer, all encoded from the
+engine's Outcome.  A CloudIndexed's indices and a CloudSamples' samples are the request's target
 (graspd.server.services.ros_stream.message_target), as target.indices and target.points are over HTTP.  A sample over
 GRASPD_MAX_BODY_BYTES, malformed, lying about its sizes, with no finite point or beyond the coordinate bound is
 dropped with a JSON error body (status, error, field, topic) on graspd/errors; the node keeps serving.
@@ -34,15 +34,12 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import Future
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
-from graspd.gpd.objects import SceneObject
 from graspd.gpd.target import Target
 from graspd.io.ros import CloudMessage, Header, RosDecodeError, encode_grasp_config_list
 from graspd.io.ros.encode import moveit_grasp_messages
@@ -50,16 +47,18 @@ from graspd.io.ros.planning import decode_plan_target
 from graspd.io.ros.types import MOVEIT_GRASP, typestore
 from graspd.server.logs import begin_request
 from graspd.server.metrics import Metrics
-from graspd.server.problems import Problem
-from graspd.server.schemas import DetectRequest
+from graspd.server.problems import Problem, error_body, internal_error, invalid, too_large
 from graspd.server.services.budget import message_cost
 from graspd.server.services.engine import DetectionEngine
+from graspd.server.services.lifecycle import Lifecycle
+from graspd.server.services.mapping import response_json
+from graspd.server.services.outcome import GraspResult, Outcome, Parsed
 from graspd.server.services.ros_stream import (
-    Captured,
     LatestFrame,
     StreamOptions,
     decode_input,
     parse_options,
+    ros_header,
     ros_outputs,
     ros_problem,
     stream_request,
@@ -134,31 +133,6 @@ def domain_config(settings: Settings) -> DomainConfig:
                         loopback_strict=not settings.ros2_allow_anonymous)
 
 
-@dataclass
-class _Caught(Captured):
-    """Captured plus the detection's "up" (environment stage; cloud frame, unit), for the retreat direction, its
-    objects (graspd.gpd.objects), why a target got no grasp (warnings), and then(self) called on the worker as
-    soon as the grasps are known: the ROS outputs go out before the engine's request-level checks and JSON answer
-    (they add warnings, never change the grasps), ~10-30 ms sooner at 300k points."""
-
-    up: np.ndarray | None = None
-    objects: tuple[SceneObject, ...] = ()
-    warnings: tuple[str, ...] = ()
-    then: Callable[[_Caught], None] | None = None
-
-    def __call__(self, det: Any, cloud: Any, hand: Any) -> None:
-        super().__call__(det, cloud, hand)
-        self.objects = tuple(getattr(det, "objects", ()))
-        self.warnings = tuple(w.message for w in getattr(det, "warnings", ()) if w.code == "target_too_small")
-        env = getattr(det, "environment", None)
-        self.up = None if env is None or env.up is None else np.asarray(env.up, np.float64)
-        if self.then is not None:
-            try:
-                self.then(self)
-            except Exception:  # the outputs failed; the detection and its JSON answer still stand
-                log.exception("ros2 outputs failed")
-
-
 class Ros2Node:
     """Owns the DDS participant; start() declares everything, close() takes it down (running work finishes in
     the engine, whose shutdown follows)."""
@@ -167,6 +141,7 @@ class Ros2Node:
         self.settings = settings
         self.engine = engine
         self.metrics = metrics
+        self.lifecycle = Lifecycle(engine, metrics)
         self.distro = settings.ros2_distro
         self.store = ros_types(self.distro)
         try:
@@ -254,9 +229,7 @@ class Ros2Node:
     def publish_error(self, problem: Problem, where: str, request_id: str | None = None) -> None:
         """A JSON error body (HTTP's, plus status, the topic or service it concerns and the request id) on
         graspd/errors, and a log line."""
-        body: dict[str, Any] = {**problem.body(), "status": problem.status, "topic": where}
-        if request_id is not None:
-            body["request_id"] = request_id
+        body = error_body(problem, with_status=True, request_id=request_id, topic=where)
         log.warning("ros2 input refused", extra={"transport": "ros2", "topic": where, "status": problem.status,
                                                   "field": problem.field, "error": problem.message})
         self._write("errors", self._string(json.dumps(body)))
@@ -273,8 +246,7 @@ class Ros2Node:
     # ---- clouds ----------------------------------------------------------------------------------------------
     def _too_large(self, size: int) -> Problem | None:
         limit = self.settings.max_body_bytes
-        return Problem(413, f"message of {size} bytes exceeds the limit of {limit}", "payload") if size > limit \
-            else None
+        return too_large("message", size, limit, "payload") if size > limit else None
 
     def _on_cloud(self, data: bytes, entry: str) -> None:
         """On Cyclone's listener thread: refuse an oversized sample, else make it the newest cloud."""
@@ -301,60 +273,60 @@ class Ros2Node:
         return decode_input(data, entry, self.options)
 
     def _stream_frame(self, data: bytes, entry: str) -> None:
-        """Detect on one cloud and publish its outputs with its header; an error on graspd/errors instead."""
+        """Detect on one cloud and publish its outputs with its header, then the JSON answer; an error on
+        graspd/errors instead."""
         t0 = time.perf_counter()
         ctx = begin_request()
-        outcome = "ok"
+        tracked = self.lifecycle.track("ros2", label="ros2-stream", log_success=False, timed=False)
         try:
             msg = self.decode(data, entry)
-            req = stream_request(msg, self.options)
-            caught = _Caught(then=functools.partial(self._publish_outputs, header=msg.header, req=req))
-            body = self.engine.run_sync(req, {"decode": time.perf_counter() - t0}, _json_header(msg.header),
-                                        on_detection=caught)
-            self._write("json", self._string(body.decode()))
+            parsed = Parsed(stream_request(msg, self.options), header=ros_header(msg.header), context=msg.header)
+            outcome = self.lifecycle.detect_sync(lambda: parsed, {"decode": time.perf_counter() - t0})
+            self._publish_outputs(outcome, msg.header)
+            self._write("json", self._string(response_json(outcome).decode()))
+            tracked.finish()
         except Problem as exc:
             self.publish_error(ros_problem(exc), self.names[entry], ctx.id)
-            outcome = "invalid" if exc.status < 500 else "error"
+            tracked.finish(exc)
         except Exception:  # keep serving whatever one frame did
             log.exception("ros2 detect failed", extra={"request_id": ctx.id})
-            self.publish_error(Problem(500, f"internal error (request {ctx.id}; the server log has the details)"),
-                               self.names[entry], ctx.id)
-            outcome = "error"
-        self.metrics.requests.labels("ros2-stream", outcome).inc()
+            problem = internal_error(ctx.id)
+            self.publish_error(problem, self.names[entry], ctx.id)
+            tracked.finish(problem)
 
-    def _publish_outputs(self, caught: _Caught, header: Header, req: DetectRequest) -> None:
+    def _publish_outputs(self, outcome: Outcome, header: Header) -> None:
         """The ROS outputs of one detection with the cloud's header, GraspConfigList first, MarkerArray last."""
-        grasps, hand = caught.grasps, caught.hand
-        if grasps is None or hand is None:
-            return
-        for entry, message in ros_outputs(grasps, header, hand, req.approach_distance,
-                                          {"grasp_config_list", "pose_array"} & set(self.writers)):
-            self._write(entry, message)
-        if "moveit_grasps" in self.writers:
-            store = typestore()
-            for msg in self.moveit_messages(caught, header, req.approach_distance, np.eye(4)):
-                self._write("moveit_grasps", bytes(store.serialize_cdr(msg, MOVEIT_GRASP)))
-        self.publish_objects(caught, header)
-        for entry, message in ros_outputs(grasps, header, hand, req.approach_distance,
-                                          {"marker_array"} & set(self.writers)):
-            self._write(entry, message)
+        try:
+            result, approach = outcome.result, outcome.request.approach_distance
+            for entry, message in ros_outputs(result.grasps, header, result.hand, approach,
+                                              {"grasp_config_list", "pose_array"} & set(self.writers)):
+                self._write(entry, message)
+            if "moveit_grasps" in self.writers:
+                store = typestore()
+                for msg in self.moveit_messages(result, header, approach, np.eye(4)):
+                    self._write("moveit_grasps", bytes(store.serialize_cdr(msg, MOVEIT_GRASP)))
+            self.publish_objects(result, header)
+            for entry, message in ros_outputs(result.grasps, header, result.hand, approach,
+                                              {"marker_array"} & set(self.writers)):
+                self._write(entry, message)
+        except Exception:  # the outputs failed; the detection and its JSON answer still stand
+            log.exception("ros2 outputs failed")
 
-    def publish_objects(self, caught: _Caught, header: Header) -> None:
+    def publish_objects(self, result: GraspResult, header: Header) -> None:
         """The detection's objects as a vision_msgs/Detection3DArray with header (the detection's frame) on
         graspd/objects."""
-        if "objects" in self.writers and caught.grasps is not None:
-            self._write("objects", encode_objects(self.store, caught.objects, header))
+        if "objects" in self.writers:
+            self._write("objects", encode_objects(self.store, result.objects, header))
 
-    def moveit_messages(self, caught: _Caught, header: Header, approach_distance: float,
+    def moveit_messages(self, result: GraspResult, header: Header, approach_distance: float,
                         to_output: np.ndarray, id_prefix: str = "graspd") -> list[Any]:
         """moveit_msgs/Grasp messages of a detection, moved by to_output (4x4, detection frame -> header's
         frame), ids "<id_prefix>/<rank>": finger postures from each grasp's width, retreat along "up" when the
         detection found it, else back along the approach."""
-        grasps = caught.grasps
-        assert grasps is not None
+        grasps = result.grasps
         rot, shift = to_output[:3, :3], to_output[:3, 3]
         moved = grasps.transformed(rot, shift)
-        up = None if caught.up is None else rot @ caught.up
+        up = None if result.up is None else rot @ result.up
         widths = grasps.widths.tolist()
         store = typestore()
         options: dict[str, Any] = {"approach_distance": approach_distance, "id_prefix": id_prefix,
@@ -369,98 +341,75 @@ class Ros2Node:
         return messages
 
     # ---- services --------------------------------------------------------------------------------------------
-    def _service_call(self, data: bytes, entry: str, prepare: Callable[[bytes, dict[str, Any]], DetectRequest],
-                      finish: Callable[[RequestId, dict[str, Any], _Caught], bytes],
-                      refuse: Callable[[RequestId, Problem | moveit.PlanningError], bytes],
+    def _service_call(self, data: bytes, entry: str, prepare: Callable[[bytes, float], Parsed],
+                      finish: Callable[[RequestId, Outcome], bytes], refuse: Callable[[RequestId, Problem], bytes],
                       fields: dict[str, str] | None = None) -> None:
         """On Cyclone's listener thread: read the request header, take a place in the engine's queue (a refusal
-        is answered at once), and queue the work: prepare(sample, state) decodes the request into a
-        DetectRequest on a worker (state keeps what finish needs), the engine detects, finish(request id, state,
-        detection) builds the reply, written from the worker, and the objects go out on graspd/objects; a
-        refusal or failure is answered by refuse(), its field named as the request names it (fields: request
-        field -> ROS field, ros_stream.ros_problem)."""
+        is answered at once), and queue the work: prepare(sample, deadline) decodes the request on a worker (the
+        Parsed's context keeps what finish needs), the engine detects, finish(request id, outcome) builds the
+        reply, written from the worker, and the objects go out on graspd/objects; a refusal or failure is
+        answered by refuse(), its field named as the request names it (fields: request field -> ROS field,
+        ros_stream.ros_problem)."""
         ctx = begin_request()
         where = self.names[entry]
         try:
             rid = request_id(data)
         except RosDecodeError as exc:  # no header: nobody to answer
-            self.publish_error(Problem(422, str(exc), exc.field), where, ctx.id)
+            self.publish_error(invalid(str(exc), exc.field), where, ctx.id)
             return
+        tracked = self.lifecycle.track("ros2", label="ros2-service")
         try:
             problem = self._too_large(len(data))
             if problem is not None:
                 raise problem
             self.share.take(self.engine.retry_after())
             try:
-                self.engine.admit()
+                self.lifecycle.admit()
             except Problem:
                 self.share.give()
                 raise
         except Problem as exc:
             self.publish_error(exc, where, ctx.id)
             self._write(entry, refuse(rid, exc))
-            self.metrics.requests.labels("ros2-service", "refused").inc()
+            tracked.finish(exc, outcome="refused")
             return
-        t0 = time.perf_counter()
-        state: dict[str, Any] = {"deadline": t0 + self.settings.deadline_s}
-        header: dict[str, Any] = {}
-        caught = _Caught()
+        deadline = time.perf_counter() + self.settings.deadline_s
         held = [data]  # the sample, dropped once parsed (a message of megabytes is not kept through detection)
 
-        def parse() -> DetectRequest:  # on the worker
-            req = prepare(held.pop(), state)
-            header.update(_json_header(state["msg"].header))
-            return req
-
-        def done(fut: Future[bytes]) -> None:  # on the worker that ran the detection
-            outcome = "ok"
-            try:
-                exc = None if fut.cancelled() else fut.exception()
-                if fut.cancelled():
-                    exc = Problem(504, f"no result within the deadline of {self.settings.deadline_s} s", "deadline")
-                if exc is None:
-                    self._write(entry, finish(rid, state, caught))
-                    self.publish_objects(caught, state["msg"].header)
-                    return
-                if not isinstance(exc, Problem | moveit.PlanningError):
-                    log.error("ros2 service failed", exc_info=exc, extra={"request_id": ctx.id})
-                    exc = Problem(500, f"internal error (request {ctx.id}; the server log has the details)")
-                if isinstance(exc, Problem):
-                    exc = ros_problem(exc, fields) if fields is not None else ros_problem(exc)
-                    self.publish_error(exc, where, ctx.id)
-                outcome = "invalid"
-                self._write(entry, refuse(rid, exc))
-            except Exception:  # never leave the worker with an exception
-                log.exception("ros2 service reply failed", extra={"request_id": ctx.id})
-                outcome = "error"
-            finally:
-                self.metrics.requests.labels("ros2-service", outcome).inc()
-                self.metrics.request_seconds.labels("ros2").observe(time.perf_counter() - t0)
+        def answer(outcome: Outcome | None, problem: Problem | None) -> None:  # on the worker, or at the deadline
+            self.share.give()
+            if outcome is not None:
+                self._write(entry, finish(rid, outcome))
+                self.publish_objects(outcome.result, outcome.context["msg"].header)
+                tracked.finish()
+                return
+            assert problem is not None
+            if not isinstance(problem, moveit.PlanningError):
+                problem = ros_problem(problem, fields) if fields is not None else ros_problem(problem)
+                self.publish_error(problem, where, ctx.id)
+            self._write(entry, refuse(rid, problem))
+            tracked.finish(problem)
 
         try:
-            fut, _ = self.engine.enqueue(parse, {"read": 0.0}, header, on_detection=caught)
+            self.lifecycle.start(lambda: prepare(held.pop(), deadline), {"read": 0.0}, answer, "ros2 service")
         except Problem as exc:  # shutting down (the place was given back)
             self.share.give()
             self._write(entry, refuse(rid, exc))
-            return
-        fut.add_done_callback(lambda _: self.share.give())
-        fut.add_done_callback(done)
-        self.engine.trim_after(fut)
+            tracked.finish(exc)
 
     # detect_grasps: gpd_ros/srv/DetectGrasps (CloudIndexed -> GraspConfigList with the cloud's header)
     def _on_detect_request(self, data: bytes) -> None:
         self._service_call(data, "detect_grasps", self._detect_prepare, self._detect_finish, self._detect_refused)
 
-    def _detect_prepare(self, data: bytes, state: dict[str, Any]) -> DetectRequest:
+    def _detect_prepare(self, data: bytes, _deadline: float) -> Parsed:
         _, body = split_request(data)
-        msg = state["msg"] = self.decode(body, "cloud_indexed")
-        return stream_request(msg, self.options)
+        msg = self.decode(body, "cloud_indexed")
+        return Parsed(stream_request(msg, self.options), header=ros_header(msg.header), context={"msg": msg})
 
-    def _detect_finish(self, rid: RequestId, state: dict[str, Any], caught: _Caught) -> bytes:
-        grasps = caught.grasps if caught.grasps is not None else GraspSet()
-        return frame_sample(rid, encode_grasp_config_list(grasps, state["msg"].header))
+    def _detect_finish(self, rid: RequestId, outcome: Outcome) -> bytes:
+        return frame_sample(rid, encode_grasp_config_list(outcome.result.grasps, outcome.context["msg"].header))
 
-    def _detect_refused(self, rid: RequestId, _error: Problem | moveit.PlanningError) -> bytes:
+    def _detect_refused(self, rid: RequestId, _error: Problem) -> bytes:
         return frame_sample(rid, encode_grasp_config_list(GraspSet(), Header()))
 
     # plan_grasps: moveit_msgs/srv/GraspPlanning (CollisionObject target -> Grasp[] in its frame)
@@ -468,7 +417,7 @@ class Ros2Node:
         self._service_call(data, "plan_grasps", self._plan_prepare, self._plan_finish, self._plan_refused,
                            PLAN_FIELDS)
 
-    def _plan_prepare(self, data: bytes, state: dict[str, Any]) -> DetectRequest:
+    def _plan_prepare(self, data: bytes, deadline: float) -> Parsed:
         """The newest cloud with the GraspPlanning request's target as a box (moveit.target_box, in the detection
         frame) and the map from the target's frame into the detection frame (moveit.frame_transform);
         PlanningError when that cannot be.  In that order, each before any cost of the next: the newest cloud's
@@ -483,7 +432,6 @@ class Ros2Node:
         if age > self.settings.ros2_plan_cloud_age_s:
             raise moveit.PlanningError(moveit.SENSOR_INFO_STALE, f"the newest cloud is {age:.1f} s old (more than "
                                        f"GRASPD_ROS2_PLAN_CLOUD_AGE_S = {self.settings.ros2_plan_cloud_age_s:g})")
-        deadline = state["deadline"]
         budget = self.engine.budget
         wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
         held = budget.take(message_cost(len(data), PLAN_WORK_MB), self.engine.retry_after(), wait)
@@ -500,18 +448,18 @@ class Ros2Node:
             box = moveit.target_box(target, to_detection)
         finally:
             budget.give(held)
-        state.update(msg=msg, frame=target.header.frame_id or msg.header.frame_id, to_detection=to_detection,
-                     target_id=target.id)
-        return stream_request(msg, opts, Target("box", box=box))
+        state = {"msg": msg, "frame": target.header.frame_id or msg.header.frame_id, "to_detection": to_detection,
+                 "target_id": target.id}
+        return Parsed(stream_request(msg, opts, Target("box", box=box)), header=ros_header(msg.header),
+                      context=state)
 
-    def _plan_finish(self, rid: RequestId, state: dict[str, Any], caught: _Caught) -> bytes:
-        if caught.grasps is None:
-            return self._plan_reply(rid, [], moveit.PLANNING_FAILED, "the detection gave no grasps")
+    def _plan_finish(self, rid: RequestId, outcome: Outcome) -> bytes:
+        state, result = outcome.context, outcome.result
         header = Header(state["frame"], state["msg"].header.stamp)
-        grasps = self.moveit_messages(caught, header, self.options.request.approach_distance,
+        grasps = self.moveit_messages(result, header, self.options.request.approach_distance,
                                       np.linalg.inv(state["to_detection"]), state["target_id"] or "graspd")
         if not grasps:
-            why = "; ".join(caught.warnings)
+            why = "; ".join(w.message for w in result.warnings if w.code == "target_too_small")
             return self._plan_reply(rid, [], moveit.PLANNING_FAILED,
                                     "no grasp found on the target" + (f" ({why})" if why else ""))
         return self._plan_reply(rid, grasps, moveit.SUCCESS, "")
@@ -521,13 +469,9 @@ class Ros2Node:
         response = self.store.types[name](grasps=grasps, error_code=moveit.error_code(self.store, code, message))
         return frame_sample(rid, bytes(self.store.serialize_cdr(response, name)))
 
-    def _plan_refused(self, rid: RequestId, error: Problem | moveit.PlanningError) -> bytes:
+    def _plan_refused(self, rid: RequestId, error: Problem) -> bytes:
         if isinstance(error, moveit.PlanningError):
             return self._plan_reply(rid, [], error.code, error.message)
         code = moveit.TIMED_OUT if error.status == 504 else (
             moveit.PLANNING_FAILED if error.status < 500 else moveit.FAILURE)
         return self._plan_reply(rid, [], code, f"{error.status}: {error}")
-
-
-def _json_header(header: Header) -> dict[str, Any]:
-    return {"frame_id": header.frame_id, "stamp": {"sec": header.stamp[0], "nanosec": header.stamp[1]}}

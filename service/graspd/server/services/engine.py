@@ -25,7 +25,6 @@ Admission is by cost, so that under load the service finishes work instead of ti
 
 from __future__ import annotations
 
-import asyncio
 import contextvars
 import heapq
 import logging
@@ -33,9 +32,10 @@ import math
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, InvalidStateError, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -43,17 +43,19 @@ import numpy as np
 
 from graspd.core.camera import Intrinsics, project_points
 from graspd.core.cloud import ViewpointCloud
+from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.core.parallel import THREADS
 from graspd.gpd.blas import set_blas_threads
-from graspd.gpd.detector import Detection, DetectionParams
-from graspd.gpd.sanity import check_detection, region_check
+from graspd.gpd.detector import DetectionParams
+from graspd.gpd.sanity import region_check
 from graspd.gpd.target import TargetError
+from graspd.io.inputs import CloudInput
 from graspd.io.png import encode_png_b64
 from graspd.server.logs import current_request
 from graspd.server.metrics import Metrics
-from graspd.server.problems import CALLER_ERRORS, Problem, from_wire
-from graspd.server.schemas import CropsRequest, DetectRequest, DetectResponse
+from graspd.server.problems import CALLER_ERRORS, Problem, busy, deadline_passed, from_wire, gave_up, shutting_down
+from graspd.server.schemas import CropsRequest, DetectRequest
 from graspd.server.services import proposals
 from graspd.server.services.allocator import IdleTrimmer, trim_function
 from graspd.server.services.budget import (
@@ -67,23 +69,21 @@ from graspd.server.services.budget import (
     voxel_units,
     work_parts,
 )
+from graspd.server.services.mapping import response_json
+from graspd.server.services.outcome import GpdResult, GraspResult, Outcome, Parsed, TemplatesResult
 from graspd.server.services.registry import ModelRegistry
 from graspd.server.services.templates import TemplateService
 from graspd.server.settings import Settings
-from graspd.templates import TemplateDetection
 
 log = logging.getLogger("graspd.server")
-#: Called on the worker with a finished detection, the cloud it ran on and the hand used (engine.enqueue).
-OnDetection = Callable[[Detection | TemplateDetection, ViewpointCloud, HandGeometry], None]
 
 
-def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
+def crops_json(g: GraspSet, hand: HandGeometry, crops: CropsRequest) -> list[dict[str, Any]]:
     """One crop entry per grasp: PNG of the window around the projected point between the fingers."""
     image = crops.image  # a PNG was decoded into image when the request was validated
     assert image is not None
     intr = crops.intrinsics
-    g = det.grasps
-    centres = proposals.finger_centres(g.positions, g.approach, det.hand.hand_depth)
+    centres = proposals.finger_centres(g.positions, g.approach, hand.hand_depth)
     pixels, _ = project_points(centres, crops.camera_pose, Intrinsics(intr.fx, intr.fy, intr.cx, intr.cy))
     inside = proposals.inside_image(pixels, image.shape[0], image.shape[1])
     windows = proposals.crop_windows(image, np.where(inside[:, None], pixels, np.nan), crops.size)
@@ -92,23 +92,23 @@ def crops_json(det: Detection, crops: CropsRequest) -> list[dict[str, Any]]:
              "in_image": bool(inside[i])} for i in range(len(g))]
 
 
-#: Samples of a request that names none (what _bound assumes of a payload not parsed yet).
-DEFAULT_SAMPLES = int(DetectRequest.model_fields["num_samples"].default)
 #: A started detection is awaited up to this many deadlines after it was queued (then 504): admission already
 #: refused what was expected to end past one deadline, so this only bounds a detection far beyond its estimate.
 ANSWER_DEADLINES = 2.0
+#: Samples of a request that names none (what _bound assumes of a payload not parsed yet).
+DEFAULT_SAMPLES = int(DetectRequest.model_fields["num_samples"].default)
 
 
 @dataclass(eq=False)
 class Ticket:
     """One request from enqueue() to its answer.  future: what every entrance waits on (the engine settles it with
-    the response JSON or a Problem); phase: queued -> started, or queued -> refused (503 while queued, never run);
+    the Outcome or a Problem); phase: queued -> started, or queued -> refused (503 while queued, never run);
     bound: the most seconds its payload's size allows (inf: not known); began, ends: when a started one began and
     is expected to end, its own estimate once `estimated`; deadline likewise (time.perf_counter() s)."""
 
     deadline: float
     bound: float = math.inf
-    future: Future[bytes] = field(default_factory=Future)
+    future: Future[Outcome] = field(default_factory=Future)
     phase: str = "queued"
     began: float = 0.0
     ends: float = 0.0
@@ -198,10 +198,9 @@ class DetectionEngine:
         expected time, over the workers) leaves no time for a typical request before the deadline."""
         with self._lock:
             if self.closed:
-                raise Problem(503, "server is shutting down", retry_after=1.0)
+                raise shutting_down()
             if self._pending >= self.capacity:
-                raise Problem(503, f"server busy ({self._pending} requests queued or running)",
-                              retry_after=self.retry_after())
+                raise busy(f"{self._pending} requests queued or running", self.retry_after())
             free = self._free_at(time.perf_counter())
             typical = self._typical()
             for ticket in self._queued:
@@ -210,9 +209,9 @@ class DetectionEngine:
                 heapq.heapreplace(free, free[0] + self._expected(None, typical))
             over = free[0] + self._expected(None, typical) - self.settings.deadline_s
             if free[0] > 0 and over > 0:
-                raise Problem(503, f"server busy: the {self._pending} requests queued or running would take about "
-                              f"{free[0]:.0f} s, too long to start another within the deadline of "
-                              f"{self.settings.deadline_s:g} s", retry_after=self.retry_after(over))
+                raise busy(f"the {self._pending} requests queued or running would take about {free[0]:.0f} s, too "
+                           f"long to start another within the deadline of {self.settings.deadline_s:g} s",
+                           self.retry_after(over))
             self._pending += 1
             self.metrics.queue_depth.set(self._pending - self._running)
 
@@ -243,12 +242,12 @@ class DetectionEngine:
         """The answer to a request that could not start in time: 503 with Retry-After (the queue was the problem),
         or 504 naming the deadline when not even the smallest detection fits the deadline here."""
         if self.min_seconds() > self.settings.deadline_s:
-            return Problem(504, f"deadline of {self.settings.deadline_s} s passed while queued", "deadline")
-        return Problem(503, f"server busy: the requests ahead leave no time to start this one within the deadline "
-                            f"of {self.settings.deadline_s:g} s", retry_after=self.retry_after())
+            return deadline_passed(self.settings.deadline_s)
+        return busy(f"the requests ahead leave no time to start this one within the deadline of "
+                    f"{self.settings.deadline_s:g} s", self.retry_after())
 
     @staticmethod
-    def _settle(ticket: Ticket, result: bytes | BaseException) -> None:
+    def _settle(ticket: Ticket, result: Outcome | BaseException) -> None:
         """Give the ticket's waiters their answer (nothing when the caller went away: the future was cancelled)."""
         try:
             if isinstance(result, BaseException):
@@ -308,10 +307,9 @@ class DetectionEngine:
                     self._queued.remove(ticket)
                 self._changed.notify()
             if waiting:
-                self._settle(ticket, Problem(503, "server is shutting down", retry_after=1.0))
+                self._settle(ticket, shutting_down())
 
-    def _run(self, ticket: Ticket, parse: Callable[[], DetectRequest], enqueued: float, timings: dict[str, float],
-             header: dict[str, Any] | None, on_detection: OnDetection | None) -> None:
+    def _run(self, ticket: Ticket, parse: Callable[[], Parsed], enqueued: float, timings: dict[str, float]) -> None:
         """The executor's job: start the ticket unless it was refused while queued or its caller went away, run
         it (_job) and settle its future."""
         with self._changed:
@@ -327,9 +325,9 @@ class DetectionEngine:
             ticket.ends = ticket.began + self._expected(ticket, self._typical())  # until its own estimate is known
             self._started.add(ticket)
             self._changed.notify()
-        result: bytes | BaseException
+        result: Outcome | BaseException
         try:
-            result = self._job(ticket, parse, enqueued, timings, header, on_detection)
+            result = self._job(ticket, parse, enqueued, timings)
         except BaseException as exc:  # a Problem, or a fault the entrance reports as 500
             result = exc
         with self._changed:
@@ -338,152 +336,178 @@ class DetectionEngine:
         self._settle(ticket, result)
 
     # ---- the work --------------------------------------------------------------------------
-    def _job(self, ticket: Ticket, parse: Callable[[], DetectRequest], enqueued: float,
-             timings: dict[str, float], header: dict[str, Any] | None,
-             on_detection: OnDetection | None = None) -> bytes:
-        """Parse (on this worker, not the event loop), admit by cost and detect; the response JSON bytes, or
-        Problem.  header: the ROS header of a CDR payload, which parse() may fill in (Zenoh); it goes into the
-        response.  on_detection(det, cloud, hand) is called on the worker with the detection (ROS outputs, the
-        viewer)."""
-        deadline = ticket.deadline
-        start = time.perf_counter()
-        held = 0.0  # MiB of the memory budget this request holds (budget.MemoryBudget)
-        units = 0.0  # its work units (budget.work_units), known once parsed
+    @dataclass
+    class _Account:
+        """What one request on a worker holds: MiB of the memory budget, its work units once admitted by cost
+        (0: not), and when it started (time.perf_counter() s)."""
+
+        start: float
+        held: float = 0.0
+        units: float = 0.0
+
+    @contextmanager
+    def _on_worker(self) -> Iterator[DetectionEngine._Account]:
+        """The accounting of one request on a worker: running counts and gauges, the memory it holds given back,
+        its time learnt (budget.observe, the EWMAs) whatever its end."""
+        account = DetectionEngine._Account(time.perf_counter())
         with self._lock:
             self._running += 1
             self.metrics.running.set(self._running)
             self.metrics.queue_depth.set(max(0, self._pending - self._running))
         try:
-            timings["queue"] = start - enqueued
-            before = timings.get("read", 0.0) + timings.get("decode", 0.0)  # spent before enqueue (body read)
-            if start + self.min_seconds() > deadline:  # the watchdog refuses these while queued; one it missed
-                raise self._late()
-            req = parse()
-            self.budget.check(cost_of(req))  # 413 on the points sent alone, before any work on the cloud
-            try:
-                hand = req.hand_geometry()
-                given = req.to_input()  # in the frame detection runs in; non-finite rows dropped (graspd.io.inputs)
-                cloud = given.cloud
-                params = req.to_params()
-            except CALLER_ERRORS as exc:
-                raise from_wire(exc) from None
-            # what the detection will work on: the occupied voxels of its region (a volume keeps ~20x a surface's)
-            voxels = occupied_voxels(cloud, params.voxel_size, params.workspace, params.range_window)
-            wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
-            held = self.budget.take(cost_of(req, voxels), self.retry_after(), wait,  # 413 / 503 before detection
-                                    params.voxel_size)
-            work = work_parts(req, voxels)
-            lone = sum(work.values()) * self.budget.unit_seconds  # expected seconds alone
-            if lone > ANSWER_DEADLINES * self.settings.deadline_s:  # never fits, even were the estimate 2x high
-                raise self._late() if self.min_seconds() > self.settings.deadline_s else \
-                    too_slow(req, voxels, self.budget.unit_seconds, ANSWER_DEADLINES * self.settings.deadline_s,
-                             self.settings.deadline_s, params.voxel_size)
-            with self._changed:
-                shared = 1 + self._detecting  # detections sharing the cores (graspd.core.parallel), this one too
-                alone = len(self._started) == 1 and not self._queued and self._pending == 1
-                now = time.perf_counter()
-                if lone > self.settings.deadline_s and not alone:  # best effort only on an idle server
-                    raise Problem(503, f"server busy: this request takes about {lone:.0f} s even alone, more than "
-                                  f"the deadline of {self.settings.deadline_s:g} s: it runs only when nothing else "
-                                  "runs or waits", retry_after=self.retry_after())
-                if lone <= self.settings.deadline_s and now + lone * shared > deadline:  # 503, not start in vain
-                    raise Problem(503, f"server busy: this request takes about {lone * shared:.0f} s now and would "
-                                  f"not end within the deadline of {self.settings.deadline_s:g} s",
-                                  retry_after=self.retry_after())
-                self._detecting += 1
-                ticket.ends, ticket.estimated = now + lone * shared, True  # the watchdog re-plans the queue
-                self._changed.notify()
-            units = sum(work.values()) * shared  # timed from here on (budget.observe learns seconds per lone unit)
-            timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
-            model = self.registry.resolve(req.model, req.use_classifier and req.method == "gpd",
-                                          hand or HandGeometry())
-            det: Detection | TemplateDetection
-            ctx = current_request()
-            region = None if req.method == "templates" else self._checks.submit(
-                region_check, cloud, params.workspace, params.range_window)
-            try:
-                with THREADS.request():  # concurrent requests share the cores (graspd.core.parallel)
-                    det = self._detect(req, cloud, params, hand, model)
-            except TargetError as exc:  # the target selects nothing of the cloud: a 422 naming target.<field>
-                raise from_wire(exc) from None
-            input_warnings = given.warnings  # the input's own (non-finite rows dropped), first
-            if isinstance(det, Detection):
-                det = replace(det, warnings=(*input_warnings, *det.warnings))
-                input_warnings = ()
-            # request_id: the client's X-Request-ID, else made here; detection_id (GPD grasp ids) always made here
-            detection_id = ctx.detection_id if ctx is not None else uuid.uuid4().hex[:16]
-            if isinstance(det, TemplateDetection):
-                request_id = det.detection_id or uuid.uuid4().hex
-                if ctx is not None and ctx.given:
-                    request_id = ctx.id  # the client's id stays; the grasp ids name the detection
-                elif ctx is not None:
-                    ctx.id = request_id  # the request's later log lines and X-Request-ID carry the returned id
-                used_hand = self.templates.library.hand
-            else:
-                request_id = ctx.id if ctx is not None else detection_id
-                self.templates.remember(detection_id, cloud, det)
-                used_hand = det.hand
-            if on_detection is not None:
-                on_detection(det, cloud, used_hand)
-            timings.update(det.timings)
-            timings["detect"] = timings.get("total", 0.0)  # the detector's own wall time, before the engine's total
-            crops = None
-            if req.crops is not None and isinstance(det, Detection):  # method "templates" refuses crops
-                t = time.perf_counter()
-                crops = crops_json(det, req.crops)
-                timings["crops"] = time.perf_counter() - t
-            self.metrics.candidates.observe(det.num_candidates)
-            self.metrics.grasps.observe(len(det.grasps))
-            self.metrics.points.observe(det.num_points)
-            fits = None if isinstance(det, TemplateDetection) else self.registry.fits(det.model, used_hand)
-            if isinstance(det, Detection):  # the request-level checks (graspd.gpd.sanity), after the detector's own
-                det = det.warned(*check_detection(det, cloud, params.workspace, params.range_window, fits,
-                                                  None if region is None else region.result()))
-            timings["total"] = time.perf_counter() - enqueued + before
-            self.metrics.observe_timings(timings)
-            return DetectResponse.from_detection(det, request_id=request_id, timings=timings, hand=used_hand,
-                                                 crops=crops, header=header or None,
-                                                 model_fits_hand=fits, detection_id=detection_id,
-                                                 frame=given.frame, warnings=input_warnings).to_json()
+            yield account
         finally:
-            if units:
+            if account.units:
                 with self._lock:
                     self._detecting -= 1
-            self.budget.give(held)
-            elapsed = time.perf_counter() - start
-            self.budget.observe(units, elapsed)
+            self.budget.give(account.held)
+            elapsed = time.perf_counter() - account.start
+            self.budget.observe(account.units, elapsed)
             with self._lock:
                 self._running -= 1
                 self.metrics.running.set(self._running)
                 if elapsed > 0.01 or self._avg_seconds < 0.01:  # refusals in microseconds say nothing of the load
                     self._avg_seconds = 0.8 * self._avg_seconds + 0.2 * elapsed
-                if units:
+                if account.units:
                     self._avg_detect = elapsed if not self._avg_detect else 0.8 * self._avg_detect + 0.2 * elapsed
 
-    def _detect(self, req: DetectRequest, cloud: ViewpointCloud, params: DetectionParams, hand: HandGeometry | None,
-                model: str | None) -> Detection | TemplateDetection:
-        """The detection a request asks for: grasp templates, or GPD with the resolved model."""
-        if req.method == "templates":
-            return self.templates.detect(req, cloud, hand)
-        return self.registry.detector(model).detect(cloud, params, hand)
+    def _job(self, ticket: Ticket, parse: Callable[[], Parsed], enqueued: float, timings: dict[str, float]
+             ) -> Outcome:
+        """Parse (on this worker, not the event loop), admit by cost and detect: the Outcome, or Problem."""
+        with self._on_worker() as account:
+            start = account.start
+            timings["queue"] = start - enqueued
+            before = timings.get("read", 0.0) + timings.get("decode", 0.0)  # spent before enqueue (body read)
+            if start + self.min_seconds() > ticket.deadline:  # the watchdog refuses these while queued; one missed
+                raise self._late()
+            parsed = parse()
+            req = parsed.request
+            self.budget.check(cost_of(req))  # 413 on the points sent alone, before any work on the cloud
+            try:
+                hand = req.hand_geometry()
+                # in the frame detection runs in; non-finite rows dropped (graspd.io.inputs)
+                given = parsed.given if parsed.given is not None else req.to_input()
+                params = req.to_params()
+            except CALLER_ERRORS as exc:
+                raise from_wire(exc) from None
+            if parsed.target is not None:  # a ROS message's own target (rows, samples, a planning box)
+                params = replace(params, target=parsed.target)
+            cloud = given.cloud
+            shared = self._admit_by_cost(ticket, account, req, cloud, params)
+            timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
+            result, detection_id = self._detect(req, given, params, hand)
+            request_id = self._request_id(result, detection_id)
+            timings.update(result.timings)
+            timings["detect"] = timings.get("total", 0.0)  # the detector's own wall time, before the engine's total
+            crops = None
+            if req.crops is not None:  # method "templates" refuses crops
+                t = time.perf_counter()
+                crops = crops_json(result.grasps, result.hand, req.crops)
+                timings["crops"] = time.perf_counter() - t
+            self.metrics.candidates.observe(result.num_candidates)
+            self.metrics.grasps.observe(len(result.grasps))
+            self.metrics.points.observe(result.num_points)
+            fits = self.registry.fits(result.model, result.hand)
+            result = result.checked(cloud, params.workspace, params.range_window, fits,  # request-level checks
+                                    None if shared.region is None else shared.region.result())
+            timings["total"] = time.perf_counter() - enqueued + before
+            self.metrics.observe_timings(timings)
+            return Outcome(result, req, cloud, request_id, detection_id, given.frame, parsed.header or None,
+                           timings, crops, fits, parsed.context)
 
-    def submit(self, req: DetectRequest, timings: dict[str, float], header: dict[str, Any] | None = None,
-               on_detection: OnDetection | None = None) -> tuple[Future[bytes], float]:
+    @dataclass
+    class _Admitted:
+        """A request admitted by cost: the detections sharing the cores with it, and the request-level visibility
+        check running beside its detection (None for the templates)."""
+
+        shared: int
+        region: Future[Any] | None = None
+
+    def _admit_by_cost(self, ticket: Ticket, account: DetectionEngine._Account, req: DetectRequest,
+                       cloud: ViewpointCloud, params: DetectionParams) -> DetectionEngine._Admitted:
+        """The memory budget and the time (see the module's text): 413 naming the field when it never fits, 503
+        when not now; holds the memory in account and counts the request among the detections sharing the cores.
+        Starts the visibility check beside the detection."""
+        deadline = ticket.deadline
+        # what the detection will work on: the occupied voxels of its region (a volume keeps ~20x a surface's)
+        voxels = occupied_voxels(cloud, params.voxel_size, params.workspace, params.range_window)
+        wait = min(self.settings.detect_memory_wait_s, max(0.0, deadline - time.perf_counter()))
+        account.held = self.budget.take(cost_of(req, voxels), self.retry_after(), wait,  # 413 / 503 before detection
+                                        params.voxel_size)
+        work = work_parts(req, voxels)
+        lone = sum(work.values()) * self.budget.unit_seconds  # expected seconds alone
+        if lone > ANSWER_DEADLINES * self.settings.deadline_s:  # never fits, even were the estimate 2x high
+            raise self._late() if self.min_seconds() > self.settings.deadline_s else \
+                too_slow(req, voxels, self.budget.unit_seconds, ANSWER_DEADLINES * self.settings.deadline_s,
+                         self.settings.deadline_s, params.voxel_size)
+        with self._changed:
+            shared = 1 + self._detecting  # detections sharing the cores (graspd.core.parallel), this one too
+            alone = len(self._started) == 1 and not self._queued and self._pending == 1
+            now = time.perf_counter()
+            if lone > self.settings.deadline_s and not alone:  # best effort only on an idle server
+                raise busy(f"this request takes about {lone:.0f} s even alone, more than the deadline of "
+                           f"{self.settings.deadline_s:g} s: it runs only when nothing else runs or waits",
+                           self.retry_after())
+            if lone <= self.settings.deadline_s and now + lone * shared > deadline:  # 503, not start in vain
+                raise busy(f"this request takes about {lone * shared:.0f} s now and would not end within the "
+                           f"deadline of {self.settings.deadline_s:g} s", self.retry_after())
+            self._detecting += 1
+            ticket.ends, ticket.estimated = now + lone * shared, True  # the watchdog re-plans the queue
+            self._changed.notify()
+        account.units = sum(work.values()) * shared  # timed from here on (budget.observe: seconds per lone unit)
+        region = None if req.method == "templates" else self._checks.submit(
+            region_check, cloud, params.workspace, params.range_window)
+        return DetectionEngine._Admitted(shared, region)
+
+    def _detect(self, req: DetectRequest, given: CloudInput, params: DetectionParams, hand: HandGeometry | None
+                ) -> tuple[GraspResult, str]:
+        """The detection a request asks for, grasp templates or GPD with the resolved model, and the id of the
+        detection (GPD grasp ids start with it; the recent GPD detections are remembered by it, for feedback)."""
+        ctx = current_request()
+        detection_id = ctx.detection_id if ctx is not None else uuid.uuid4().hex[:16]
+        result: GraspResult
+        model = self.registry.resolve(req.model, req.use_classifier and req.method == "gpd", hand or HandGeometry())
+        try:
+            with THREADS.request():  # concurrent requests share the cores (graspd.core.parallel)
+                if req.method == "templates":
+                    det = self.templates.detect(req, given.cloud, hand)
+                    result = TemplatesResult(det, self.templates.library.hand, given.warnings,
+                                             det.detection_id or uuid.uuid4().hex)
+                else:
+                    gpd = self.registry.detector(model).detect(given.cloud, params, hand)
+                    self.templates.remember(detection_id, given.cloud, gpd)
+                    result = GpdResult.of(gpd, given.warnings)
+        except TargetError as exc:  # the target selects nothing of the cloud: a 422 naming target.<field>
+            raise from_wire(exc) from None
+        return result, detection_id
+
+    @staticmethod
+    def _request_id(result: GraspResult, detection_id: str) -> str:
+        """The request id the answer returns: the client's X-Request-ID when it gave one, else the detection's own
+        id when the detector made one (templates; the request's later log lines and X-Request-ID then carry it),
+        else the server's id of the request."""
+        ctx = current_request()
+        if ctx is None:
+            return result.own_id or detection_id
+        if result.own_id is not None and not ctx.given:
+            ctx.id = result.own_id
+        return ctx.id
+
+    def submit(self, req: DetectRequest, timings: dict[str, float]) -> tuple[Future[Outcome], float]:
         """Admit a request (Problem 503 when full) and queue it; returns the future and when to give up on it
         (see enqueue)."""
         self._admit()
-        return self.enqueue(lambda: req, timings, header, on_detection)
+        return self.enqueue(lambda: Parsed(req), timings)
 
-    def enqueue(self, parse: Callable[[], DetectRequest], timings: dict[str, float],
-                header: dict[str, Any] | None = None, on_detection: OnDetection | None = None,
-                size: int = 0) -> tuple[Future[bytes], float]:
+    def enqueue(self, parse: Callable[[], Parsed], timings: dict[str, float], size: int = 0
+                ) -> tuple[Future[Outcome], float]:
         """Queue an admitted request (admit() first): parse() runs on a worker, then the detection.  Returns the
-        future, which the engine settles with the response JSON or a Problem (a request that cannot start in
-        time gets 503 while queued), and the time (time.perf_counter() s) after which a waiter gives up with 504
-        (gave_up): ANSWER_DEADLINES deadlines, for a detection that started but ran far past its estimate.  The
-        place is given back when the job is done.  header: a ROS header for the response (Zenoh, CDR input),
-        read after parse() ran.  size: the payload's bytes when known (0: not), which bound what it can cost while
-        it is queued (a small request behind big ones is not judged by theirs)."""
+        future, which the engine settles with the Outcome or a Problem (a request that cannot start in time gets
+        503 while queued), and the time (time.perf_counter() s) after which a waiter gives up with 504
+        (problems.gave_up): ANSWER_DEADLINES deadlines, for a detection that started but ran far past its
+        estimate.  The place is given back when the job is done.  size: the payload's bytes when known (0: not),
+        which bound what it can cost while it is queued (a small request behind big ones is not judged by
+        theirs)."""
         now = time.perf_counter()
         ticket = Ticket(now + self.settings.deadline_s, self._bound(size))
         context = contextvars.copy_context()  # the request id follows the work onto the worker thread
@@ -491,16 +515,31 @@ class DetectionEngine:
             self._queued.append(ticket)
             self._changed.notify()
         try:
-            ticket.work = self.executor.submit(context.run, self._run, ticket, parse, now, timings, header,
-                                               on_detection)
+            ticket.work = self.executor.submit(context.run, self._run, ticket, parse, now, timings)
         except RuntimeError:  # executor shut down
             with self._changed:
                 if ticket in self._queued:
                     self._queued.remove(ticket)
             self._release()
-            raise Problem(503, "server is shutting down", retry_after=1.0) from None
+            raise shutting_down() from None
         ticket.work.add_done_callback(lambda work: self._work_done(ticket, work))
         return ticket.future, now + ANSWER_DEADLINES * self.settings.deadline_s
+
+    def detect_sync(self, parse: Callable[[], Parsed], timings: dict[str, float] | None = None) -> Outcome:
+        """Admit, parse and detect, blocking: the Outcome, or a Problem (503 when full, 504 past ANSWER_DEADLINES
+        deadlines)."""
+        self.admit()
+        fut, give_up = self.enqueue(parse, timings if timings is not None else {})
+        self.trim_after(fut)
+        try:
+            return fut.result(timeout=max(0.0, give_up - time.perf_counter()))
+        except FutureTimeout:
+            fut.cancel()
+            raise gave_up(self.settings.deadline_s, ANSWER_DEADLINES) from None
+
+    def run_sync(self, req: DetectRequest, timings: dict[str, float] | None = None) -> bytes:
+        """Blocking detect of a validated request (benchmarks, tools): the JSON answer, or Problem."""
+        return response_json(self.detect_sync(lambda: Parsed(req), timings))
 
     def _bound(self, size: int) -> float:
         """The most seconds a payload of `size` bytes can take (0: not known, inf): its points at the densest
@@ -510,43 +549,6 @@ class DetectionEngine:
         points = size // DENSEST_POINT_BYTES
         units = 1.0 + points / POINTS_PER_UNIT + voxel_units(points) + DEFAULT_SAMPLES / SAMPLES_PER_UNIT
         return units * self.budget.unit_seconds * self.workers
-
-    def gave_up(self) -> Problem:
-        """The 504 of a waiter whose detection started but ran past ANSWER_DEADLINES deadlines."""
-        return Problem(504, f"no result within {ANSWER_DEADLINES:g} x the deadline of {self.settings.deadline_s} s "
-                            "(the detection ran far beyond its estimate)", "deadline")
-
-    def run_sync(self, req: DetectRequest, timings: dict[str, float] | None = None,
-                 header: dict[str, Any] | None = None, on_detection: OnDetection | None = None) -> bytes:
-        """Blocking detect (Zenoh callbacks, CLI): response JSON bytes, or Problem."""
-        fut, give_up = self.submit(req, timings if timings is not None else {}, header, on_detection)
-        self.trim_after(fut)
-        try:
-            return fut.result(timeout=max(0.0, give_up - time.perf_counter()))
-        except FutureTimeout:
-            fut.cancel()
-            raise self.gave_up() from None
-
-    async def run(self, req: DetectRequest, timings: dict[str, float]) -> bytes:
-        """Awaitable detect for the HTTP app: the work runs off the event loop."""
-        fut, give_up = self.submit(req, timings)
-        return await self._wait(fut, give_up)
-
-    async def run_admitted(self, parse: Callable[[], DetectRequest], timings: dict[str, float],
-                           on_detection: OnDetection | None = None, size: int = 0) -> bytes:
-        """Awaitable parse + detect of a request admitted with admit(): both run on a worker thread.  size: the
-        payload's bytes (see enqueue)."""
-        fut, give_up = self.enqueue(parse, timings, None, on_detection, size)
-        return await self._wait(fut, give_up)
-
-    async def _wait(self, fut: Future[bytes], give_up: float) -> bytes:
-        waiter = asyncio.wrap_future(fut)
-        self.trim_after(fut)
-        try:
-            return await asyncio.wait_for(waiter, timeout=max(0.0, give_up - time.perf_counter()))
-        except TimeoutError:
-            fut.cancel()
-            raise self.gave_up() from None
 
     def close(self, wait: bool = True) -> None:
         """Refuse new work and let running detections finish (graceful shutdown); queued requests get 503."""

@@ -27,12 +27,11 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import PrivateAttr
 
-from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.cloud import CloudError
 from graspd.core.frames import camera_positions, check_camera_source, frame_name, to_robot
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.core.limits import MAX_COORDINATE
-from graspd.gpd.detector import Detection
 from graspd.gpd.target import Target
 from graspd.io.inputs import CloudInput, apply_frames, no_finite_point
 from graspd.io.ros import (
@@ -52,7 +51,6 @@ from graspd.io.ros.types import POINTCLOUD2
 from graspd.server.problems import CALLER_ERRORS, Problem
 from graspd.server.requests import json_object, parse_model
 from graspd.server.schemas import Cloud, DetectRequest
-from graspd.templates import TemplateDetection
 
 #: Input name -> default key under the prefix, and the ROS message type it carries.
 INPUT_TYPES: dict[str, str] = {"pointcloud2": "sensor_msgs/msg/PointCloud2",
@@ -325,17 +323,6 @@ def ros_problem(problem: Problem, fields: Mapping[str, str] = TARGET_FIELDS) -> 
 def ros_header(header: Header) -> dict[str, Any]:
     """The JSON answer's "header" of a ROS input."""
     return {"frame_id": header.frame_id, "stamp": {"sec": header.stamp[0], "nanosec": header.stamp[1]}}
-
-
-@dataclass
-class Captured:
-    """The detection of one request, caught on the worker (engine on_detection) for the ROS outputs."""
-
-    grasps: GraspSet | None = None
-    hand: HandGeometry | None = None
-
-    def __call__(self, det: Detection | TemplateDetection, cloud: ViewpointCloud, hand: HandGeometry) -> None:
-        self.grasps, self.hand = det.grasps, hand
 
 
 def ros_outputs(grasps: GraspSet, header: Header, hand: HandGeometry, approach_distance: float,
