@@ -1,6 +1,6 @@
 """The same requests give the same answers on every transport, and the answers saved before the transports were
 reshaped (tests/server/data/transport_cases/): JSON /detect with a few option mixes (crops included) and the
-templates method, a file upload, Zenoh queries; the ROS 2 service's case is in ros2/test_ros2_transport_cases.py.
+templates method, a file upload over HTTP and over Zenoh, Zenoh queries; the ROS 2 service's case is in ros2/test_ros2_transport_cases.py.
 Floats agree to 1e-6 relative; request ids, grasp ids and timings are left out."""
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def _http(http: TestClient, body: dict[str, Any]) -> dict[str, Any]:
     return answer
 
 
-def test_json_detect_small_is_the_saved_answer_on_http_zenoh_and_an_upload(
+def test_json_detect_small_is_the_saved_answer_on_http_zenoh_and_uploads(
         served: tuple[TestClient, ZenohGraspClient], mug: np.ndarray) -> None:
     http, zc = served
     body = json_body(mug, **SMALL)
@@ -68,6 +68,8 @@ def test_json_detect_small_is_the_saved_answer_on_http_zenoh_and_an_upload(
                        headers={"content-type": "application/x-npy"})
     assert upload.status_code == 200, upload.text
     agree(upload.json(), reference, "http npy upload")
+    selector = "graspd/detect?" + ";".join(f"{k}={v}" for k, v in {**SMALL, "viewpoint": "0,0,0"}.items())
+    agree(zc.query(npy_bytes(mug), selector), reference, "zenoh npy upload")
 
 
 def test_json_detect_with_options_and_crops_is_the_saved_answer_on_http_and_zenoh(

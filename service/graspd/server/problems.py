@@ -115,8 +115,10 @@ def shutting_down() -> Problem:
     return Problem(503, "server is shutting down", retry_after=1.0)
 
 
-def too_large(what: str, size: int | str, limit: int, field: str) -> Problem:
-    """413 naming the field: `what` of `size` bytes is over `limit`."""
+def too_large(what: str, size: int | str | None, limit: int, field: str) -> Problem:
+    """413 naming the field: `what` of `size` bytes (None: not known yet) is over `limit` bytes."""
+    if size is None:
+        return Problem(413, f"{what} exceeds the limit of {limit} bytes", field)
     return Problem(413, f"{what} of {size} bytes exceeds the limit of {limit}", field)
 
 

@@ -11,7 +11,7 @@ from fastapi.responses import Response
 from starlette.requests import ClientDisconnect
 
 from graspd.server.api.deps import Authorized, State
-from graspd.server.problems import Problem
+from graspd.server.problems import Problem, too_large
 from graspd.server.requests import parse_body
 from graspd.server.schemas import DetectResponse, ErrorBody
 from graspd.server.services.mapping import response_json
@@ -42,7 +42,7 @@ async def read_capped(request: Request, cap: int, timeout_s: float | None = None
     connection and its buffer indefinitely."""
     length = request.headers.get("content-length")
     if length is not None and length.isdigit() and int(length) > cap:
-        raise Problem(413, f"request body of {length} bytes exceeds the limit of {cap}", "body")
+        raise too_large("request body", length, cap, "body")
     if timeout_s is None:
         service = getattr(request.app.state, "service", None)
         timeout_s = service.settings.http_body_timeout_s if service is not None else 60.0
@@ -60,7 +60,7 @@ async def read_capped(request: Request, cap: int, timeout_s: float | None = None
                           "body") from None
         size += len(chunk)
         if size > cap:
-            raise Problem(413, f"request body exceeds the limit of {cap} bytes", "body")
+            raise too_large("request body", None, cap, "body")
         chunks.append(chunk)
     return b"".join(chunks)
 

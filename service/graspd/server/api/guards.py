@@ -20,7 +20,7 @@ import time
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from graspd.server.problems import Problem
+from graspd.server.problems import Problem, error_body
 
 HEALTH_BODY = b'{"status":"ok"}'
 
@@ -88,7 +88,7 @@ BUDGETED_PATHS = frozenset({"/detect", "/viewer"})
 async def send_problem(send: Send, exc: Problem) -> None:
     """Answer exc as the app's error handler would (its JSON body, Retry-After), closing the connection: the
     request body was not read."""
-    body = json.dumps(exc.body()).encode()
+    body = json.dumps(error_body(exc)).encode()
     headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
                (b"connection", b"close")]
     if exc.retry_after is not None:

@@ -116,11 +116,12 @@ class Lifecycle:
         return self.engine.detect_sync(parse, timings)
 
     def start(self, parse: Callable[[], Parsed], timings: dict[str, float],
-              answer: Callable[[Outcome | None, Problem | None], None], what: str = "detect") -> None:
+              answer: Callable[[Outcome | None, Problem | None], None], what: str = "detect", size: int = 0) -> None:
         """Queue an admitted request and return at once (a listener thread must not block): answer(outcome,
         None) or answer(None, problem) is called once, from the worker, or at the end of the answer window
         (504); a fault becomes internal_error (its traceback logged with the request id).  Raises a Problem
-        when the request cannot be queued (shutting down; its place was given back)."""
+        when the request cannot be queued (shutting down; its place was given back).  size: the payload's bytes
+        when known (0: not)."""
         ctx = current_request()
         rid = ctx.id if ctx is not None else "-"
         once = threading.Lock()
@@ -146,7 +147,7 @@ class Lifecycle:
                 reply(None, internal_error(rid))
 
         try:
-            fut, give_up = self.engine.enqueue(parse, timings)
+            fut, give_up = self.engine.enqueue(parse, timings, size)
         except Problem:
             raise
         except Exception:

@@ -48,7 +48,7 @@ from graspd.io.ros import (
     encode_pose_array,
 )
 from graspd.io.ros.types import POINTCLOUD2
-from graspd.server.problems import CALLER_ERRORS, Problem
+from graspd.server.problems import CALLER_ERRORS, Problem, too_large
 from graspd.server.requests import json_object, parse_model
 from graspd.server.schemas import Cloud, DetectRequest
 
@@ -188,7 +188,7 @@ def parse_options(payload: bytes | str | dict[str, Any], base: Mapping[str, Any]
     if isinstance(payload, bytes | str):
         size = len(payload)
         if size > MAX_CONFIG_BYTES:
-            raise Problem(413, f"config of {size} bytes exceeds the limit of {MAX_CONFIG_BYTES}", "payload")
+            raise too_large("config", size, MAX_CONFIG_BYTES, "payload")
     obj = json_object(payload)
     for name, why in NOT_OPTIONS.items():
         if name in obj:

@@ -45,11 +45,12 @@ from .exposure import (
 )
 from .gate import Gate, error_payload, guarded_parse, in_fresh_context, unauthorized
 from .options import RuntimeOptions
-from .queries import Queries, input_name, looks_like_cdr, parse_payload
+from .queries import Queries, Selector, input_name, looks_like_cdr, parse_payload
 from .streams import Stream
 
-__all__ = ["ZenohNode", "ZenohSetupError", "authenticates", "check_exposure", "error_payload", "exposure",
-           "in_fresh_context", "input_name", "is_local_endpoint", "looks_like_cdr", "unauthorized", "zenoh_config"]
+__all__ = ["Selector", "ZenohNode", "ZenohSetupError", "authenticates", "check_exposure", "error_payload",
+           "exposure", "in_fresh_context", "input_name", "is_local_endpoint", "looks_like_cdr", "unauthorized",
+           "zenoh_config"]
 
 log = logging.getLogger("graspd.server")
 

@@ -1,8 +1,9 @@
-"""The Zenoh queryables: <prefix>/detect and <prefix>/instances/<id>/detect (the JSON request and response of
-POST /detect, or a CDR ROS message detected with the run-time options: sensor_msgs/PointCloud2 by default, gpd_ros
-CloudSources / CloudIndexed / CloudSamples with the selector parameter type=cloud_sources|cloud_indexed|
-cloud_samples), <prefix>/instances/<id> (this server's info), and the grasp-template endpoints
-(<prefix>/demonstrations, <prefix>/feedback, <prefix>/library) with the JSON bodies of their HTTP twins."""
+"""The Zenoh queryables: <prefix>/detect and <prefix>/instances/<id>/detect take what POST /detect takes (a
+JSON request, or a capture file with its options as selector parameters) or a CDR ROS message detected with the
+run-time options (sensor_msgs/PointCloud2 by default, gpd_ros CloudSources / CloudIndexed / CloudSamples with the
+selector parameter type=cloud_sources|cloud_indexed|cloud_samples), and answer POST /detect's JSON;
+<prefix>/instances/<id> answers this server's info; the grasp-template endpoints (<prefix>/demonstrations,
+<prefix>/feedback, <prefix>/library) take and answer the JSON bodies of their HTTP twins."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import logging
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any
 
 from graspd.server.logs import begin_request
@@ -21,8 +23,9 @@ from graspd.server.services.lifecycle import Lifecycle, Tracked
 from graspd.server.services.mapping import response_json
 from graspd.server.services.outcome import Outcome, Parsed
 from graspd.server.services.ros_stream import INPUT_TYPES, StreamOptions, decode_input, ros_header, stream_request
+from graspd.server.uploads import sniff, upload_request
 
-from .gate import Gate, guarded_parse, payload_of
+from .gate import Gate, guarded_parse, payload_of, size_of
 
 log = logging.getLogger("graspd.server")
 
@@ -32,20 +35,40 @@ def looks_like_cdr(payload: bytes) -> bool:
     return len(payload) >= 4 and payload[0] == 0 and payload[1] in (0, 1)
 
 
-def selector_parameters(parameters: str) -> dict[str, str]:
-    """The selector's parameters ("a=1;b=2") by name; a name given twice keeps its last value."""
-    out: dict[str, str] = {}
-    for part in parameters.split(";"):
-        name, _, value = part.partition("=")
-        if name.strip():
-            out[name.strip()] = value.strip()
-    return out
+#: Selector parameters that choose how a payload is read, not options of the request.
+READING_PARAMETERS = ("type", "content_type")
 
 
-def input_name(parameters: str) -> str:
+@dataclass(frozen=True)
+class Selector:
+    """A query's selector parameters ("a=1;b=2", a repeated value as "viewpoint=0,0,0|1,0,0", as Zenoh writes
+    them): by name (last value), and the repeatable viewpoint and camera_pose of a file upload."""
+
+    values: dict[str, list[str]]
+
+    @classmethod
+    def parse(cls, parameters: str) -> Selector:
+        out: dict[str, list[str]] = {}
+        for part in parameters.split(";"):
+            name, _, value = part.partition("=")
+            if name.strip():
+                out.setdefault(name.strip(), []).extend(v.strip() for v in value.split("|"))
+        return cls(out)
+
+    def get(self, name: str, default: str = "") -> str:
+        found = self.values.get(name)
+        return found[-1] if found else default
+
+    def upload_query(self) -> tuple[dict[str, str], list[str], list[str]]:
+        """(options by name, viewpoints, camera poses) of a file upload, as HTTP's query string gives them."""
+        options = {k: v[-1] for k, v in self.values.items() if k not in READING_PARAMETERS and v}
+        return options, self.values.get("viewpoint", []), self.values.get("camera_pose", [])
+
+
+def input_name(selector: Selector) -> str:
     """The input of a CDR query from its selector parameters: type=pointcloud2 (default), cloud_sources,
     cloud_indexed, cloud_samples, or the ROS type name (gpd_ros/msg/CloudSources, gpd_ros/CloudSources)."""
-    given = selector_parameters(parameters).get("type", "")
+    given = selector.get("type")
     if not given:
         return "pointcloud2"
     for name, ros_type in INPUT_TYPES.items():
@@ -55,16 +78,27 @@ def input_name(parameters: str) -> str:
                   "type")
 
 
-def parse_payload(payload: bytes, name: str, options: StreamOptions) -> Parsed:
-    """A request from JSON or CDR bytes: a ROS message of input `name` is detected with the run-time options, its
-    header the answer's "header" and the Outcome's context (a graspd.io.ros Header) for the ROS outputs."""
+def parse_payload(payload: bytes, name: str, options: StreamOptions, selector: Selector | None = None) -> Parsed:
+    """A request from a query's payload: a CDR ROS message of input `name`, detected with the run-time options
+    (its header the answer's "header" and the Outcome's context, a graspd.io.ros Header); else what HTTP's
+    POST /detect takes (requests.parse_body, the same parser and limits): a JSON DetectRequest, or a capture file
+    (PCD, PLY, NPY, NPZ, a 16-bit depth PNG, a ROS bag) with its options as selector parameters (content_type
+    may name the file's type; else it is told by its first bytes)."""
     if looks_like_cdr(payload):
         msg = decode_input(payload, name, options)
         return Parsed(stream_request(msg, options), header=ros_header(msg.header), context=msg.header)
-    if name != "pointcloud2" or not payload.lstrip()[:1] == b"{":
-        raise Problem(400, f"payload is not a CDR {INPUT_TYPES[name]}" + (
-            " nor a JSON DetectRequest" if name == "pointcloud2" else ""), "payload")
-    return Parsed(guarded_parse(parse_request, payload))
+    if name != "pointcloud2":
+        raise Problem(400, f"payload is not a CDR {INPUT_TYPES[name]}", "payload")
+    selector = selector or Selector({})
+    try:
+        kind = sniff(payload, selector.get("content_type"))
+    except Problem:
+        raise Problem(400, "payload is not a CDR PointCloud2, a JSON DetectRequest nor a capture file (PCD, PLY, "
+                      "NPY, NPZ, a 16-bit depth PNG or a ROS bag)", "payload") from None
+    if kind == "json":
+        return Parsed(guarded_parse(parse_request, payload))
+    query, viewpoints, poses = selector.upload_query()
+    return Parsed(parse_request(upload_request(payload, kind, query, viewpoints, poses)))
 
 
 class Queries:
@@ -92,7 +126,8 @@ class Queries:
         tracked = self.lifecycle.track("zenoh")
         try:
             self.gate.check(query, key)
-            name = input_name(str(query.parameters))
+            selector = Selector.parse(str(query.parameters))
+            name = input_name(selector)
             self.lifecycle.admit()
         except Problem as exc:
             self.gate.reply(query, tracked, exc)
@@ -106,8 +141,8 @@ class Queries:
             self.gate.reply(query, tracked, problem, body, key)
 
         try:
-            self.lifecycle.start(lambda: parse_payload(payload_of(query), name, self.options()),
-                                 {"read": time.perf_counter() - t0}, answer, "zenoh detect")
+            self.lifecycle.start(lambda: parse_payload(payload_of(query), name, self.options(), selector),
+                                 {"read": time.perf_counter() - t0}, answer, "zenoh detect", size_of(query.payload))
         except Problem as exc:  # shutting down (the place was given back)
             self.gate.reply(query, tracked, exc)
         except Exception:
