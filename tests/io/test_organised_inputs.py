@@ -16,6 +16,7 @@ from bags import IMAGE_TOPIC, INTRINSICS, depth_image, write_rosbag2  # noqa: E4
 from graspd.core.cloud import CloudError  # noqa: E402
 from graspd.io.bag import BagQuery, read_bag  # noqa: E402
 from graspd.io.cloud_files import read_input  # noqa: E402
+from graspd.io.inputs import cloud_input  # noqa: E402
 from graspd.io.pcd import read_pcd  # noqa: E402
 from graspd.io.ros.decode import decode_cloud_sources, decode_pointcloud2  # noqa: E402
 from graspd.io.ros.encode import encode_cloud_sources, encode_pointcloud2  # noqa: E402
@@ -92,3 +93,20 @@ def test_a_bag_depth_image_keeps_its_grid(tmp_path: Path) -> None:
     cloud = message.cloud_input().cloud
     assert cloud.grid is not None and (cloud.grid.height, cloud.grid.width) == depth_image().shape
     assert np.array_equal(cloud.grid.pixel, np.flatnonzero(depth_image() != 0))
+
+
+def test_shape_counts_the_rows_as_sent_and_poses_keep_the_grid() -> None:
+    """cloud_input with shape: height * width rows as sent (NaN ones included, then dropped), each kept point's
+    pixel its row as sent; a camera pose moves the points, not their pixels; a wrong shape names cloud.shape."""
+    pts = np.random.default_rng(2).uniform(0.5, 1.0, (12 * 16, 3)).astype(np.float32)
+    pts[:16] = np.nan
+    pose = np.eye(4)
+    pose[:3, 3] = [0.125, 0.25, 0.5]
+    got = cloud_input(pts, shape=(12, 16), camera_poses=[pose.tolist()], points_frame="camera")
+    assert got.dropped == 16 and got.cloud.grid is not None
+    assert np.array_equal(got.cloud.grid.pixel, np.arange(16, 12 * 16))
+    assert np.array_equal(got.cloud.points, (pts[16:].astype(np.float64) + pose[:3, 3]).astype(np.float32))
+    assert cloud_input(pts).cloud.grid is None
+    with pytest.raises(CloudError) as err:
+        cloud_input(pts, shape=(11, 16))  # the finite rows only: not what was sent
+    assert err.value.field == "cloud.shape"

@@ -1,5 +1,7 @@
 """An organised cloud's [height, width] on the wire: checked against the points as sent (422 naming cloud.shape),
-and carried with the cloud to the detector as its grid."""
+and carried with the cloud to the detector as its grid (seen in the points left after preprocessing: the grid's
+mixed-pixel filter drops some).  The pixel-level mapping is tested at graspd.io's entrance
+(tests/io/test_organised_inputs.py)."""
 
 from __future__ import annotations
 
@@ -12,16 +14,18 @@ import pytest
 from fastapi.testclient import TestClient
 
 from graspd.io.pcd import read_pcd
-from graspd.server.schemas import Cloud
-from graspd.server.uploads import upload_request
 from graspd_client import encode_array
 
 
 def organised_points(height: int = 12, width: int = 16) -> np.ndarray:
-    """A plane 0.6 m in front of a camera at the origin, one point per pixel, the first row with no depth (NaN)."""
+    """A wall 0.6 m in front of a camera at the origin with its right half 0.3 m farther back, one column of mixed
+    pixels half way between at the step, one point per pixel (optical frame, m), the first row with no depth
+    (NaN)."""
     v, u = np.mgrid[0:height, 0:width]
-    z = np.full(u.shape, 0.6)
-    pts = np.stack([(u - width / 2) * 0.004, (v - height / 2) * 0.004, z], axis=-1).reshape(-1, 3)
+    z = np.where(u < width // 2, 0.6, 0.9)
+    z[:, width // 2] = 0.75
+    pts = np.stack([(u - width / 2) * 0.004 * z / 0.6, (v - height / 2) * 0.004 * z / 0.6, z], axis=-1)
+    pts = pts.reshape(-1, 3)
     pts[:width] = np.nan
     return pts
 
@@ -37,31 +41,32 @@ def test_wrong_shape_is_a_422_naming_cloud_shape(client: TestClient, shape: list
     assert r.json()["field"].startswith("cloud.shape"), (why, r.json())
 
 
-def test_shape_counts_the_points_as_sent_before_non_finite_rows_are_dropped() -> None:
-    pts = organised_points()
-    cloud = Cloud.model_validate({"points": pts.astype(np.float32), "shape": [12, 16]})
-    got = cloud.to_input()
-    assert got.dropped == 16 and len(got.cloud) == 12 * 16 - 16
-    grid = got.cloud.grid
-    assert grid is not None and (grid.height, grid.width) == (12, 16)
-    # each kept point's pixel index is its row as sent: the first image row (no depth) is gone
-    assert np.array_equal(grid.pixel, np.arange(16, 12 * 16))
-    assert np.array_equal(got.cloud.points, pts[16:].astype(np.float32))
-
-
-def test_no_shape_is_an_unorganised_cloud() -> None:
-    cloud = Cloud.model_validate({"points": organised_points()[16:].astype(np.float32)})
-    assert cloud.to_input().cloud.grid is None
+def test_shape_counts_the_points_as_sent_before_non_finite_rows_are_dropped(client: TestClient) -> None:
+    """12x16 pixels, the first row without depth (NaN): [12, 16] is right (the NaN rows count), [11, 16] (the
+    finite rows only) is a 422."""
+    pts = encode_array(organised_points().astype(np.float32))
+    good = client.post("/detect", json={"cloud": {"points": pts, "shape": [12, 16]}, "num_samples": 5})
+    assert good.status_code == 200, good.text
+    bad = client.post("/detect", json={"cloud": {"points": pts, "shape": [11, 16]}, "num_samples": 5})
+    assert bad.status_code == 422 and bad.json()["field"] == "cloud.shape", bad.text
 
 
 def test_camera_poses_keep_the_grid(client: TestClient) -> None:
+    """With a camera pose the points move into the robot frame and the grid still applies: the same points after
+    preprocessing as the cloud sent already moved, with its shape, and fewer than without it (the mixed column)."""
     pose = np.eye(4)
-    pose[:3, 3] = [0.1, 0.2, 0.3]
-    cloud = Cloud.model_validate({"points": organised_points().astype(np.float32), "shape": [12, 16],
-                                  "camera_poses": [pose.tolist()], "points_frame": "camera"})
-    got = cloud.to_input().cloud
-    assert got.grid is not None and np.array_equal(got.grid.pixel, np.arange(16, 12 * 16))
-    assert np.allclose(got.points, organised_points()[16:] + [0.1, 0.2, 0.3], atol=1e-6)
+    pose[:3, 3] = [0.125, 0.25, 0.5]
+    pts = organised_points(40, 50).astype(np.float32)
+    posed = client.post("/detect", json={"cloud": {
+        "points": encode_array(pts), "shape": [40, 50], "camera_poses": [pose.tolist()],
+        "points_frame": "camera"}, "num_samples": 5})
+    moved = client.post("/detect", json={"cloud": {
+        "points": encode_array((pts.astype(np.float64) + pose[:3, 3]).astype(np.float32)), "shape": [40, 50],
+        "viewpoints": [pose[:3, 3].tolist()]}, "num_samples": 5})
+    flat = client.post("/detect", json={"cloud": {
+        "points": encode_array(pts), "camera_poses": [pose.tolist()], "points_frame": "camera"}, "num_samples": 5})
+    assert posed.status_code == 200 and moved.status_code == 200 and flat.status_code == 200
+    assert 0 < posed.json()["num_points"] == moved.json()["num_points"] < flat.json()["num_points"]
 
 
 def test_an_organised_request_detects(client: TestClient) -> None:
@@ -73,14 +78,10 @@ def test_an_organised_request_detects(client: TestClient) -> None:
 
 
 def test_an_organised_pcd_upload_carries_its_shape_to_the_detector(client: TestClient, real_data: Path) -> None:
-    """The Kinect capture (640x480, NaN holes) uploaded as the file is: the request's cloud has the file's shape,
-    and detection runs on the grid (mixed pixels dropped: fewer points after preprocessing than the same points
-    sent unorganised, as many as the same points sent as JSON with cloud.shape)."""
+    """The Kinect capture (640x480, NaN holes) uploaded as the file is: detection runs on its grid (mixed pixels
+    dropped: fewer points after preprocessing than the same points sent unorganised, as many as the same points
+    sent as JSON with cloud.shape [480, 640])."""
     path = real_data / "milk_cartoon_all_small_clorox.pcd"
-    body = upload_request(path.read_bytes(), "pcd", {}, [])
-    assert tuple(body["cloud"]["shape"]) == (480, 640)
-    grid = Cloud.model_validate(body["cloud"]).to_input().cloud.grid
-    assert grid is not None and (grid.height, grid.width) == (480, 640)
     options = {"num_samples": 20, "workspace": "-0.45,0.45,-0.4,0.25,0.5,1.2"}
     upload = client.post("/detect", params=options, content=path.read_bytes(),
                          headers={"content-type": "application/x-pcd"})
