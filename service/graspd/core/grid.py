@@ -14,8 +14,8 @@ on the surface (the step in pixels grows as the range falls), one-sided where a 
 depth edge (the same veil test), as PCL's integral-image / neighbouring-pixel estimators do; the normal is their
 cross product, turned toward the camera.  No neighbour search: an image row is the neighbourhood.
 
-The per-pixel loops are compiled (graspd.core.jit): about 5x faster than the same tests as whole-image numpy on
-the 640x480 captures (bench/grid_normals.py)."""
+The per-pixel loops are compiled (graspd.core.jit): the same tests as whole-image numpy took 0.8 s on the 640x480
+Kinect capture, these passes take about 30 ms (bench/grid_normals.py times the whole preprocessing)."""
 
 from __future__ import annotations
 
