@@ -376,7 +376,9 @@ def run(args: argparse.Namespace, out: Path, results: Path) -> int:
         vc = ViewpointCloud(points=req.cloud.points, viewpoints=np.asarray(req.cloud.viewpoints, np.float32),
                             camera_source=(np.zeros(0, np.int32) if req.cloud.camera_source is None
                                            else req.cloud.camera_source))
-        detect_params = req.to_params()
+        from graspd.server.services.mapping import detection_inputs
+
+        detect_params = detection_inputs(req).params
         detector.detect(vc, detect_params)  # warm caches
         print(f"in-process detector ready (model {registry.default})")
 

@@ -49,6 +49,7 @@ from graspd.gpd.scene import closing_region_points  # noqa: E402
 from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT, cover_order  # noqa: E402
 from graspd.gpd.target import Target  # noqa: E402
 from graspd.server.requests import parse_request  # noqa: E402
+from graspd.server.services.mapping import detection_inputs  # noqa: E402
 from graspd_client.wire import build_detect_request, rle_counts  # noqa: E402
 from graspd_lab.training.labels import label_grasps  # noqa: E402
 from graspd_lab.training.scene_data import scene_labels  # noqa: E402
@@ -90,7 +91,7 @@ def parse_extra(points: np.ndarray, viewpoints: np.ndarray, target: dict[str, An
         times = []
         for body in bodies:
             t = time.perf_counter()
-            parse_request(body).to_params()
+            detection_inputs(parse_request(body))
             times.append(time.perf_counter() - t)
         extra.append(times[1] - times[0])
     return float(np.median(extra))

@@ -208,8 +208,22 @@ def test_only_the_server_and_io_import_the_wire_package() -> None:
     """The core, the algorithm, the store, the templates and the pictures own their values and errors; only the
     transport edge (server/, io/) imports graspd_client."""
     users = {module_name(p) for p in PACKAGE.rglob("*.py") if _imports_named(p, "graspd_client")}
-    assert "graspd.server.schemas" in users
+    assert "graspd.server.wire.detect" in users
     assert sorted(u for u in users if rank(u)[0] not in (LAYERS.index("io"), LAYERS.index("server"))) == []
+
+
+def test_the_wire_package_imports_nothing_above_the_core() -> None:
+    """graspd.server.wire (the models of what the transports send and receive) imports graspd.core and itself
+    only: the detector's, the templates' and the readers' types stay out of the wire contract (the mapping to them
+    is graspd.server.services.mapping)."""
+    wire = sorted((PACKAGE / "server" / "wire").glob("*.py"))
+    edges = graph(wire)
+    assert {"graspd.server.wire.detect", "graspd.server.wire.response", "graspd.server.wire.errors"} <= edges.keys()
+    above = {name: sorted(d for d in deps if not d.startswith(("graspd.core", "graspd.server.wire")))
+             for name, deps in edges.items()}
+    assert {name: deps for name, deps in above.items() if deps} == {}
+    assert imports_of(PACKAGE / "server" / "services" / "mapping.py") >= {"graspd.server.wire.detect",
+                                                                         "graspd.gpd.detector"}  # the rule sees
 
 
 def test_graspd_does_not_import_the_lab() -> None:

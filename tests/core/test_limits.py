@@ -8,7 +8,7 @@ from graspd.core import limits
 from graspd.gpd.detector import DetectionParams
 from graspd.io import cloud_files, depth
 from graspd.io.ros import decode
-from graspd.server.schemas import DetectRequest
+from graspd.server.wire.detect import DetectRequest
 
 
 def test_the_client_checks_the_same_limits_as_the_server() -> None:

@@ -1,6 +1,6 @@
-"""The /detect answer is built once, by DetectResponse.from_detection: the same keys and values the detectors'
-own to_dict() reports (plus ids), validated against the model the route declares; upload query parameters
-are generated from DetectRequest."""
+"""The /detect answer is built once, from a detection's result by services.mapping: the same keys and values the
+detectors' own to_dict() reports (plus ids), validated against the model the route declares; upload query
+parameters are generated from DetectRequest."""
 
 from __future__ import annotations
 
@@ -15,8 +15,11 @@ from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd.gpd.detector import Detection
 from graspd.gpd.environment import Environment
-from graspd.server.schemas import DetectRequest, DetectResponse
+from graspd.server.services.mapping import detection_inputs, result_body
+from graspd.server.services.outcome import GpdResult, GraspResult, TemplatesResult
 from graspd.server.uploads import CLOUD_PARAMS, QUERY_PARAMS, TARGET_PARAMS, openapi_parameters
+from graspd.server.wire.detect import DetectRequest
+from graspd.server.wire.response import DetectResponse
 from graspd.templates import TemplateDetection
 from graspd_client import wire
 
@@ -33,13 +36,19 @@ def _grasps(n: int, seed: int = 0) -> GraspSet:
                     widths=rng.random(n) * 0.08, scores=scores, samples=rng.normal(size=(n, 3)))
 
 
+def answer(result: GraspResult, request_id: str, timings: dict[str, float], **options: Any) -> dict[str, Any]:
+    """The JSON answer of a result as every transport sends it (validated by DetectResponse, then serialised)."""
+    body = result_body(result, request_id=request_id, detection_id=request_id, timings=timings, **options)
+    out: dict[str, Any] = json.loads(DetectResponse.model_validate(body).to_json())
+    return out
+
+
 def test_gpd_response_matches_the_detection() -> None:
     det = Detection(grasps=_grasps(100), timings={"preprocess": 0.01, "total": 0.2}, model="m", scored=True,
                     num_candidates=400, num_points=4000, hand=HandGeometry(), environment=Environment.empty(4000))
     timings = {**det.timings, "queue": 0.001}
     crops = [{"png": None, "pixel": None, "in_image": False}] * 100
-    out = json.loads(DetectResponse.from_detection(det, request_id="0123456789abcdef", timings=timings,
-                                                   hand=det.hand, crops=crops).to_json())
+    out = answer(GpdResult.of(det), "0123456789abcdef", timings, crops=crops)
     expected = det.to_dict()
     for k, g in enumerate(expected["grasps"]):
         g.update(id=f"0123456789abcdef-{k}", crop=crops[k])
@@ -55,8 +64,7 @@ def test_template_response_matches_the_detection() -> None:
                             frames=np.tile(np.eye(4), (n, 1, 1)), timings={"total": 0.1}, num_candidates=9,
                             num_points=300, num_entries=2, detection_id="d1")
     hand = HandGeometry()
-    out = json.loads(DetectResponse.from_detection(det, request_id="d1", timings=dict(det.timings),
-                                                   hand=hand).to_json())
+    out = answer(TemplatesResult(det, hand), "d1", dict(det.timings))
     expected = det.to_dict()
     expected.pop("detection_id")
     assert out == {"request_id": "d1", **expected, "frame": "cloud", "model": None, "scored": True,
@@ -67,8 +75,7 @@ def test_template_response_matches_the_detection() -> None:
 def test_zenoh_header_is_part_of_the_model() -> None:
     det = Detection(grasps=_grasps(2), timings={}, model=None, scored=False, num_candidates=2, num_points=10)
     header = {"frame_id": "cam", "stamp": {"sec": 1, "nanosec": 2}}
-    out = json.loads(DetectResponse.from_detection(det, request_id="r", timings={}, hand=det.hand,
-                                                   header=header).to_json())
+    out = answer(GpdResult.of(det), "r", {}, header=header)
     assert out["header"] == header and "crop" not in out["grasps"][0] and out["environment"] is None
 
 
@@ -92,8 +99,19 @@ def test_upload_query_parameters_come_from_detect_request(client: TestClient) ->
 
 def test_request_options_reach_the_detector_parameters() -> None:
     cloud = {"points": [[0.0, 0.0, 0.5], [0.01, 0.0, 0.5], [0.0, 0.01, 0.5]], "viewpoints": [[0.0, 0.0, 0.0]]}
-    default = DetectRequest.model_validate({"cloud": cloud}).to_params()
-    asked = DetectRequest.model_validate({"cloud": cloud, "early_stop": True, "max_grasps": 5,
-                                          "approach_distance": 0.08, "clustering": True}).to_params()
+    default = detection_inputs(DetectRequest.model_validate({"cloud": cloud})).params
+    asked = detection_inputs(DetectRequest.model_validate({"cloud": cloud, "early_stop": True, "max_grasps": 5,
+                                                           "approach_distance": 0.08, "clustering": True})).params
     assert (default.early_stop, default.use_clustering, default.approach_distance) == (False, False, 0.05)
     assert (asked.early_stop, asked.use_clustering, asked.approach_distance, asked.max_grasps) == (True, True, 0.08, 5)
+
+
+def test_the_wire_defaults_are_the_detectors() -> None:
+    """range_window and max_per_object default on the wire to what the detector defaults to (the wire package
+    does not import the detector: graspd.server.wire)."""
+    from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW  # noqa: PLC0415
+    from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT  # noqa: PLC0415
+
+    fields = DetectRequest.model_fields
+    assert fields["range_window"].default == DEFAULT_RANGE_WINDOW
+    assert fields["max_per_object"].default == DEFAULT_MAX_PER_OBJECT

@@ -280,10 +280,16 @@ def test_a_depth_image_needs_intrinsics_and_depth(server: Server, scene: tuple[C
         assert err.value.status == 422 and "16-bit" in str(err.value)
 
 
+def _request_of(parsed: Any) -> dict[str, Any]:
+    """A Parsed's request, decoded cloud and target, as services.mapping.detection_inputs takes them."""
+    return {"req": parsed.request, "given": parsed.given, "target": parsed.target}
+
+
 def test_the_ros2_example_puts_a_camera_frame_cloud_into_its_base_link_workspace(mug: np.ndarray) -> None:
     """examples/ros2/graspd.env: a camera-frame PointCloud2 and a base_link workspace work together (the issue: the
     viewpoint at the origin with that workspace gave 0 candidates, with no word why)."""
     from graspd.gpd.detector import GraspDetector  # noqa: PLC0415
+    from graspd.server.services.mapping import detection_inputs  # noqa: PLC0415
     from graspd.server.services.ros_stream import decode_input, parse_options, stream_request  # noqa: PLC0415
 
     env = (Path(__file__).resolve().parents[2] / "examples" / "ros2" / "graspd.env").read_text()
@@ -293,15 +299,16 @@ def test_the_ros2_example_puts_a_camera_frame_cloud_into_its_base_link_workspace
     options = parse_options({"num_samples": SAMPLES}, example, ((0.0, 0.0, 0.0),))
     msg = decode_input(encode_pointcloud2(mug, Header(example["camera_frame_id"], (3, 4))), "pointcloud2", options)
     assert msg.header.frame_id == "base_link"
-    req = stream_request(msg, options)
-    det = GraspDetector().detect(req.to_cloud(), req.to_params())
+    req = detection_inputs(**_request_of(stream_request(msg, options)))
+    det = GraspDetector().detect(req.given.cloud, req.params)
     lo, hi = np.array(example["workspace"][0::2]), np.array(example["workspace"][1::2])
     assert len(det.grasps) > 0 and ((det.grasps.positions >= lo) & (det.grasps.positions <= hi)).all()
     assert det.environment is not None and det.environment.up is not None and det.environment.up[2] > 0.99
     without = {k: v for k, v in example.items() if k not in ("camera_poses", "points_frame", "camera_frame_id")}
     old = parse_options({"num_samples": SAMPLES}, without, ((0.0, 0.0, 0.0),))
-    old_req = stream_request(decode_input(encode_pointcloud2(mug, Header("cam", (3, 4))), "pointcloud2", old), old)
-    assert len(GraspDetector().detect(old_req.to_cloud(), old_req.to_params()).grasps) == 0
+    old_req = detection_inputs(**_request_of(stream_request(
+        decode_input(encode_pointcloud2(mug, Header("cam", (3, 4))), "pointcloud2", old), old)))
+    assert len(GraspDetector().detect(old_req.given.cloud, old_req.params).grasps) == 0
 
 
 def test_gpd_ros_clouds_of_two_cameras_move_with_each_cameras_pose(mug: np.ndarray) -> None:
@@ -311,6 +318,7 @@ def test_gpd_ros_clouds_of_two_cameras_move_with_each_cameras_pose(mug: np.ndarr
     from graspd.io.ros import encode_cloud_samples, encode_cloud_sources  # noqa: PLC0415
     from graspd.server.problems import Problem  # noqa: PLC0415
     from graspd.server.requests import parse_request  # noqa: PLC0415
+    from graspd.server.services.mapping import cloud_input  # noqa: PLC0415
     from graspd.server.services.ros_stream import decode_input, parse_options  # noqa: PLC0415
 
     second = np.eye(4)
@@ -321,8 +329,9 @@ def test_gpd_ros_clouds_of_two_cameras_move_with_each_cameras_pose(mug: np.ndarr
     source = np.repeat([0, 1], 300)
     options = parse_options({"camera_poses": [p.tolist() for p in poses], "points_frame": "camera"}, {},
                             ((0.0, 0.0, 0.0),))
-    want = parse_request({"cloud": {"points": points.tolist(), "camera_source": source.tolist(),
-                                    "camera_poses": [p.tolist() for p in poses], "points_frame": "camera"}}).to_cloud()
+    want_request = parse_request({"cloud": {"points": points.tolist(), "camera_source": source.tolist(),
+                                    "camera_poses": [p.tolist() for p in poses], "points_frame": "camera"}})
+    want = cloud_input(want_request.cloud).cloud
     got = decode_input(encode_cloud_sources(points, np.zeros((2, 3)), source, Header("cam", (1, 2))),
                        "cloud_sources", options)
     assert np.allclose(got.cloud.points, want.points, atol=1e-6)

@@ -28,6 +28,7 @@ from graspd.server.services.budget import (
     request_cost,
     work_units,
 )
+from graspd.server.services.mapping import detection_inputs
 from graspd.server.settings import Settings
 from graspd_client import ZenohGraspClient
 from graspd_client.errors import RequestRejected
@@ -105,8 +106,9 @@ def test_a_request_that_would_end_past_its_deadline_is_503_not_started(
     after it waited and was parsed is refused with 503 + Retry-After instead of running into a 504."""
     body = small_body(krylon, num_samples=300)
     req = parse_request(body)
-    params = req.to_params()
-    units = work_units(req, occupied_voxels(req.to_input().cloud, params.voxel_size, params.workspace,
+    inputs = detection_inputs(req)
+    params = inputs.params
+    units = work_units(req, occupied_voxels(inputs.given.cloud, params.voxel_size, params.workspace,
                                             params.range_window))  # what the engine counts on its worker
     with TestClient(create_app(make_settings(deadline_s=10))) as client:
         budget = client.app.state.service.engine.budget  # type: ignore[attr-defined]

@@ -17,6 +17,7 @@ from PIL import Image
 from graspd.core.masks import rle_decode, rle_string_counts
 from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT
 from graspd.server.requests import parse_request
+from graspd.server.services.mapping import detection_inputs
 from graspd_client.wire import build_detect_request, rle_counts
 from target_scene import HEIGHT, WIDTH, OrganisedScene, render_table
 
@@ -149,6 +150,6 @@ def test_upload_query_parameters_and_zenoh_json_carry_the_target(scored_client: 
                            headers={"content-type": "application/x-npy"})
     assert r.status_code == 422 and r.json()["field"] == "target_box"  # one target at a time
     parsed = parse_request(_body(six, target={"indices": six.rows(k)}, max_per_object=0))  # what Zenoh runs
-    params = parsed.to_params()
+    params = detection_inputs(parsed).params
     assert params.target is not None and params.target.kind == "indices" and params.max_per_object == 0
     assert params.target.rows is not None and params.target.rows.sum() == len(six.rows(k))

@@ -1,7 +1,8 @@
 """The same requests give the same answers on every transport, and the answers saved before the transports were
 reshaped (tests/server/data/transport_cases/): JSON /detect with a few option mixes (crops included) and the
-templates method, a file upload over HTTP and over Zenoh, Zenoh queries; the ROS 2 service's case is in ros2/test_ros2_transport_cases.py.
-Floats agree to 1e-6 relative; request ids, grasp ids and timings are left out."""
+templates method, a file upload over HTTP and over Zenoh, Zenoh queries; the ROS 2 service's case is in
+ros2/test_ros2_transport_cases.py.  Floats agree to 1e-6 relative; request ids, grasp ids and timings are left
+out."""
 
 from __future__ import annotations
 

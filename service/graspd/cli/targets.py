@@ -1,5 +1,5 @@
 """graspd detect's target flags: what to grasp (--target-mask, --target-box, --target-object, --target-indices)
-and --max-per-object, parsed as the service parses a request's target (graspd.server.schemas.TargetSpec: the same
+and --max-per-object, parsed as the service parses a request's target (graspd.server.wire.detect.TargetSpec: the same
 limits, a PNG mask checked before it is decoded, indices and masks over the rows of the file as read, NaN rows
 included) and mapped onto the rows the detector keeps.  Imports stay inside the functions (fast --help)."""
 
@@ -89,7 +89,8 @@ def cli_target(spec: dict[str, Any] | None, given: CloudInput) -> Target | None:
         return None
     from graspd.server.problems import CALLER_ERRORS, Problem
     from graspd.server.requests import parse_model
-    from graspd.server.schemas import TargetSpec
+    from graspd.server.services.mapping import detection_target
+    from graspd.server.wire.detect import TargetSpec
 
     flag = FLAGS[next(iter(spec))]
     try:
@@ -97,8 +98,8 @@ def cli_target(spec: dict[str, Any] | None, given: CloudInput) -> Target | None:
         received = given.received or len(given.cloud)
         if given.kept is None and received != len(given.cloud):
             raise ValueError(f"{flag}: the rows of this input are not known (use --target-box or --target-object)")
-        return parsed.target(received, given.kept)
+        return detection_target(parsed, given)
     except Problem as exc:
         raise ValueError(f"{flag}: {exc.field or 'target'}: {exc.message}") from None
     except CALLER_ERRORS as exc:  # a value the target's own checks refuse (graspd.server.problems)
-        raise ValueError(f"{flag}: target{exc.field}: {exc.message}") from None
+        raise ValueError(f"{flag}: {exc.field}: {exc.message}") from None

@@ -29,11 +29,11 @@ from graspd.server.logs import MAX_REQUEST_ID, begin_request, valid_request_id
 from graspd.server.metrics import Metrics
 from graspd.server.problems import Problem, error_body, internal_error
 from graspd.server.requests import dumps
-from graspd.server.schemas import DetectRequest
 from graspd.server.services.engine import DetectionEngine
 from graspd.server.services.instance_jobs import InstanceJobs
 from graspd.server.services.registry import ModelRegistry
 from graspd.server.settings import Settings, available_cores
+from graspd.server.wire.detect import DetectRequest
 from graspd.server.zenoh.node import ZenohNode
 
 log = logging.getLogger("graspd.server")

@@ -13,8 +13,8 @@ import orjson
 from pydantic import BaseModel, ValidationError
 
 from graspd.server.problems import CALLER_ERRORS, Problem, from_validation, from_wire
-from graspd.server.schemas import DetectRequest
 from graspd.server.uploads import sniff, upload_request
+from graspd.server.wire.detect import DetectRequest
 
 M = TypeVar("M", bound=BaseModel)
 

@@ -34,7 +34,7 @@ from graspd.io.cloud_files import (
 )
 from graspd.io.depth import DEFAULT_DEPTH_SCALE, PNG_MAGIC, depth_metres, read_depth_png
 from graspd.server.problems import CALLER_ERRORS, Problem, from_error, from_wire
-from graspd.server.schemas import DetectRequest
+from graspd.server.wire.detect import DetectRequest
 
 PCD_TYPES = ("application/x-pcd", "application/pcd", "image/x-pcd")
 PLY_TYPES = ("application/ply", "application/x-ply", "model/ply", "text/ply")

@@ -13,10 +13,11 @@ from starlette.requests import ClientDisconnect
 from graspd.server.api.deps import Authorized, State
 from graspd.server.problems import Problem, too_large
 from graspd.server.requests import parse_body
-from graspd.server.schemas import DetectResponse, ErrorBody
 from graspd.server.services.mapping import response_json
 from graspd.server.services.outcome import Parsed
 from graspd.server.uploads import openapi_parameters
+from graspd.server.wire.errors import ErrorBody
+from graspd.server.wire.response import DetectResponse
 
 router = APIRouter(tags=["detect"])
 

@@ -18,8 +18,9 @@ from graspd.io.mesh_file import MESH_SUFFIXES
 from graspd.server.api.deps import Authorized, State
 from graspd.server.api.detect import read_capped
 from graspd.server.problems import Problem, from_wire
-from graspd.server.schemas import ErrorBody, InstanceJobOut, ModelsResponse
 from graspd.server.services.instance_jobs import InstanceJob, check_declared, check_mesh
+from graspd.server.wire.errors import ErrorBody
+from graspd.server.wire.models import InstanceJobOut, ModelsResponse
 from graspd.store.instances import INSTANCE_CATEGORIES, NAME_PATTERN, InstanceError, check_category, check_name
 
 router = APIRouter(tags=["models"])

@@ -17,10 +17,10 @@ from graspd.server.api.deps import Authorized, State
 from graspd.server.api.detect import read_capped
 from graspd.server.problems import Problem
 from graspd.server.requests import parse_model
-from graspd.server.schemas import (
+from graspd.server.wire.errors import ErrorBody
+from graspd.server.wire.templates import (
     DemonstrationRequest,
     DemonstrationResponse,
-    ErrorBody,
     FeedbackRequest,
     FeedbackResponse,
     LibraryResponse,

@@ -24,9 +24,10 @@ from graspd.server.api.deps import Authorized, State
 from graspd.server.api.detect import read_capped
 from graspd.server.problems import Problem
 from graspd.server.requests import parse_body
-from graspd.server.schemas import ErrorBody
+from graspd.server.services.mapping import detection_params
 from graspd.server.services.outcome import GpdResult, Outcome, Parsed
 from graspd.server.uploads import openapi_parameters
+from graspd.server.wire.errors import ErrorBody
 from graspd.viz.viewer import DROP_CSP, VIEWER_CSP, drop_page_html, security_headers, targeted_object, viewer_html
 
 router = APIRouter(tags=["viewer"])
@@ -66,7 +67,7 @@ def _page(outcome: Outcome, name: str, warnings: list[dict[str, Any]]) -> str:
     if not isinstance(result, GpdResult):
         raise Problem(422, "the viewer draws method \"gpd\" detections", "method")
     det, req, cloud, hand = result.detection, outcome.request, outcome.cloud, result.hand
-    params = req.to_params()
+    params = detection_params(req)
     shown = preprocess(cloud, PreprocessParams(voxel_size=params.voxel_size, workspace=params.workspace))
     title = (f"{name}: {len(det.grasps)} grasps from {det.num_candidates} candidates, "
              f"model {det.model or 'none (unscored)'}")

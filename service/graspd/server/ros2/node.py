@@ -280,7 +280,7 @@ class Ros2Node:
         tracked = self.lifecycle.track("ros2", label="ros2-stream", log_success=False, timed=False)
         try:
             msg = self.decode(data, entry)
-            parsed = Parsed(stream_request(msg, self.options), header=ros_header(msg.header), context=msg.header)
+            parsed = stream_request(msg, self.options, header=ros_header(msg.header), context=msg.header)
             outcome = self.lifecycle.detect_sync(lambda: parsed, {"decode": time.perf_counter() - t0})
             self._publish_outputs(outcome, msg.header)
             self._write("json", self._string(response_json(outcome).decode()))
@@ -404,7 +404,7 @@ class Ros2Node:
     def _detect_prepare(self, data: bytes, _deadline: float) -> Parsed:
         _, body = split_request(data)
         msg = self.decode(body, "cloud_indexed")
-        return Parsed(stream_request(msg, self.options), header=ros_header(msg.header), context={"msg": msg})
+        return stream_request(msg, self.options, header=ros_header(msg.header), context={"msg": msg})
 
     def _detect_finish(self, rid: RequestId, outcome: Outcome) -> bytes:
         return frame_sample(rid, encode_grasp_config_list(outcome.result.grasps, outcome.context["msg"].header))
@@ -450,8 +450,7 @@ class Ros2Node:
             budget.give(held)
         state = {"msg": msg, "frame": target.header.frame_id or msg.header.frame_id, "to_detection": to_detection,
                  "target_id": target.id}
-        return Parsed(stream_request(msg, opts, Target("box", box=box)), header=ros_header(msg.header),
-                      context=state)
+        return stream_request(msg, opts, Target("box", box=box), header=ros_header(msg.header), context=state)
 
     def _plan_finish(self, rid: RequestId, outcome: Outcome) -> bytes:
         state, result = outcome.context, outcome.result

@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import Future, InvalidStateError, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -55,7 +55,6 @@ from graspd.io.png import encode_png_b64
 from graspd.server.logs import current_request
 from graspd.server.metrics import Metrics
 from graspd.server.problems import CALLER_ERRORS, Problem, busy, deadline_passed, from_wire, gave_up, shutting_down
-from graspd.server.schemas import CropsRequest, DetectRequest
 from graspd.server.services import proposals
 from graspd.server.services.allocator import IdleTrimmer, trim_function
 from graspd.server.services.budget import (
@@ -69,19 +68,19 @@ from graspd.server.services.budget import (
     voxel_units,
     work_parts,
 )
-from graspd.server.services.mapping import response_json
+from graspd.server.services.mapping import detection_inputs, response_json
 from graspd.server.services.outcome import GpdResult, GraspResult, Outcome, Parsed, TemplatesResult
 from graspd.server.services.registry import ModelRegistry
 from graspd.server.services.templates import TemplateService
 from graspd.server.settings import Settings
+from graspd.server.wire.detect import CropsRequest, DetectRequest
 
 log = logging.getLogger("graspd.server")
 
 
-def crops_json(g: GraspSet, hand: HandGeometry, crops: CropsRequest) -> list[dict[str, Any]]:
-    """One crop entry per grasp: PNG of the window around the projected point between the fingers."""
-    image = crops.image  # a PNG was decoded into image when the request was validated
-    assert image is not None
+def crops_json(g: GraspSet, hand: HandGeometry, crops: CropsRequest, image: np.ndarray) -> list[dict[str, Any]]:
+    """One crop entry per grasp: PNG of the window around the projected point between the fingers (image: the
+    request's RGB image, services.mapping.crops_image)."""
     intr = crops.intrinsics
     centres = proposals.finger_centres(g.positions, g.approach, hand.hand_depth)
     pixels, _ = project_points(centres, crops.camera_pose, Intrinsics(intr.fx, intr.fy, intr.cx, intr.cy))
@@ -385,13 +384,12 @@ class DetectionEngine:
             self.budget.check(cost_of(req))  # 413 on the points sent alone, before any work on the cloud
             try:
                 hand = req.hand_geometry()
-                # in the frame detection runs in; non-finite rows dropped (graspd.io.inputs)
-                given = parsed.given if parsed.given is not None else req.to_input()
-                params = req.to_params()
+                # the cloud in the frame detection runs in, non-finite rows dropped; the target (a ROS message's
+                # own, else the request's), the parameters, the crops' image (services.mapping)
+                inputs = detection_inputs(req, parsed.given, parsed.target)
             except CALLER_ERRORS as exc:
                 raise from_wire(exc) from None
-            if parsed.target is not None:  # a ROS message's own target (rows, samples, a planning box)
-                params = replace(params, target=parsed.target)
+            given, params = inputs.given, inputs.params
             cloud = given.cloud
             shared = self._admit_by_cost(ticket, account, req, cloud, params)
             timings["decode"] = timings.get("decode", 0.0) + time.perf_counter() - start
@@ -400,9 +398,9 @@ class DetectionEngine:
             timings.update(result.timings)
             timings["detect"] = timings.get("total", 0.0)  # the detector's own wall time, before the engine's total
             crops = None
-            if req.crops is not None:  # method "templates" refuses crops
+            if req.crops is not None and inputs.crops_image is not None:  # method "templates" refuses crops
                 t = time.perf_counter()
-                crops = crops_json(result.grasps, result.hand, req.crops)
+                crops = crops_json(result.grasps, result.hand, req.crops, inputs.crops_image)
                 timings["crops"] = time.perf_counter() - t
             self.metrics.candidates.observe(result.num_candidates)
             self.metrics.grasps.observe(len(result.grasps))

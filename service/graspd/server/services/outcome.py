@@ -22,7 +22,7 @@ from graspd.gpd.objects import SceneObject
 from graspd.gpd.sanity import RegionCheck, check_detection
 from graspd.gpd.target import Target
 from graspd.io.inputs import CloudInput
-from graspd.server.schemas import DetectRequest
+from graspd.server.wire.detect import DetectRequest
 from graspd.templates import TemplateDetection
 
 

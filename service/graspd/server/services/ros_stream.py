@@ -25,7 +25,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import PrivateAttr
 
 from graspd.core.cloud import CloudError
 from graspd.core.frames import camera_positions, check_camera_source, frame_name, to_robot
@@ -50,7 +49,8 @@ from graspd.io.ros import (
 from graspd.io.ros.types import POINTCLOUD2
 from graspd.server.problems import CALLER_ERRORS, Problem, too_large
 from graspd.server.requests import json_object, parse_model
-from graspd.server.schemas import Cloud, DetectRequest
+from graspd.server.services.outcome import Parsed
+from graspd.server.wire.detect import Cloud, DetectRequest
 
 #: Input name -> default key under the prefix, and the ROS message type it carries.
 INPUT_TYPES: dict[str, str] = {"pointcloud2": "sensor_msgs/msg/PointCloud2",
@@ -131,17 +131,6 @@ def resolve_keys(prefix: str, given: Mapping[str, str], defaults: Mapping[str, s
             raise ValueError(f"{setting}.{name}: {key!r} is not a plain key expression (no wildcards)")
         out[name] = key[1:] if key.startswith("/") else f"{prefix}/{key}"
     return out
-
-
-class StreamRequest(DetectRequest):
-    """A DetectRequest whose cloud was decoded from a ROS message: the engine runs it like any other, on the
-    decoded ViewpointCloud (normals kept; in the robot frame with camera poses) with the message's target (its
-    rows or sample points, or a GraspPlanning target's box) set on it."""
-
-    _decoded: CloudInput | None = PrivateAttr(default=None)
-
-    def to_input(self) -> CloudInput:
-        return self._decoded if self._decoded is not None else super().to_input()
 
 
 #: Stream options that are not DetectRequest fields: where a PointCloud2's camera is (viewpoints, or camera_poses
@@ -297,18 +286,20 @@ def message_target(msg: CloudMessage) -> Target | None:
     return None
 
 
-def stream_request(msg: CloudMessage, options: StreamOptions, target: Target | None = None) -> StreamRequest:
-    """The engine request for a decoded message under the stream options (no revalidation of the points:
-    the decoder bounded them, decode_input checked them as the JSON cloud is checked), with target, else the
-    message's own (message_target)."""
+def stream_request(msg: CloudMessage, options: StreamOptions, target: Target | None = None, *,
+                   header: dict[str, Any] | None = None, context: Any = None) -> Parsed:
+    """The engine request for a decoded message under the stream options: the options' request with the
+    message's cloud, which the engine runs on as decoded (no revalidation of the points: the decoder bounded
+    them, decode_input checked them as the JSON cloud is checked; normals kept; in the robot frame with camera
+    poses), with target, else the message's own (message_target: its rows or sample points).  header and
+    context: the Parsed's (the answer's ROS header, what the transport keeps for its answer)."""
     cloud = msg.cloud
     fields = {name: getattr(options.request, name) for name in DetectRequest.model_fields}
     fields["cloud"] = Cloud.model_construct(points=cloud.points, viewpoints=cloud.viewpoints.astype(np.float64),
                                             camera_source=cloud.camera_source)
-    req = StreamRequest.model_construct(_fields_set=options.request.model_fields_set, **fields)
-    req._decoded = CloudInput(cloud, frame_name(options.camera_poses), msg.dropped, msg.received)
-    req._target = target if target is not None else message_target(msg)
-    return req
+    req = DetectRequest.model_construct(_fields_set=options.request.model_fields_set, **fields)
+    given = CloudInput(cloud, frame_name(options.camera_poses), msg.dropped, msg.received)
+    return Parsed(req, given, target if target is not None else message_target(msg), header, context)
 
 
 def ros_problem(problem: Problem, fields: Mapping[str, str] = TARGET_FIELDS) -> Problem:

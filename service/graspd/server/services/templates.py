@@ -34,16 +34,19 @@ import sqlalchemy as sa
 from numpy.typing import NDArray
 
 from graspd.core.cloud import CloudError, ViewpointCloud
+from graspd.core.errors import FieldError
 from graspd.core.hand import HandGeometry, hand_preset
 from graspd.gpd.detector import Detection
 from graspd.server.logs import current_request
 from graspd.server.problems import CALLER_ERRORS, Problem, from_error, from_wire
-from graspd.server.schemas import DemonstrationRequest, DetectRequest, FeedbackRequest
+from graspd.server.services.mapping import cloud_input
 from graspd.server.settings import Settings
+from graspd.server.wire.detect import DetectRequest
+from graspd.server.wire.templates import DemonstrationRequest, FeedbackRequest
 from graspd.store.database import redact_url, scrub
 from graspd.store.outcomes import Feedback
 from graspd.templates import TemplateDetection, TemplateDetector, TemplateError, TemplateLibrary, UnknownGrasp
-from graspd.templates.demonstration import grasp_image
+from graspd.templates.demonstration import check_hand_pose, grasp_image
 from graspd.templates.library import parse_grasp_id
 
 log = logging.getLogger("graspd.server")
@@ -229,9 +232,13 @@ class TemplateService:
             return self._demonstrate(req)
 
     def _demonstrate(self, req: DemonstrationRequest) -> dict[str, Any]:
+        try:
+            check_hand_pose(req.hand_pose)  # orthonormal, right-handed: the templates' own check
+        except FieldError as exc:
+            raise Problem(422, exc.message, "hand_pose") from None
         self._check_hand(None if req.hand is None else req.hand.geometry())
         try:
-            cloud = req.cloud.to_cloud()
+            cloud = cloud_input(req.cloud).cloud
         except CALLER_ERRORS as exc:
             raise from_wire(exc) from None
         ws = req.workspace

@@ -65,11 +65,13 @@ def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tu
     scoring one full batch (DetectionParams.score_batch images), and the response serialised.  Returns the
     detection and the response bytes.  Raises what the request raises."""
     from graspd.server.requests import dumps, parse_request  # noqa: PLC0415 - keeps this module light
-    from graspd.server.schemas import DetectResponse  # noqa: PLC0415
+    from graspd.server.services.mapping import detection_inputs, result_body  # noqa: PLC0415
+    from graspd.server.services.outcome import GpdResult  # noqa: PLC0415
+    from graspd.server.wire.response import DetectResponse  # noqa: PLC0415
 
     req = parse_request(dumps(warmup_body(samples)))
-    given = req.to_input()
-    params = req.to_params()
+    inputs = detection_inputs(req)
+    given, params = inputs.given, inputs.params
     hand = req.hand_geometry()
     detector = registry.detector(registry.resolve(req.model, req.use_classifier and req.method == "gpd",
                                                   hand or HandGeometry()))
@@ -82,8 +84,8 @@ def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tu
             size = int(getattr(scorer, "image_size", 60))
             if channels is not None:  # a full batch: onnxruntime sizes its buffers for the largest one
                 score_parallel(scorer, np.zeros((params.score_batch, channels, size, size), np.uint8))
-    body = DetectResponse.from_detection(det, request_id="warm-up", timings=dict(det.timings), hand=det.hand,
-                                         frame=given.frame).to_json()
+    body = DetectResponse.model_validate(result_body(GpdResult.of(det), request_id="warm-up", detection_id="warm-up",
+                                                     timings=dict(det.timings), frame=given.frame)).to_json()
     return det, body
 
 

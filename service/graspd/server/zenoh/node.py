@@ -21,12 +21,12 @@ from typing import Any
 
 from graspd.server.metrics import Metrics
 from graspd.server.requests import parse_model
-from graspd.server.schemas import DemonstrationRequest, FeedbackRequest
 from graspd.server.services.engine import DetectionEngine
 from graspd.server.services.lifecycle import Lifecycle
 from graspd.server.services.outcome import Parsed
 from graspd.server.services.ros_stream import DEFAULT_INPUT_KEYS, DEFAULT_OUTPUT_KEYS, StreamOptions, resolve_keys
 from graspd.server.settings import Settings
+from graspd.server.wire.templates import DemonstrationRequest, FeedbackRequest
 from graspd_client.wire import (
     ZENOH_DEMONSTRATIONS_KEY,
     ZENOH_DETECT_KEY,

@@ -86,7 +86,7 @@ def parse_payload(payload: bytes, name: str, options: StreamOptions, selector: S
     may name the file's type; else it is told by its first bytes)."""
     if looks_like_cdr(payload):
         msg = decode_input(payload, name, options)
-        return Parsed(stream_request(msg, options), header=ros_header(msg.header), context=msg.header)
+        return stream_request(msg, options, header=ros_header(msg.header), context=msg.header)
     if name != "pointcloud2":
         raise Problem(400, f"payload is not a CDR {INPUT_TYPES[name]}", "payload")
     selector = selector or Selector({})
