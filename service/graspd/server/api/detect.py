@@ -90,8 +90,7 @@ async def read_capped(request: Request, cap: int, timeout_s: float | None = None
 )
 async def detect(request: Request, state: State) -> Response:
     life = state.lifecycle
-    tracked = life.track("http")
-    try:
+    with life.track("http", ok_status=200, gone=(ClientDisconnect,)) as tracked:
         life.admit()  # 503 when full, before the body is read or parsed
         try:
             data = await read_capped(request, state.settings.max_body_bytes)
@@ -99,20 +98,9 @@ async def detect(request: Request, state: State) -> Response:
             life.release()
             raise
         q = request.query_params
-        content_type, query, viewpoints = request.headers.get("content-type", ""), {k: q[k] for k in q}, \
-            q.getlist("viewpoint")
-        poses = q.getlist("camera_pose")
-        timings = {"read": time.perf_counter() - tracked.t0}
+        query, viewpoints, poses = {k: q[k] for k in q}, q.getlist("viewpoint"), q.getlist("camera_pose")
+        content_type = request.headers.get("content-type", "")
         outcome = await life.detect(lambda: Parsed(parse_body(data, content_type, query, viewpoints, poses)),
-                                    timings, size=len(data))
+                                    {"read": time.perf_counter() - tracked.t0}, size=len(data))
         body = await asyncio.to_thread(response_json, outcome)  # off the event loop (~1 ms per 100 grasps)
-        tracked.finish(status=200)
         return Response(body, media_type="application/json")
-    except ClientDisconnect:  # the client went away while sending: nothing to answer (RequestGuard logs it)
-        tracked.finish(status=499, outcome="disconnected")
-        raise
-    except Problem as exc:
-        tracked.finish(exc)
-        raise
-    finally:
-        tracked.finish(status=500, outcome="error")  # anything else: RequestGuard answers 500

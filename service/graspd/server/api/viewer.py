@@ -110,8 +110,7 @@ async def viewer_page() -> HTMLResponse:
 )
 async def viewer(request: Request, state: State) -> HTMLResponse:
     life = state.lifecycle
-    tracked = life.track("http", "viewer")
-    try:
+    with life.track("http", "viewer", ok_status=200) as tracked:
         life.admit()  # 503 when full, before the body is read
         try:
             body = await read_capped(request, state.settings.max_body_bytes)
@@ -128,12 +127,6 @@ async def viewer(request: Request, state: State) -> HTMLResponse:
                                     {"read": time.perf_counter() - tracked.t0})
         warnings = _warnings(outcome)
         page = await asyncio.to_thread(_page, outcome, name, warnings)
-        tracked.finish(status=200)
         headers = security_headers(VIEWER_CSP)
         headers["X-Graspd-Warnings"] = json.dumps(warnings, ensure_ascii=True)  # the drop page lists them
         return HTMLResponse(page, headers=headers)
-    except Problem as exc:
-        tracked.finish(exc)
-        raise
-    finally:
-        tracked.finish(status=500, outcome="error")

@@ -79,6 +79,23 @@ class Tracked:
         (log.warning if outcome == "unauthorized" else log.info)(self.name, extra=extra)
         return outcome
 
+    # as a context manager (the HTTP routes): whatever ends the block is the answer tracked
+    ok_status: int | None = None  # the status a success is logged with (HTTP: 200)
+    gone: tuple[type[BaseException], ...] = ()  # what says the client went away (logged 499, "disconnected")
+
+    def __enter__(self) -> Tracked:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, _tb: Any) -> None:
+        if exc is None:
+            self.finish(status=self.ok_status)
+        elif isinstance(exc, Problem):
+            self.finish(exc)
+        elif isinstance(exc, self.gone):
+            self.finish(status=499, outcome="disconnected")
+        else:  # a fault: the app's last line of defence answers 500 (app.RequestGuard)
+            self.finish(status=500, outcome="error")
+
 
 # ---- the detection's life ---------------------------------------------------------------------------------
 class Lifecycle:
@@ -89,9 +106,10 @@ class Lifecycle:
         self.metrics = metrics
 
     def track(self, transport: str, name: str = "detect", label: str | None = None, log_success: bool = True,
-              timed: bool = True) -> Tracked:
-        """Begin tracking a request of the current request context (logs.begin_request)."""
-        return Tracked(self.metrics, transport, name, label, log_success, timed)
+              timed: bool = True, ok_status: int | None = None, gone: tuple[type[BaseException], ...] = ()
+              ) -> Tracked:
+        """Begin tracking a request of the current request context (logs.begin_request); see Tracked."""
+        return Tracked(self.metrics, transport, name, label, log_success, timed, ok_status=ok_status, gone=gone)
 
     def admit(self) -> None:
         """Reserve a place before the payload is read (503 when full); release() it if the request ends first."""
