@@ -377,7 +377,6 @@ class Ros2Node:
         held = [data]  # the sample, dropped once parsed (a message of megabytes is not kept through detection)
 
         def answer(outcome: Outcome | None, problem: Problem | None) -> None:  # on the worker, or at the deadline
-            self.share.give()
             if outcome is not None:
                 self._write(entry, finish(rid, outcome))
                 self.publish_objects(outcome.result, outcome.context["msg"].header)
@@ -391,7 +390,8 @@ class Ros2Node:
             tracked.finish(problem)
 
         try:
-            self.lifecycle.start(lambda: prepare(held.pop(), deadline), {"read": 0.0}, answer, "ros2 service")
+            work = self.lifecycle.start(lambda: prepare(held.pop(), deadline), {"read": 0.0}, answer, "ros2 service")
+            work.add_done_callback(lambda _: self.share.give())  # the service share is held until the work ends
         except Problem as exc:  # shutting down (the place was given back)
             self.share.give()
             self._write(entry, refuse(rid, exc))

@@ -134,12 +134,14 @@ class Lifecycle:
         return self.engine.detect_sync(parse, timings)
 
     def start(self, parse: Callable[[], Parsed], timings: dict[str, float],
-              answer: Callable[[Outcome | None, Problem | None], None], what: str = "detect", size: int = 0) -> None:
+              answer: Callable[[Outcome | None, Problem | None], None], what: str = "detect", size: int = 0
+              ) -> Future[Outcome]:
         """Queue an admitted request and return at once (a listener thread must not block): answer(outcome,
         None) or answer(None, problem) is called once, from the worker, or at the end of the answer window
         (504); a fault becomes internal_error (its traceback logged with the request id).  Raises a Problem
         when the request cannot be queued (shutting down; its place was given back).  size: the payload's bytes
-        when known (0: not)."""
+        when known (0: not).  Returns the engine's future, done when the work is (what the request holds beside
+        its place in the queue is given back then, not at a 504)."""
         ctx = current_request()
         rid = ctx.id if ctx is not None else "-"
         once = threading.Lock()
@@ -178,6 +180,7 @@ class Lifecycle:
         timer.daemon = True
         timer.start()
         fut.add_done_callback(lambda _: timer.cancel())
+        return fut
 
     def _expire(self, fut: Future[Outcome], reply: Callable[[Outcome | None, Problem | None], None]) -> None:
         if fut.cancel() or not fut.done():

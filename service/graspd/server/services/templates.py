@@ -54,7 +54,7 @@ log = logging.getLogger("graspd.server")
 #: DetectRequest fields method "templates" uses; any other field set in a request is refused (422).
 TEMPLATE_FIELDS = frozenset({"method", "cloud", "workspace", "max_grasps", "hand"})
 
-#: A GPD grasp id, schemas.gpd_grasp_id: "<request id>-<k>" (request ids are 16 hex digits).
+#: A GPD grasp id, services.outcome.gpd_grasp_id: "<request id>-<k>" (request ids are 16 hex digits).
 _GPD_ID = re.compile(r"^([0-9a-f]{16})-(\d+)$")
 
 #: The fields a template error may name: those of the requests this service handles.

@@ -1,6 +1,6 @@
 """Warm start: before the service says ready, one request on a small bundled cloud takes the path a real request
 takes, so that the first real request pays no first-use costs: the JSON body parsed and validated
-(server/requests.py, schemas.py), the cloud made into the detection frame, preprocessing (the KD-tree, normal
+(server/requests.py, wire/), the cloud made into the detection frame, preprocessing (the KD-tree, normal
 estimation), the environment model, the hand search, both stages of the model cascade (the prefilter on its own
 images, then the full model) with full batches of both representations, onnxruntime's buffers sized for the
 largest batch a request scores, the process's thread pool (graspd.core.parallel) and the response built and
