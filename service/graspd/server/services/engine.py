@@ -1,5 +1,6 @@
 """The detection engine every entrance shares (HTTP, uploads, Zenoh, ROS 2): admission control, a worker pool
-sized to the cores, per-request deadlines, and request -> detection -> response JSON.
+sized to the cores, per-request deadlines, and a parsed request -> detection -> Outcome (services.outcome; each
+transport encodes it, services.mapping.response_json for JSON).
 
 Admission is by cost, so that under load the service finishes work instead of timing it all out:
 
