@@ -102,8 +102,8 @@ class Stream:
         ctx = begin_request()
         tracked = self.lifecycle.track("zenoh", label="zenoh-stream", log_success=False, timed=False)
         try:
-            outcome = self.lifecycle.detect_sync(lambda: self.parse(payload, name),
-                                                 {"decode": time.perf_counter() - t0})
+            parsed = self.parse(payload, name)  # on the stream thread, before it takes a place (as ROS 2's)
+            outcome = self.lifecycle.detect_sync(lambda: parsed, {"decode": time.perf_counter() - t0})
             self.publish("json", response_json(outcome))
             header: Header | None = outcome.context
             if header is not None:
