@@ -1,4 +1,4 @@
-"""A bounded stateful schemathesis run against the live app (issue 11): sequences of calls that follow the
+"""A bounded stateful schemathesis run against the live app: sequences of calls that follow the
 OpenAPI links (POST /detect -> POST /feedback on the best grasp's id) and random calls in between; no 5xx."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Small requests that declare huge or lying content (issue 11, defects 4-6 and 10) get a 4xx naming the field,
+"""Small requests that declare huge or lying content get a 4xx naming the field,
 decided from the declared sizes before anything large is allocated; never a 500."""
 
 from __future__ import annotations

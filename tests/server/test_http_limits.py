@@ -1,4 +1,4 @@
-"""The HTTP entrance on a real uvicorn socket (issue 11, defects 5, 8, 9, 10): idle and trickling connections
+"""The HTTP entrance on a real uvicorn socket: idle and trickling connections
 close, slow bodies get 408, admission is decided before the body is read, a 500 says nothing internal and keeps
 the keep-alive connection, a client that disconnects is logged at INFO without a traceback."""
 

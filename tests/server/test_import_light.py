@@ -1,6 +1,6 @@
 """Importing the server loads none of the heavy optional stacks: torch (training) and pybullet (the sim
-benchmark) are extras the service image does without (issue 12); nor does reading cloud files load open3d, which
-the server distribution no longer depends on (issue 25)."""
+benchmark) are extras the service image does without; nor does reading cloud files load open3d, which
+the server distribution no longer depends on."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def test_server_import_loads_no_torch_pybullet_or_lab_module() -> None:
     assert loaded == [], f"importing graspd.server loaded {loaded}"
 
 
-# ---- no open3d in the server (issue 25): cloud files are read with numpy ---------------------------------------
+# ---- no open3d in the server: cloud files are read with numpy ---------------------------------------
 WITHOUT = (*HEAVY, "open3d")
 
 READ_PROBE = """

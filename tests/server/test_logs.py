@@ -1,5 +1,5 @@
 """JSON log lines: uvicorn's ANSI color_message stays out, and lines logged on a worker thread for a request
-carry that request's id (issue 11, defect 10)."""
+carry that request's id."""
 
 from __future__ import annotations
 

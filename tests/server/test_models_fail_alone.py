@@ -1,4 +1,4 @@
-"""Each model loads on its own (issue 11, defect 3): a broken .onnx or card is reported by name in /readyz and the
+"""Each model loads on its own: a broken .onnx or card is reported by name in /readyz and the
 log while the others serve; a missing or broken default model means not ready, and /detect never silently
 answers unscored."""
 

@@ -1,4 +1,4 @@
-"""Errors give nothing away (issue 23 item 6): a hostile run against a server with a token, an unreachable
+"""Errors give nothing away: a hostile run against a server with a token, an unreachable
 database and a models folder of its own, then every answer and every log line is grepped for the token, the
 database's user, password, name, host and port, and the server's folders."""
 

@@ -1,4 +1,4 @@
-"""Explainable answers (issue 27, item 5): every GPD grasp carries the terms that ranked it, the response says
+"""Explainable answers: every GPD grasp carries the terms that ranked it, the response says
 how they combine, and the order of the grasps is the order of their keys."""
 
 from __future__ import annotations

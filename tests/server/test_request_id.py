@@ -1,4 +1,4 @@
-"""X-Request-ID (issue 27, item 5): a client's valid id is kept, echoed in the header and the body, and carried
+"""X-Request-ID: a client's valid id is kept, echoed in the header and the body, and carried
 by every log line of its request; an invalid one is replaced; grasp ids stay the server's (feedback names the
 right detection even when a client reuses its ids)."""
 

@@ -1,4 +1,4 @@
-"""Warnings instead of silence (issue 27, item 2), the same on every transport: table_mug.pcd sent with its
+"""Warnings instead of silence, the same on every transport: table_mug.pcd sent with its
 camera at 0,0,0 warns of nothing; sent with the camera behind it (0,0,3) it warns viewpoint_flipped, with the
 same codes and sentences over HTTP JSON, a PCD upload and Zenoh."""
 

@@ -1,4 +1,4 @@
-"""Slow clients cannot starve anyone (issue 23 item 3), on a real uvicorn socket: a body trickling below the minimum
+"""Slow clients cannot starve anyone, on a real uvicorn socket: a body trickling below the minimum
 upload rate gets 408 naming body; connections over the per-address or the total cap close the oldest connection
 still waiting for its headers, so /healthz answers while a flood of slow-header connections is open."""
 

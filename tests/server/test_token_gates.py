@@ -1,4 +1,4 @@
-"""With GRASPD_TOKEN set nothing is readable without it (issue 23 item 5): /metrics, the details of /readyz (a bare
+"""With GRASPD_TOKEN set nothing is readable without it: /metrics, the details of /readyz (a bare
 status stays public for load balancers), /docs, /redoc and /openapi.json (settings publish them), and the Zenoh
 admin space.  The documentation pages load their assets from this server only (fastapi-offline's bundle)."""
 
