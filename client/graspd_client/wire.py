@@ -115,7 +115,8 @@ def build_detect_request(
 ) -> dict[str, Any]:
     """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
 
-    points (N,3) m; viewpoints (K,3) camera positions; camera_source (N,) index into viewpoints;
+    points (N,3) m, or an organised (H,W,3) cloud (sent with its shape); viewpoints (K,3) camera positions;
+    camera_source (N,) index into viewpoints;
     image HxWx3 uint8 (or PNG bytes) with intrinsics (fx, fy, cx, cy) and camera_pose (4x4,
     camera-to-cloud) asks for one object-proposal crop per grasp.  method "templates" asks the grasp-template
     detector (it takes cloud, workspace, max_grasps and hand only).  gravity (3,) is the direction gravity
@@ -255,14 +256,24 @@ def camera_poses_json(poses: Sequence[Any] | ArrayLike) -> list[Any]:
 def build_cloud(points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
                 camera_source: ArrayLike | None = None, *, camera_poses: Sequence[Any] | ArrayLike | None = None,
                 points_frame: str | None = None, normals: ArrayLike | None = None) -> dict[str, Any]:
-    """The "cloud" object of a request: points (N,3) m (NaN rows are dropped and counted by the server), camera
-    positions (K,3) m, per-point camera index; or camera_poses and points_frame instead of the viewpoints (the
-    default origin viewpoint is then left out)."""
+    """The "cloud" object of a request: points (N,3) m, or an organised cloud (H,W,3) as a depth camera's driver
+    gives it (sent row-major with its shape [H, W], so the server can use image neighbours), NaN rows dropped and
+    counted by the server; camera positions (K,3) m, per-point camera index; or camera_poses and points_frame
+    instead of the viewpoints (the default origin viewpoint is then left out).  Normals and camera_source of an
+    organised cloud may come as (H,W,3) and (H,W)."""
     pts = np.asarray(points, np.float32)
+    shape: list[int] | None = None
+    if pts.ndim == 3 and pts.shape[2] == 3:
+        shape = [int(pts.shape[0]), int(pts.shape[1])]
+        pts = pts.reshape(-1, 3)
+        normals = None if normals is None else np.asarray(normals, np.float32).reshape(-1, 3)
+        camera_source = None if camera_source is None else np.asarray(camera_source).reshape(-1)
     if pts.ndim != 2 or pts.shape[1] != 3:
-        raise WireError("cloud.points", f"shape (N,3) expected, got {tuple(pts.shape)}")
+        raise WireError("cloud.points", f"shape (N,3) or (H,W,3) expected, got {tuple(pts.shape)}")
     vps = np.asarray(viewpoints, np.float64).reshape(-1, 3)
     cloud: dict[str, Any] = {"points": encode_array(pts)}
+    if shape is not None:
+        cloud["shape"] = shape
     if camera_poses is None or not (vps.shape == (1, 3) and not vps.any()):
         cloud["viewpoints"] = vps.tolist()
     if camera_poses is not None:

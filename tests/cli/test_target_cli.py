@@ -62,7 +62,8 @@ def cli(files: dict[str, Path], tmp: Path, *flags: str) -> dict[str, Any]:
 
 
 def http(client: TestClient, six: OrganisedScene, **options: Any) -> dict[str, Any]:
-    body = build_detect_request(six.cloud.points, six.cloud.viewpoints, num_samples=SAMPLES, max_grasps=MAX_GRASPS,
+    organised = six.cloud.points.reshape(HEIGHT, WIDTH, 3)  # as the CLI reads the (H, W, 3) .npy: with its grid
+    body = build_detect_request(organised, six.cloud.viewpoints, num_samples=SAMPLES, max_grasps=MAX_GRASPS,
                                 use_classifier=False, **options)
     r = client.post("/detect", json=body)
     assert r.status_code == 200, r.text

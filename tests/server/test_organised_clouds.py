@@ -5,6 +5,7 @@ mixed-pixel filter drops some).  The pixel-level mapping is tested at graspd.io'
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 from typing import Any
@@ -12,7 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from PIL import Image
 
+from graspd.core.camera import Intrinsics
+from graspd.io.depth import depth_pixels, depth_points
 from graspd.io.pcd import read_pcd
 from graspd_client import encode_array
 
@@ -93,3 +97,52 @@ def test_an_organised_pcd_upload_carries_its_shape_to_the_detector(client: TestC
                                           **json_options})
     assert flat.status_code == 200 and shaped.status_code == 200, (flat.text, shaped.text)
     assert upload.json()["num_points"] == shaped.json()["num_points"] < flat.json()["num_points"]
+
+
+@pytest.mark.parametrize(("pixels", "shape", "why"), [
+    ([0, 1, 2], [12, 16], "fewer indices than points"),
+    (None, None, "indices without a shape"),
+    ("decreasing", [12, 16], "not increasing"),
+    ("outside", [12, 16], "past the image"),
+])
+def test_wrong_pixels_are_a_422_naming_cloud_pixels(client: TestClient, pixels: Any, shape: list[int] | None,
+                                                    why: str) -> None:
+    pts = organised_points()
+    finite = np.isfinite(pts).all(axis=1)
+    sparse, rows = pts[finite], np.flatnonzero(finite)
+    index = {"decreasing": rows[::-1], "outside": rows + 16}.get(pixels, rows) if isinstance(pixels, str | None) \
+        else np.asarray(pixels)
+    cloud: dict[str, Any] = {"points": encode_array(sparse.astype(np.float32)), "pixels": index.tolist()}
+    if shape is not None:
+        cloud["shape"] = shape
+    r = client.post("/detect", json={"cloud": cloud, "num_samples": 5})
+    assert r.status_code == 422, (why, r.text)
+    assert r.json()["field"].startswith("cloud.pixels"), (why, r.json())
+
+
+def test_a_depth_image_upload_keeps_its_grid_without_counting_pixels_with_no_depth(client: TestClient) -> None:
+    """A depth image's points are only its pixels with depth: uploaded, they reach detection on the image's grid (as
+    the same points sent as JSON with their shape and pixel indices, fewer than sent unorganised after the mixed
+    pixels are dropped), and the pixels with no depth are not reported as dropped points."""
+    pts = organised_points(40, 50)
+    depth = np.nan_to_num(pts[:, 2], nan=0.0).reshape(40, 50)
+    fx = 0.6 / 0.004
+    png = client.post("/detect", params={"intrinsics": f"{fx},{fx},25,20", "depth_scale": "0.0001",
+                                         "num_samples": "5"},
+                      content=_png16(np.round(depth * 1e4).astype(np.uint16)), headers={"content-type": "image/png"})
+    assert png.status_code == 200, png.text
+    assert "non_finite_dropped" not in [w["code"] for w in png.json()["warnings"]], png.json()["warnings"]
+    d = np.round(depth * 1e4) * 1e-4
+    sparse = depth_points(d.astype(np.float32), Intrinsics(fx, fx, 25, 20))
+    shaped = client.post("/detect", json={"cloud": {"points": encode_array(sparse), "shape": [40, 50],
+                                                    "pixels": depth_pixels(d).tolist()}, "num_samples": 5})
+    flat = client.post("/detect", json={"cloud": {"points": encode_array(sparse)}, "num_samples": 5})
+    assert shaped.status_code == 200 and flat.status_code == 200, (shaped.text, flat.text)
+    assert png.json()["num_points"] == shaped.json()["num_points"] < flat.json()["num_points"]
+
+
+def _png16(image: np.ndarray) -> bytes:
+    """A 16-bit greyscale PNG of image (H, W) uint16, as depth cameras' drivers save them."""
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    return buf.getvalue()

@@ -27,8 +27,8 @@ from graspd.io.ply import PlyHeader, check_ply, check_ply_header, parse_ply, rea
 
 __all__ = ["CLOUD_SUFFIXES", "MAX_FILE_POINTS", "MAX_NPY_VALUES", "MAX_NPZ_BYTES", "MAX_PCD_EXPANSION", "NPY_MAGIC",
            "NPZ_ARRAYS", "ZIP_MAGIC", "FileCloud", "PcdHeader", "PlyHeader", "array_cloud", "check_pcd_header",
-           "check_ply", "check_ply_header", "depth_cloud", "file_arrays", "nearest_camera", "parse_npy", "parse_npz",
-           "parse_pcd", "parse_ply", "read_cloud", "read_input", "read_pcd", "read_ply", "save_npz"]
+           "check_ply", "check_ply_header", "depth_cloud", "file_arrays", "image_arrays", "nearest_camera", "parse_npy",
+           "parse_npz", "parse_pcd", "parse_ply", "read_cloud", "read_input", "read_pcd", "read_ply", "save_npz"]
 
 
 # ---- numpy files: .npy (one array, graspd.io.npy) and .npz (named arrays, graspd.io.npz) -----------------
@@ -82,6 +82,24 @@ def depth_cloud(depth: NDArray[np.float32], intrinsics: Sequence[float] | Camera
     return depth_points(depth, Intrinsics.parse(intrinsics, field))
 
 
+def image_arrays(data: bytes, kind: str, intrinsics: Sequence[float] | CameraCalibration | None = None,
+                 depth_scale: float = DEFAULT_DEPTH_SCALE) -> dict[str, Any]:
+    """The cloud arrays of an .npy ("npy") or 16-bit depth PNG ("png") file: with intrinsics a depth image's points
+    (camera frame, m; pixels without depth left out), its grid "shape" and each point's "pixel", and "depth": True;
+    without, an .npy's (N,3) points or organised (H,W,3) cloud with its "shape".  CloudError naming what is wrong."""
+    image = parse_npy(data) if kind == "npy" else None
+    if intrinsics is None:
+        if image is None:
+            raise CloudError("intrinsics", "a depth PNG needs the camera's intrinsics fx, fy, cx, cy (pixels)")
+        arrays: dict[str, Any] = {"points": array_cloud(image)}
+        if image.ndim == 3:
+            arrays["shape"] = image.shape[:2]
+        return arrays
+    depth = read_depth_png(data, depth_scale) if image is None else depth_metres(image, depth_scale)
+    return {"points": depth_cloud(depth, intrinsics), "shape": depth.shape, "pixel": depth_pixels(depth),
+            "depth": True}
+
+
 def read_input(path: str | Path, viewpoints: NDArray[np.floating] | None = None, *,
                camera_poses: object = None, points_frame: str | None = None,
                intrinsics: Sequence[float] | CameraCalibration | None = None,
@@ -106,16 +124,8 @@ def read_input(path: str | Path, viewpoints: NDArray[np.floating] | None = None,
     elif suffix == ".npz":
         arrays = dict(parse_npz(data))
     elif suffix in (".npy", ".png"):
-        image = parse_npy(data) if suffix == ".npy" else None
-        if intrinsics is None:
-            if image is None:
-                raise CloudError("intrinsics", "a depth PNG needs the camera's intrinsics fx, fy, cx, cy (pixels)")
-            arrays = {"points": array_cloud(image)}
-            if image.ndim == 3:
-                arrays["shape"] = image.shape[:2]
-        else:
-            depth = read_depth_png(data, depth_scale) if image is None else depth_metres(image, depth_scale)
-            arrays = {"points": depth_cloud(depth, intrinsics), "shape": depth.shape, "pixel": depth_pixels(depth)}
+        arrays = image_arrays(data, suffix[1:], intrinsics, depth_scale)
+        if arrays.get("depth"):
             points_frame = points_frame or ("camera" if camera_poses is not None else None)
     else:
         raise CloudError("cloud", f"unsupported cloud file type {suffix!r} (use {', '.join(CLOUD_SUFFIXES)})")

@@ -23,16 +23,14 @@ from graspd.io.cloud_files import (
     NPY_MAGIC,
     NPZ_ARRAYS,
     ZIP_MAGIC,
-    array_cloud,
-    depth_cloud,
     file_arrays,
+    image_arrays,
     nearest_camera,
-    parse_npy,
     parse_npz,
     read_pcd,
     read_ply,
 )
-from graspd.io.depth import DEFAULT_DEPTH_SCALE, PNG_MAGIC, depth_metres, read_depth_png
+from graspd.io.depth import DEFAULT_DEPTH_SCALE, PNG_MAGIC
 from graspd.server.problems import CALLER_ERRORS, Problem, from_error, from_wire
 from graspd.server.wire.detect import DetectRequest
 
@@ -180,6 +178,10 @@ def _bag_arrays(data: bytes, query: Mapping[str, str]) -> dict[str, Any]:
                          else DEFAULT_DEPTH_SCALE)
     message = next(read_bag(data, bag_query))
     arrays: dict[str, Any] = {"points": message.points, "normals": message.normals}
+    if message.shape is not None:  # an organised PointCloud2 or a depth image: the grid goes with the points
+        arrays["shape"] = message.shape
+        if message.pixel is not None:
+            arrays["pixel"] = message.pixel
     if message.camera_pose is not None:
         arrays.update(camera_poses=[message.camera_pose.tolist()], depth=True)  # points in the camera's frame
     return arrays
@@ -261,15 +263,11 @@ def _file_arrays(data: bytes, kind: str, query: Mapping[str, str]) -> dict[str, 
         if "camera_poses" in arrays:
             arrays["camera_poses"] = np.asarray(arrays["camera_poses"], np.float64).reshape(-1, 4, 4).tolist()
         return arrays
-    image = parse_npy(data) if kind == "npy" else None
-    if "intrinsics" not in query:
-        if image is None:
-            raise Problem(422, "a depth PNG needs the camera's intrinsics 'fx,fy,cx,cy' (pixels)", "intrinsics")
-        return {"points": array_cloud(image)}
-    intrinsics = _intrinsics(query["intrinsics"])
+    if kind == "png" and "intrinsics" not in query:
+        raise Problem(422, "a depth PNG needs the camera's intrinsics 'fx,fy,cx,cy' (pixels)", "intrinsics")
+    intrinsics = _intrinsics(query["intrinsics"]) if "intrinsics" in query else None
     scale = _floats(query["depth_scale"], 1, "depth_scale")[0] if "depth_scale" in query else DEFAULT_DEPTH_SCALE
-    depth = read_depth_png(data, scale) if image is None else depth_metres(image, scale)
-    return {"points": depth_cloud(depth, intrinsics), "depth": True}
+    return image_arrays(data, kind, intrinsics, scale)
 
 
 def _intrinsics(text: str) -> list[float] | CameraCalibration:
@@ -304,9 +302,11 @@ def upload_request(data: bytes, kind: str, query: Mapping[str, str], viewpoints:
         raise Problem(422, f"unreadable {kind.upper()} file ({type(exc).__name__}: {exc})", "body") from None
     points = np.asarray(arrays["points"])
     cloud: dict[str, Any] = {"points": points}
-    for name in NPZ_ARRAYS[2:]:  # camera_source, normals, camera_poses (an .npz may carry them)
+    for name in NPZ_ARRAYS[2:]:  # camera_source, normals, camera_poses, shape (an .npz may carry them)
         if arrays.get(name) is not None:
             cloud[name] = arrays[name]
+    if arrays.get("pixel") is not None:  # a depth image's points are its pixels with depth
+        cloud["pixels"] = arrays["pixel"]
     poses = camera_poses if camera_poses is not None else ([query["camera_pose"]] if "camera_pose" in query else [])
     if poses:
         cloud["camera_poses"] = [_camera_pose(p) for p in poses]

@@ -33,7 +33,8 @@ def cloud_input(cloud: Cloud, field: str = "cloud") -> CloudInput:
     <field>.points), an organised cloud's grid (its shape checked against the rows sent: <field>.shape)."""
     points = np.asarray(cloud.points)
     received = len(points)
-    check_shape(cloud.shape, received, f"{field}.shape")
+    if cloud.pixels is None:  # every pixel sent, row-major (with pixels, the wire model checked them)
+        check_shape(cloud.shape, received, f"{field}.shape")
     keep, dropped = keep_finite(points, cloud.normals, f"{field}.points")
     source, normals = cloud.camera_source, cloud.normals
     if keep is not None:
@@ -43,7 +44,11 @@ def cloud_input(cloud: Cloud, field: str = "cloud") -> CloudInput:
     poses = cloud.poses()
     viewpoints = (np.zeros((len(poses), 3), np.float32) if poses is not None
                   else np.asarray(cloud.viewpoints, np.float32))
-    grid = None if cloud.shape is None else CloudGrid.of_rows(cloud.shape[0], cloud.shape[1], keep)
+    grid = None
+    if cloud.shape is not None:
+        pixels = cloud.pixels
+        grid = (CloudGrid.of_rows(cloud.shape[0], cloud.shape[1], keep) if pixels is None
+                else CloudGrid(cloud.shape[0], cloud.shape[1], pixels if keep is None else pixels[keep]))
     detector_cloud = ViewpointCloud(points=points, viewpoints=viewpoints, normals=normals, grid=grid,
                                     camera_source=np.zeros(0, np.int32) if source is None else source)
     moved, frame = apply_frames(detector_cloud, poses, cloud.points_frame)

@@ -57,6 +57,9 @@ Viewpoints = array_field((None, 3), "f", "float64", True,
                     "camera positions (K,3), metres, same frame as the points")
 CameraSource = array_field((None,), "i", "int64", False,
                       "per-point camera index (N,) into viewpoints (or camera_poses); default 0 for every point")
+Pixels = array_field((None,), "i", "int64", False,
+                "with shape: the row-major pixel index of each point, increasing (a depth image's pixels that have "
+                "depth); default: the points are every pixel in order")
 RGBImage = array_field((None, None, 3), "i", "uint8", False, "RGB image (H,W,3) uint8, row-major, top row first")
 Matrix4 = array_field((4, 4), "f", "float64", True, "4x4 homogeneous transform, row-major")
 

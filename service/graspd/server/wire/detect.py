@@ -43,7 +43,7 @@ from graspd.core.masks import rle_decode, rle_string_counts
 from graspd_client import wire
 from graspd_client.codec import WireError
 
-from .arrays import CameraPose, CameraSource, Matrix4, Normals, Points, RGBImage, Viewpoints, array_field
+from .arrays import CameraPose, CameraSource, Matrix4, Normals, Pixels, Points, RGBImage, Viewpoints, array_field
 
 #: The default of range_window (m): the detector's (graspd.gpd.preprocess.DEFAULT_RANGE_WINDOW; a test keeps
 #: them equal).
@@ -98,6 +98,7 @@ class Cloud(BaseModel):
         None, description="[height, width] of an organised cloud (a depth image's grid): points are its pixels in "
         "row-major order, height * width of them, NaN where there is no depth.  Lets detection use image "
         "neighbours (mixed-pixel filter, normals); leave out for an unorganised cloud")
+    pixels: Pixels | None = None  # type: ignore[valid-type]
 
     @field_validator("points")
     @classmethod
@@ -140,6 +141,21 @@ class Cloud(BaseModel):
         if v is not None and pts is not None and v.shape != pts.shape:
             raise ValueError(f"one normal per point expected, shape {pts.shape}, got {v.shape}")
         return v
+
+    @field_validator("pixels")
+    @classmethod
+    def _pixels(cls, v: np.ndarray | None, info: ValidationInfo) -> np.ndarray | None:
+        if v is None:
+            return None
+        pts, shape = info.data.get("points"), info.data.get("shape")
+        if shape is None:
+            raise ValueError("pixel indices need the image's shape: give cloud.shape [height, width]")
+        if pts is not None and len(v) != len(pts):
+            raise ValueError(f"one pixel index per point expected ({len(pts)}), got {len(v)}")
+        if len(v) and (int(v[0]) < 0 or int(v[-1]) >= shape[0] * shape[1] or bool((np.diff(v) <= 0).any())):
+            raise ValueError(f"increasing pixel indices in [0, {shape[0] * shape[1] - 1}] expected (a "
+                             f"{shape[0]}x{shape[1]} image, row-major)")
+        return v.astype(np.int64, copy=False)
 
     @model_validator(mode="after")
     def _frames(self) -> Cloud:
