@@ -4,7 +4,8 @@ takes, so that the first real request pays no first-use costs: the JSON body par
 estimation), the environment model, the hand search, both stages of the model cascade (the prefilter on its own
 images, then the full model) with full batches of both representations, onnxruntime's buffers sized for the
 largest batch a request scores, the process's thread pool (graspd.core.parallel) and the response built and
-serialised."""
+serialised.  Then a capture file (binary PCD) and an organised cloud (with its shape) take the readers' and the
+grid's compiled paths (tests/server/test_warm_kernels.py: after the warm-up a first upload compiles nothing)."""
 
 from __future__ import annotations
 
@@ -64,7 +65,7 @@ def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tu
     with the default model (its cascade included) inside THREADS.request(), every scorer of the detector then
     scoring one full batch (DetectionParams.score_batch images), and the response serialised.  Returns the
     detection and the response bytes.  Raises what the request raises."""
-    from graspd.server.requests import dumps, parse_request  # noqa: PLC0415 - keeps this module light
+    from graspd.server.requests import dumps, parse_body, parse_request  # noqa: PLC0415 - keeps this module light
     from graspd.server.services.mapping import detection_inputs, result_body  # noqa: PLC0415
     from graspd.server.services.outcome import GpdResult  # noqa: PLC0415
     from graspd.server.wire.response import DetectResponse  # noqa: PLC0415
@@ -86,7 +87,37 @@ def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tu
                 score_parallel(scorer, np.zeros((params.score_batch, channels, size, size), np.uint8))
     body = DetectResponse.model_validate(result_body(GpdResult.of(det), request_id="warm-up", detection_id="warm-up",
                                                      timings=dict(det.timings), frame=given.frame)).to_json()
+    with THREADS.request():  # the other shapes of input a robot sends: a capture file, an organised cloud
+        for other in (parse_body(warmup_pcd(), "application/octet-stream", {"num_samples": "60"}, []),
+                      parse_request(dumps(warmup_organised_body()))):
+            more = detection_inputs(other)
+            detector.detect(more.given.cloud, more.params, hand)
     return det, body
+
+
+def warmup_pcd() -> bytes:
+    """warmup_cloud() as a binary PCD file (float32 x y z, the camera as its VIEWPOINT), the way captures are
+    uploaded: its points take the readers' and the voxel grid's float32 paths."""
+    cloud = warmup_cloud()
+    x, y, z = (float(v) for v in cloud.viewpoints[0])
+    header = (f"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {len(cloud)}\nHEIGHT 1\n"
+              f"VIEWPOINT {x} {y} {z} 1 0 0 0\nPOINTS {len(cloud)}\nDATA binary\n")
+    return header.encode() + np.ascontiguousarray(cloud.points, "<f4").tobytes()
+
+
+def warmup_organised_body(height: int = 96, width: int = 128) -> dict[str, Any]:
+    """An organised cloud (an image grid with its shape, as a depth camera gives it): a table 0.7 m below a camera
+    looking down, a 10 cm box on it, a row of pixels with no depth (NaN); it takes the grid's mixed-pixel filter and
+    normals."""
+    from graspd_client import build_detect_request  # noqa: PLC0415 - the server's own wire codec
+
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    f = 0.9 * width
+    ray = np.stack([(u - width / 2) / f, (v - height / 2) / f, np.ones_like(u)], axis=-1)
+    depth = np.where((np.abs(ray[..., 0]) < 0.08) & (np.abs(ray[..., 1]) < 0.06), 0.6, 0.7)
+    points = (ray * depth[..., None]).astype(np.float32)
+    points[0] = np.nan
+    return dict(build_detect_request(points, num_samples=40))
 
 
 def warm_paths() -> None:
