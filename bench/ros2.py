@@ -54,7 +54,7 @@ STAGES: tuple[tuple[str, str, str], ...] = (
     ("frame", "decoded", "server: CDR decoding and checks (node.decode: io.ros + ros_stream.decode_input)"),
     ("decoded", "job", "server: request built, hand-off to the engine's worker (queue)"),
     ("job", "detect0", "server: engine's request checks, memory budget"),
-    ("detect1", "gcl0", "server: after the detector: on_detection, GraspConfigList encoding"),
+    ("detect1", "gcl0", "server: after the detector: checks, the Outcome to the node, GraspConfigList encoding"),
     ("gcl0", "gcl1", "server: DDS write of the GraspConfigList"),
     ("gcl1", "got", "peer: DDS delivery, listener woken"),
 )

@@ -53,6 +53,7 @@ def image() -> Iterator[str]:
     if shutil.which("podman") is None and shutil.which("apt-get") is None:
         pytest.skip("podman is not installed and there is no apt-get to install it")
     tag = f"localhost/graspd-test:{os.getpid()}"
+    before = dangling()  # untagged images another build left: not this test's to remove
     started = time.monotonic()
     build = subprocess.run(["bash", str(ROOT / "scripts" / "image.sh"), tag], capture_output=True, text=True,
                            timeout=1800)
@@ -61,9 +62,19 @@ def image() -> Iterator[str]:
           f"{int(podman('image', 'inspect', tag, '--format', '{{.Size}}').stdout)} bytes")
     try:
         yield tag
-    finally:  # the image, and the build's intermediate stages (untagged: podman's dangling images)
+    finally:  # the image, and the build's first stage (dangling images made since this build began: no other's)
         podman("rmi", "-f", tag, check=False)
-        podman("image", "prune", "-f", check=False, timeout=600)
+        ours = sorted(dangling() - before)
+        if ours:
+            podman("rmi", "-f", *ours, check=False, timeout=600)
+
+
+def dangling() -> set[str]:
+    """The ids of podman's untagged images (a build's intermediate stages); none before podman is installed."""
+    if shutil.which("podman") is None:
+        return set()
+    listed = podman("images", "--filter", "dangling=true", "--format", "{{.ID}}", check=False)
+    return {line.strip() for line in listed.stdout.splitlines() if line.strip()}
 
 
 def wait_ready(name: str, port: int, timeout: float = 240) -> None:

@@ -1,5 +1,5 @@
 """What a caller sends, made into the detector's cloud one way for every entrance: JSON and uploads (via
-graspd.server.schemas.Cloud), Zenoh and the ROS streams, and the CLI.
+graspd.server.services.mapping), Zenoh and the ROS streams, and the CLI.
 
 - Rows with a NaN or infinite coordinate (organised clouds from depth cameras are full of them) are dropped and
   counted; the detection then carries the warning "non_finite_dropped" with the count.  A cloud with no finite
