@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike
 
 from .errors import RequestRejected, ServerBusy, ServerError, TransportError
 from .grasps import Grasps
-from .http import parse_grasps
+from .http import file_upload, parse_grasps
 from .wire import (
     ZENOH_CLOUD_KEY,
     ZENOH_DEMONSTRATIONS_KEY,
@@ -214,6 +214,16 @@ class ZenohGraspClient:
         body = build_detect_request(points, viewpoints, camera_source, **options)
         return parse_grasps(self.query(json.dumps(body).encode()))
 
+    def detect_file(self, data: bytes | str | PathLike[str], *, content_type: str | None = None,
+                    **params: Any) -> Grasps:
+        """Grasps for a capture file, as GraspClient.detect_file sends it over HTTP: its bytes (or a path's) as the
+        query's payload, its options (viewpoint, camera_pose, intrinsics, workspace, topic, ...) as selector
+        parameters, a repeated one's values joined by '|'."""
+        upload = file_upload(data if isinstance(data, bytes | str) else str(data), content_type, params)
+        options = {**upload["params"], "content_type": upload["headers"]["Content-Type"]}
+        selector = ";".join(f"{k}={'|'.join(v) if isinstance(v, list) else v}" for k, v in options.items())
+        return parse_grasps(self.query(upload["content"], f"{self._target_key()}?{selector}"))
+
     def add_demonstration(self, points: ArrayLike, hand_pose: ArrayLike,
                           viewpoints: ArrayLike = ((0.0, 0.0, 0.0),), camera_source: ArrayLike | None = None,
                           **options: Any) -> Any:
@@ -286,6 +296,10 @@ class AsyncZenohGraspClient:
     async def detect(self, points: ArrayLike, viewpoints: ArrayLike = ((0.0, 0.0, 0.0),),
                      camera_source: ArrayLike | None = None, **options: Any) -> Grasps:
         return await asyncio.to_thread(self.sync.detect, points, viewpoints, camera_source, **options)
+
+    async def detect_file(self, data: bytes | str | PathLike[str], *, content_type: str | None = None,
+                          **params: Any) -> Grasps:
+        return await asyncio.to_thread(self.sync.detect_file, data, content_type=content_type, **params)
 
     async def query(self, payload: bytes, key: str | None = None) -> Any:
         return await asyncio.to_thread(self.sync.query, payload, key)

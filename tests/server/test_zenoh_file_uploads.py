@@ -89,3 +89,15 @@ def test_a_bad_file_or_option_over_zenoh_is_refused_as_over_http(
     with pytest.raises(RequestRejected) as err:
         zc.query(data, selector(options))
     assert (err.value.status, err.value.field) == (r.status_code, field)
+
+
+def test_the_zenoh_clients_detect_file_is_the_http_clients(served: tuple[TestClient, ZenohGraspClient],
+                                                           real_data: Path) -> None:
+    """ZenohGraspClient.detect_file sends a capture file (by its path) and its options as selector parameters, as
+    GraspClient.detect_file sends them over HTTP: the same grasps."""
+    http, zc = served
+    path = real_data / "table_scene_mug_stereo_textured.pcd"
+    over_http = _http_upload(http, path.read_bytes(), "application/x-pcd", OPTIONS)
+    got = zc.detect_file(path, **OPTIONS)
+    assert len(got) == len(over_http["grasps"]) > 0
+    assert np.allclose(got.positions, [g["position"] for g in over_http["grasps"]], atol=1e-6)
