@@ -110,8 +110,31 @@ class GraspResult(Protocol):
         ...
 
 
+class _Detected:
+    """What both results read off the detection they wrap: the grasps, the timings (s), how many candidates and
+    points the detector saw."""
+
+    detection: Detection | TemplateDetection
+
+    @property
+    def grasps(self) -> GraspSet:
+        return self.detection.grasps
+
+    @property
+    def timings(self) -> dict[str, float]:
+        return self.detection.timings
+
+    @property
+    def num_candidates(self) -> int:
+        return self.detection.num_candidates
+
+    @property
+    def num_points(self) -> int:
+        return self.detection.num_points
+
+
 @dataclass(frozen=True)
-class GpdResult:
+class GpdResult(_Detected):
     """GPD's Detection behind GraspResult; warnings: the input's (non-finite rows dropped), then the detector's,
     then the request-level checks'."""
 
@@ -125,10 +148,6 @@ class GpdResult:
         return cls(det, (*input_warnings, *det.warnings))
 
     @property
-    def grasps(self) -> GraspSet:
-        return self.detection.grasps
-
-    @property
     def hand(self) -> HandGeometry:
         return self.detection.hand
 
@@ -139,18 +158,6 @@ class GpdResult:
     @property
     def scored(self) -> bool:
         return self.detection.scored
-
-    @property
-    def timings(self) -> dict[str, float]:
-        return self.detection.timings
-
-    @property
-    def num_candidates(self) -> int:
-        return self.detection.num_candidates
-
-    @property
-    def num_points(self) -> int:
-        return self.detection.num_points
 
     @property
     def objects(self) -> tuple[SceneObject, ...]:
@@ -190,7 +197,7 @@ class GpdResult:
 
 
 @dataclass(frozen=True)
-class TemplatesResult:
+class TemplatesResult(_Detected):
     """The grasp templates' TemplateDetection behind GraspResult, with the library's hand and the input's
     warnings (the templates add none of their own)."""
 
@@ -203,22 +210,6 @@ class TemplatesResult:
     scored: bool = True  # match quality, always
     objects: tuple[SceneObject, ...] = ()
     up: F64 | None = None
-
-    @property
-    def grasps(self) -> GraspSet:
-        return self.detection.grasps
-
-    @property
-    def timings(self) -> dict[str, float]:
-        return self.detection.timings
-
-    @property
-    def num_candidates(self) -> int:
-        return self.detection.num_candidates
-
-    @property
-    def num_points(self) -> int:
-        return self.detection.num_points
 
     def grasp_ids(self, detection_id: str) -> list[str]:
         return list(self.detection.grasp_ids)

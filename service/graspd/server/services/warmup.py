@@ -4,8 +4,9 @@ takes, so that the first real request pays no first-use costs: the JSON body par
 estimation), the environment model, the hand search, both stages of the model cascade (the prefilter on its own
 images, then the full model) with full batches of both representations, onnxruntime's buffers sized for the
 largest batch a request scores, the process's thread pool (graspd.core.parallel) and the response built and
-serialised.  Then a capture file (binary PCD) and an organised cloud (with its shape) take the readers' and the
-grid's compiled paths (tests/server/test_warm_kernels.py: after the warm-up a first upload compiles nothing)."""
+serialised.  A capture file (binary PCD) and an organised cloud (with its shape), detected once, take the
+readers' and the grid's compiled paths (tests/server/test_warm_kernels.py: after the warm-up a first upload
+compiles nothing)."""
 
 from __future__ import annotations
 
@@ -65,7 +66,7 @@ def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tu
     with the default model (its cascade included) inside THREADS.request(), every scorer of the detector then
     scoring one full batch (DetectionParams.score_batch images), and the response serialised.  Returns the
     detection and the response bytes.  Raises what the request raises."""
-    from graspd.server.requests import dumps, parse_body, parse_request  # noqa: PLC0415 - keeps this module light
+    from graspd.server.requests import dumps, parse_request  # noqa: PLC0415 - keeps this module light
     from graspd.server.services.mapping import detection_inputs, result_body  # noqa: PLC0415
     from graspd.server.services.outcome import GpdResult  # noqa: PLC0415
     from graspd.server.wire.response import DetectResponse  # noqa: PLC0415
@@ -87,12 +88,23 @@ def warm_detection(registry: ModelRegistry, samples: int = WARMUP_SAMPLES) -> tu
                 score_parallel(scorer, np.zeros((params.score_batch, channels, size, size), np.uint8))
     body = DetectResponse.model_validate(result_body(GpdResult.of(det), request_id="warm-up", detection_id="warm-up",
                                                      timings=dict(det.timings), frame=given.frame)).to_json()
-    with THREADS.request():  # the other shapes of input a robot sends: a capture file, an organised cloud
-        for other in (parse_body(warmup_pcd(), "application/octet-stream", {"num_samples": "60"}, []),
-                      parse_request(dumps(warmup_organised_body()))):
-            more = detection_inputs(other)
-            detector.detect(more.given.cloud, more.params, hand)
     return det, body
+
+
+def warm_inputs(registry: ModelRegistry) -> None:
+    """The other shapes of input a robot sends, detected once (their compiled code serves every worker thread): a
+    capture file (binary PCD, parsed as an upload is) and an organised cloud (with its shape: the grid's mixed-pixel
+    filter and normals)."""
+    from graspd.server.requests import dumps, parse_body, parse_request  # noqa: PLC0415 - keeps this module light
+    from graspd.server.services.mapping import detection_inputs  # noqa: PLC0415
+
+    with THREADS.request():
+        for req in (parse_body(warmup_pcd(), "application/octet-stream", {"num_samples": "60"}, []),
+                    parse_request(dumps(warmup_organised_body()))):
+            inputs = detection_inputs(req)
+            hand = req.hand_geometry()
+            detector = registry.detector(registry.resolve(req.model, req.use_classifier, hand or HandGeometry()))
+            detector.detect(inputs.given.cloud, inputs.params, hand)
 
 
 def warmup_pcd() -> bytes:
@@ -122,21 +134,17 @@ def warmup_organised_body(height: int = 96, width: int = 128) -> dict[str, Any]:
 
 def warm_paths() -> None:
     """Run the paths the warm-up request does not take on tiny inputs, so that their first use (numba loading or,
-    in a fresh install, compiling a kernel; a reader's first call) is not paid by a robot's request: file uploads
-    (ASCII and binary PCD, parsed as an upload is), the range window (clouds over a metre across), the
+    in a fresh install, compiling a kernel; a reader's first call) is not paid by a robot's request: ASCII PCD
+    uploads (parsed as an upload is; binary ones: warm_inputs), the range window (clouds over a metre across), the
     admission's voxel count, and the hand search's pair coordinates for large obstacle sets."""
     from graspd.gpd.placement import slab_coordinates  # noqa: PLC0415 - keeps this module light
     from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW, region_mask  # noqa: PLC0415
     from graspd.server.requests import parse_body  # noqa: PLC0415
     from graspd.server.services.budget import occupied_voxels  # noqa: PLC0415
 
-    for data in (b"binary\n" + np.arange(12, dtype="<f4").tobytes(), b"ascii\n0 0 0.5\n0.1 0 0.5\n0 0.1 0.5\n"):
-        kind = data[: data.index(b"\n")].decode()
-        header = (f"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 4\nHEIGHT 1\n"
-                  f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {4 if kind == 'binary' else 3}\nDATA {kind}\n").encode()
-        if kind == "ascii":
-            header = header.replace(b"WIDTH 4", b"WIDTH 3")
-        parse_body(header + data[data.index(b"\n") + 1:], "application/octet-stream", {}, [])
+    ascii_pcd = (b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\nHEIGHT 1\n"
+                 b"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\n0 0 0.5\n0.1 0 0.5\n0 0.1 0.5\n")
+    parse_body(ascii_pcd, "application/octet-stream", {}, [])  # binary PCD: warm_inputs
 
     rng = np.random.default_rng(0)
     wide = ViewpointCloud(points=rng.uniform(-1.5, 1.5, (64, 3)).astype(np.float32),
@@ -157,6 +165,7 @@ def warm_up(registry: ModelRegistry, executor: Executor | None = None, workers: 
     t = time.perf_counter()
     try:
         warm_paths()
+        warm_inputs(registry)
         if executor is None:
             dets = [warm_detection(registry)[0]]
         else:
