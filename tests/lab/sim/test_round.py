@@ -18,7 +18,8 @@ REGION = (-0.17, 0.17, -0.17, 0.17, -0.005, 0.4)
 
 def test_gripper_lifts_a_standing_object_closes_on_air_and_hits_the_floor() -> None:
     hand = HandGeometry()
-    with build_scene("packed", 1, seed=2, hand=hand) as world:
+    # seed 1: a 10 cm object standing (the first baseline grasp lifts it with 50 and with 150 solver iterations)
+    with build_scene("packed", 1, seed=1, hand=hand) as world:
         cloud = observe(world.client, side_camera(), NO_NOISE, np.random.default_rng(0), REGION)
         grasps = TopDownBaseline().detect(cloud, WORKSPACE, hand, seed=0)
         assert len(grasps) >= 1
