@@ -346,7 +346,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--detectors must name some of {DETECTORS}, got {args.detectors!r}")
     styles = args.styles or list(HELD_OUT_STYLES if args.split == "held_out" else TRAINING_STYLES)
     if args.objects is None:
-        args.objects = 8 if args.object_set == "household" else 5
+        args.objects = 8 if args.object_set.startswith("household") else 5
     settings: dict[str, Setting] = {}
     for style in styles:
         try:

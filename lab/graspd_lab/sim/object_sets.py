@@ -4,8 +4,10 @@
   with graspd's default hand;
 - "household": the held-out household models (graspd_lab.world.household.HELD_OUT) at their true size, with a
   Panda-like hand (7.5 cm opening; the simulated fingers press with ExecutionParams.finger_force, 40 N), as the
-  outside clutter benchmarks use.
-Only held-out objects are ever in a set: benchmarks never see a training object.
+  outside clutter benchmarks use;
+- "household-training": the other household models, the ones training draws from, with the same hand: the set
+  to tune selection and execution on, so that the held-out set stays unseen until a result is reported.
+The benchmark's reported figures come from the held-out sets only.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from graspd.core.hand import HandGeometry, hand_preset
 from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.world import household
 
-OBJECT_SETS = ("scaled", "household")
+OBJECT_SETS = ("scaled", "household", "household-training")
 
 #: A Panda-like hand: the panda preset's fingers (45 mm reach, 10 mm thick) and 60 mm body behind the finger
 #: roots, opening 75 mm (outer faces 95 mm apart).
@@ -27,13 +29,15 @@ def object_set_ids(name: str) -> tuple[int, ...]:
         return TEST_OBJECT_IDS
     if name == "household":
         return tuple(household.household_id(n) for n in household.HELD_OUT)
+    if name == "household-training":
+        return tuple(household.household_id(n) for n in household.training_names())
     raise ValueError(f"object set must be one of {OBJECT_SETS}, got {name!r}")
 
 
 def object_set_hand(name: str) -> HandGeometry:
     """The hand a set is benchmarked with (ValueError for an unknown name)."""
     object_set_ids(name)
-    return PANDA_LIKE if name == "household" else HandGeometry()
+    return PANDA_LIKE if name.startswith("household") else HandGeometry()
 
 
 def describe(name: str) -> str:
@@ -41,4 +45,7 @@ def describe(name: str) -> str:
     if name == "household":
         return (f"the {len(household.HELD_OUT)} held-out household models (graspd_lab.world.household.HELD_OUT) "
                 "at their true size, with a Panda-like hand (7.5 cm opening, 40 N per finger)")
+    if name == "household-training":
+        return (f"the {len(household.training_names())} household training models (not the held-out ones; for "
+                "tuning) at their true size, with a Panda-like hand (7.5 cm opening, 40 N per finger)")
     return "pybullet_data random_urdfs 900-999 (held out from training), scaled to the hand"
