@@ -50,7 +50,7 @@ class Setting:
     hand: HandGeometry = field(default_factory=HandGeometry)
     container: str | None = None
     container_split: str = "held_out"
-    objects: str = "scaled"  # the object set (graspd_lab.sim.object_sets): "scaled", "household" or "household-training"
+    objects: str = "scaled"  # the object set, by name (graspd_lab.sim.object_sets.OBJECT_SETS)
 
     def __post_init__(self) -> None:
         object_set_ids(self.objects)  # raises for an unknown set

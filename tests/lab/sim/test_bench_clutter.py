@@ -70,3 +70,9 @@ def test_object_sets_are_held_out_and_household_gets_the_panda_like_hand() -> No
     assert object_set_hand("household").max_aperture == pytest.approx(0.075)
     with pytest.raises(ValueError, match="object set"):
         object_set_ids("ycb")
+
+
+def test_the_tuning_set_is_the_household_training_models_and_never_a_held_out_one() -> None:
+    names = {household.household_name(i) for i in object_set_ids("household-training")}
+    assert names == set(household.training_names()) and not names & set(household.HELD_OUT)
+    assert object_set_hand("household-training") == object_set_hand("household")
