@@ -11,6 +11,8 @@ service's defaults); the look-up only reads the world.
 
   PYTHONPATH=service:client .venv/bin/python bench/slips.py --object-set household --scene pile-side \\
       --rounds 30 --tag household-pile
+  ... --container tray --rounds 10 --tag household-tray      (bench/containers.py's rounds of one style: 8 objects,
+                                                              passive cameras, the style's held-out ranges)
 writes bench/results/slips-<tag>.md and .json.
 """
 
@@ -37,8 +39,9 @@ import pybullet as pb  # noqa: E402
 import clutter  # noqa: E402
 from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
+from graspd_lab.sim.containers import SPLITS, STYLES  # noqa: E402
 from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
-from graspd_lab.sim.protocol import run_round  # noqa: E402
+from graspd_lab.sim.protocol import Setting, run_round  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
 from graspd_lab.world.household import household_name, is_household_id  # noqa: E402
 
@@ -109,9 +112,23 @@ def report(records: list[dict[str, Any]], meta: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def setting_for(object_set: str, scene: str, container: str | None, split: str) -> Setting:
+    """The rounds to replay: bench/clutter.py's scene, or with a container style bench/containers.py's setting of it
+    (8 household objects or 5 scaled ones, passive cameras, the split's parameter ranges); the set's hand."""
+    hand = object_set_hand(object_set)
+    if container is None:
+        return replace(clutter.SCENES[scene], objects=object_set, hand=hand)
+    return Setting(scene="container", container=container, container_split=split,
+                   num_objects=8 if object_set.startswith("household") else 5, sensing="passive", objects=object_set,
+                   hand=hand)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", choices=list(clutter.SCENES), default="pile-side")
+    ap.add_argument("--container", choices=STYLES, default=None, help="a container style instead of --scene "
+                    "(bench/containers.py's setting: 8 objects of a household set, passive cameras)")
+    ap.add_argument("--split", choices=SPLITS, default="held_out", help="the container's parameter ranges")
     ap.add_argument("--object-set", choices=OBJECT_SETS, default="household")
     ap.add_argument("--rounds", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0)
@@ -120,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--tag", default="household-pile")
     args = ap.parse_args(argv)
-    setting = replace(clutter.SCENES[args.scene], objects=args.object_set, hand=object_set_hand(args.object_set))
+    setting = setting_for(args.object_set, args.scene, args.container, args.split)
     hand = setting.hand
     proc, service = (None, args.service) if args.service else clutter.start_service()
     model = clutter.model_for("gpd", args.model)
