@@ -48,7 +48,6 @@ from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.gpd.scene import unobserved_grid  # noqa: E402
 from graspd_lab.sim.gripper import ExecutionParams, Gripper  # noqa: E402
 from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
-from graspd_lab.sim.protocol import run_round  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
 
 F64 = NDArray[np.float64]
@@ -149,9 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     pregrasp = ExecutionParams().pregrasp_distance
     proc, service = (None, args.service) if args.service else clutter.start_service()
     model = clutter.model_for("gpd", args.model)
-    records: list[dict[str, Any]] = []
 
-    def probe(world: SimWorld, cloud: ViewpointCloud, grasps: GraspSet, pick: int) -> None:
+    def look(world: SimWorld, cloud: ViewpointCloud, grasps: GraspSet, pick: int) -> dict[str, Any]:
         """Sweep the grasp picked for execution; its record gets the seed and outcome once the round is over."""
         pos, rot = grasps.positions[pick].astype(np.float64), grasps.rotations[pick].astype(np.float64)
         hit = first_hit(world, hand, pos, rot, pregrasp)
@@ -164,27 +162,25 @@ def main(argv: list[str] | None = None) -> int:
             hit.update(look_up(hit, cloud, cKDTree(cloud.points), grids, pos, rot, hand, pregrasp))
             hit["grasped_object"] = hit["what"] == "object" and hit["body"] == near
             hit["cause"] = cause(hit)
-        records.append(row)
+        return row
 
+    seeds = range(args.seed, args.seed + args.rounds)
+    records: list[dict[str, Any]] = []
     try:
-        for seed in range(args.seed, args.seed + args.rounds):
-            first = len(records)
-            if args.top:
-                world, cloud, grasps, _ = first_detection(clutter.make_detector("gpd", model, service), setting, seed)
+        if not args.top:
+            records = clutter.looked_rounds(setting, model, service, seeds, look)
+        else:
+            for seed in seeds:
+                first = len(records)
+                world, cloud, grasps, _ = first_detection(clutter.make_detector("gpd", model, service), setting,
+                                                          seed)
                 try:
                     for k in range(min(args.top, len(grasps))):
-                        probe(world, cloud, grasps, k)
-                        records[-1].update(seed=seed, outcome=f"top{k + 1}")
+                        records.append({**look(world, cloud, grasps, k), "seed": seed, "outcome": f"top{k + 1}"})
                 finally:
                     world.close()
                 print(f"seed {seed}: {sum(1 for r in records[first:] if r['hit'])} of {len(records) - first} "
                       "swept hands enter a body", flush=True)
-                continue
-            result = run_round(clutter.make_detector("gpd", model, service), setting, seed, probe=probe)
-            executed = [o for o in result.outcomes if o != "no_grasp"]
-            for row, outcome in zip(records[first:], executed, strict=True):
-                row.update(seed=seed, outcome=outcome)
-            print(f"seed {seed}: {Counter(executed)}", flush=True)
     finally:
         if proc is not None:
             proc.terminate()

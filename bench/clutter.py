@@ -41,6 +41,8 @@ import socket
 import subprocess
 import sys
 import time
+from collections import Counter
+from collections.abc import Callable
 from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -54,6 +56,8 @@ for sub in ("service", "client"):
 import numpy as np  # noqa: E402
 
 from graspd.core.camera import Camera  # noqa: E402
+from graspd.core.cloud import ViewpointCloud  # noqa: E402
+from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd.core.progress import Progress  # noqa: E402
 from graspd.gpd.classifier import available_models, default_model_name, load_model, read_card  # noqa: E402
 from graspd.gpd.classifier import default_models_dir as models_dir  # noqa: E402
@@ -65,7 +69,7 @@ from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E40
 from graspd_lab.sim.object_sets import describe as describe_objects  # noqa: E402
 from graspd_lab.sim.protocol import RoundResult, Setting, Summary, cameras_for, run_round, summarize  # noqa: E402
 from graspd_lab.sim.sensing import observe, render_rgb  # noqa: E402
-from graspd_lab.sim.world import build_scene  # noqa: E402
+from graspd_lab.sim.world import SimWorld, build_scene  # noqa: E402
 from graspd_lab.world.noise import DepthNoise  # noqa: E402
 
 DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-cluster", "gpd-rep15", "gpd-rep12", "gpd-rep3")
@@ -128,6 +132,30 @@ def make_detector(detector: str, model: str | None, service: str | None) -> SimD
     if model is not None:
         classifier = load_model(model, threads=1)
     return InProcessGPD(name=detector, classifier=classifier, options=options)
+
+
+#: A look at the grasp about to be executed (world, the cloud the detector saw, its grasps, the index picked): the
+#: record of it; it must leave the world as it found it.
+Look = Callable[[SimWorld, ViewpointCloud, GraspSet, int], dict[str, Any]]
+
+
+def looked_rounds(setting: Setting, model: str | None, service: str | None, seeds: range, look: Look
+                  ) -> list[dict[str, Any]]:
+    """The protocol's rounds of `seeds` with the gpd detector, each executed grasp looked at first; every record
+    gets its round's seed and the grasp's outcome (bench/approach.py, bench/slips.py)."""
+    records: list[dict[str, Any]] = []
+
+    def probe(world: SimWorld, cloud: ViewpointCloud, grasps: GraspSet, pick: int) -> None:
+        records.append(look(world, cloud, grasps, pick))
+
+    for seed in seeds:
+        first = len(records)
+        result = run_round(make_detector("gpd", model, service), setting, seed, probe=probe)
+        executed = [o for o in result.outcomes if o != "no_grasp"]
+        for row, outcome in zip(records[first:], executed, strict=True):
+            row.update(seed=seed, outcome=outcome)
+        print(f"seed {seed}: {Counter(executed)}", flush=True)
+    return records
 
 
 def _one_round(args: tuple[str, str | None, str | None, Setting, int, bool]

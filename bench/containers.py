@@ -136,6 +136,21 @@ def check_grasps(world: SimWorld, grasps: GraspSet, hand: HandGeometry) -> list[
             for g, e, c in zip(full.grasp, env, full.collision, strict=True)]
 
 
+def default_objects(object_set: str) -> int:
+    """Objects per container scene: 8 household objects at true size, 5 scaled ones."""
+    return 8 if object_set.startswith("household") else 5
+
+
+def style_setting(style: str, split: str, object_set: str, objects: int | None = None, sensing: str = "passive"
+                  ) -> Setting:
+    """The benchmark's setting of one container style: the split's parameter ranges, objects of the set (default 8
+    household objects or 5 scaled ones), the sensing, and the set's hand.  ValueError for an unknown style."""
+    if objects is None:
+        objects = default_objects(object_set)
+    return Setting(scene="container", container=style, container_split=split, num_objects=objects, sensing=sensing,
+                   objects=object_set, hand=object_set_hand(object_set))
+
+
 def first_detection(detector: SimDetector, setting: Setting, seed: int
                     ) -> tuple[SimWorld, Any, GraspSet, tuple[float, float, float, float, float, float]]:
     """The scene of round seed, its first cloud and the detector's grasps on it: exactly the round's first
@@ -346,13 +361,11 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--detectors must name some of {DETECTORS}, got {args.detectors!r}")
     styles = args.styles or list(HELD_OUT_STYLES if args.split == "held_out" else TRAINING_STYLES)
     if args.objects is None:
-        args.objects = 8 if args.object_set.startswith("household") else 5
+        args.objects = default_objects(args.object_set)
     settings: dict[str, Setting] = {}
     for style in styles:
         try:
-            settings[style] = Setting(scene="container", container=style, container_split=args.split,
-                                      num_objects=args.objects, sensing=args.sensing, objects=args.object_set,
-                                      hand=object_set_hand(args.object_set))
+            settings[style] = style_setting(style, args.split, args.object_set, args.objects, args.sensing)
         except ValueError as exc:
             ap.error(f"--styles {style}: {exc}")
     if args.in_process and args.service:

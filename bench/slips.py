@@ -37,11 +37,12 @@ import numpy as np  # noqa: E402
 import pybullet as pb  # noqa: E402
 
 import clutter  # noqa: E402
+from containers import style_setting  # noqa: E402
 from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd_lab.sim.containers import SPLITS, STYLES  # noqa: E402
 from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
-from graspd_lab.sim.protocol import Setting, run_round  # noqa: E402
+from graspd_lab.sim.protocol import Setting  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
 from graspd_lab.world.household import household_name, is_household_id  # noqa: E402
 
@@ -115,12 +116,9 @@ def report(records: list[dict[str, Any]], meta: dict[str, Any]) -> str:
 def setting_for(object_set: str, scene: str, container: str | None, split: str) -> Setting:
     """The rounds to replay: bench/clutter.py's scene, or with a container style bench/containers.py's setting of it
     (8 household objects or 5 scaled ones, passive cameras, the split's parameter ranges); the set's hand."""
-    hand = object_set_hand(object_set)
     if container is None:
-        return replace(clutter.SCENES[scene], objects=object_set, hand=hand)
-    return Setting(scene="container", container=container, container_split=split,
-                   num_objects=8 if object_set.startswith("household") else 5, sensing="passive", objects=object_set,
-                   hand=hand)
+        return replace(clutter.SCENES[scene], objects=object_set, hand=object_set_hand(object_set))
+    return style_setting(container, split, object_set)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -141,19 +139,12 @@ def main(argv: list[str] | None = None) -> int:
     hand = setting.hand
     proc, service = (None, args.service) if args.service else clutter.start_service()
     model = clutter.model_for("gpd", args.model)
-    records: list[dict[str, Any]] = []
 
-    def probe(world: SimWorld, cloud: ViewpointCloud, grasps: GraspSet, pick: int) -> None:
-        records.append(measure(world, grasps, pick, hand.hand_depth, hand.init_bite))
+    def look(world: SimWorld, cloud: ViewpointCloud, grasps: GraspSet, pick: int) -> dict[str, Any]:
+        return measure(world, grasps, pick, hand.hand_depth, hand.init_bite)
 
     try:
-        for seed in range(args.seed, args.seed + args.rounds):
-            first = len(records)
-            result = run_round(clutter.make_detector("gpd", model, service), setting, seed, probe=probe)
-            executed = [o for o in result.outcomes if o != "no_grasp"]
-            for row, outcome in zip(records[first:], executed, strict=True):
-                row.update(seed=seed, outcome=outcome)
-            print(f"seed {seed}: {Counter(executed)}", flush=True)
+        records = clutter.looked_rounds(setting, model, service, range(args.seed, args.seed + args.rounds), look)
     finally:
         if proc is not None:
             proc.terminate()

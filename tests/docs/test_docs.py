@@ -5,13 +5,13 @@ item.  The site itself is built by `make docs` (mkdocs build --strict), which `m
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
 from pathlib import Path
 from types import ModuleType
 
 from graspd.server.settings import Settings
+from repo_module import load_module
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
@@ -22,11 +22,7 @@ VARIABLE = re.compile(r"\bGRASPD_[A-Z0-9_]*[A-Z0-9]\b")
 
 def hook(name: str) -> ModuleType:
     """A hook of mkdocs.yml, loaded from docs/hooks/ as MkDocs loads it."""
-    spec = importlib.util.spec_from_file_location(f"docs_hook_{name}", DOCS / "hooks" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_module(DOCS / "hooks" / f"{name}.py", f"docs_hook_{name}")
 
 
 def text_of_pages() -> str:

@@ -4,24 +4,19 @@ throwaway PostgreSQL server of tests/templates/test_library_postgres.py for the 
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
+from repo_module import load_module
+
 REPO = Path(__file__).resolve().parents[2]
 
 
 def _load(path: Path, name: str) -> ModuleType:
-    """A module of this repository by file (bench/ and the test folders are not packages)."""
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec is not None and spec.loader is not None, path
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    """A module of this repository by file, registered (dataclasses look their module up in sys.modules)."""
+    return load_module(path, name, register=True)
 
 
 _fleet = _load(REPO / "bench" / "fleet.py", "bench_fleet")

@@ -3,7 +3,6 @@ not installed names what to install, and the labelled mesh dataset resumes from 
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -13,8 +12,7 @@ import pytest
 from graspd_lab.cluster import RAY_MISSING, RayMissingError, Runner, imap, ray_available, runner_from_args
 from graspd_lab.training import dataset, scene_data
 from graspd_lab.training.dataset import GenerationParams, generate_dataset
-
-BENCH = Path(__file__).resolve().parents[2] / "bench"
+from repo_module import load_bench
 
 
 def _cube(x: int) -> tuple[int, int]:
@@ -49,10 +47,7 @@ def test_asking_for_ray_without_it_names_the_cluster_extra(monkeypatch: pytest.M
             main(["--out", str(tmp_path / "x"), "--ray"])
         assert exc.value.code == 2
         assert "lab[cluster]" in capsys.readouterr().err
-    spec = importlib.util.spec_from_file_location("bench_clutter_noray", BENCH / "clutter.py")
-    assert spec and spec.loader
-    clutter = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(clutter)
+    clutter = load_bench("clutter", "bench_clutter_noray")
     with pytest.raises(SystemExit):
         clutter.main(["--settings", "baseline@pile-side", "--address", "auto", "--out", str(tmp_path)])
     assert RAY_MISSING in capsys.readouterr().err

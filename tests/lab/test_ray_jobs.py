@@ -6,7 +6,6 @@ One local Ray of 2 CPUs serves the module (its start costs a few seconds); the j
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,8 +25,8 @@ from graspd_lab.training.instance import InstanceParams, MeshSource, make_instan
 from graspd_lab.training.scene_data import SceneParams, generate_scene_dataset  # noqa: E402
 from graspd_lab.world.mesh_file import read_mesh_object  # noqa: E402
 from graspd_lab.world.meshes import box_mesh  # noqa: E402
+from repo_module import load_bench  # noqa: E402
 
-BENCH = Path(__file__).resolve().parents[2] / "bench"
 RAY2 = Runner(workers=2, ray=True)
 SCENES = SceneParams(scenes=3, views_per_scene=2, objects=(2, 3), num_samples=20, per_view=40, scenes_per_chunk=1)
 
@@ -48,11 +47,7 @@ def _files(folder: Path) -> dict[str, bytes]:
 
 
 def _bench(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(f"bench_{name}_ray", BENCH / f"{name}.py")
-    assert spec and spec.loader
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench(name, f"bench_{name}_ray")
 
 
 def _rounds(log: Path) -> dict[tuple[str, int], dict[str, Any]]:

@@ -1,8 +1,8 @@
 """bench/clutter.py writes the Table 3 markdown, the PNG and the JSON (with the commit) for a tiny run."""
 
-import importlib.util
 import json
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -10,16 +10,11 @@ from graspd_lab.sim.object_sets import object_set_hand, object_set_ids
 from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.sim.world import SimWorld
 from graspd_lab.world import household
+from repo_module import load_bench
 
-BENCH = Path(__file__).resolve().parents[3] / "bench" / "clutter.py"
 
-
-def _bench():  # type: ignore[no-untyped-def]
-    spec = importlib.util.spec_from_file_location("bench_clutter", BENCH)
-    assert spec and spec.loader
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def _bench() -> ModuleType:
+    return load_bench("clutter")
 
 
 def test_tiny_run_writes_table_chart_and_json(tmp_path: Path) -> None:

@@ -3,7 +3,6 @@ apart, and a tiny run writes the tables, the JSON, the picture and a resumable r
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 from types import ModuleType
@@ -15,16 +14,11 @@ from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd_lab.sim.containers import ContainerSpec
 from graspd_lab.sim.world import SimWorld
-
-BENCH = Path(__file__).resolve().parents[3] / "bench" / "containers.py"
+from repo_module import load_bench
 
 
 def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("bench_containers", BENCH)
-    assert spec and spec.loader
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench("containers")
 
 
 def _down(x: float, y: float, z: float, yaw: float) -> tuple[np.ndarray, np.ndarray]:

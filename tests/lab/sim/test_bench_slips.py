@@ -3,8 +3,6 @@ its centre of mass, the closing line's distance from it) and bins attempts by re
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 from types import ModuleType
 
 import numpy as np
@@ -13,16 +11,11 @@ import pytest
 
 from graspd.core.grasp import GraspSet
 from graspd_lab.sim.world import SimWorld
-
-BENCH = Path(__file__).resolve().parents[3] / "bench" / "slips.py"
+from repo_module import load_bench
 
 
 def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("bench_slips", BENCH)
-    assert spec and spec.loader
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench("slips")
 
 
 def test_a_top_down_grasp_is_measured_against_the_box_it_closes_on() -> None:
