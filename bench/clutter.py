@@ -67,7 +67,16 @@ from graspd_lab.cluster import add_arguments as add_cluster_arguments  # noqa: E
 from graspd_lab.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, TopDownBaseline  # noqa: E402
 from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
 from graspd_lab.sim.object_sets import describe as describe_objects  # noqa: E402
-from graspd_lab.sim.protocol import RoundResult, Setting, Summary, cameras_for, run_round, summarize  # noqa: E402
+from graspd_lab.sim.protocol import (  # noqa: E402
+    STOP_RULE_TEXT,
+    STOP_RULES,
+    RoundResult,
+    Setting,
+    Summary,
+    cameras_for,
+    run_round,
+    summarize,
+)
 from graspd_lab.sim.sensing import observe, render_rgb  # noqa: E402
 from graspd_lab.sim.world import SimWorld, build_scene  # noqa: E402
 from graspd_lab.world.noise import DepthNoise  # noqa: E402
@@ -172,7 +181,8 @@ def _one_round(args: tuple[str, str | None, str | None, Setting, int, bool]
 
 def _setting_key(spec: str, setting: Setting) -> str:
     key = f"{spec}/{setting.num_objects}"
-    return key if setting.objects == "scaled" else f"{key}/{setting.objects}"
+    key = key if setting.objects == "scaled" else f"{key}/{setting.objects}"
+    return key if setting.stop_rule == "ijrr" else f"{key}/stop-{setting.stop_rule}"
 
 
 def load_rows(log: Path, spec: str, setting: Setting) -> dict[int, dict[str, Any]]:
@@ -249,6 +259,7 @@ def markdown(summaries: dict[str, Summary], meta: dict[str, Any]) -> str:
         f"- command: `{meta['command']}`",
         f"- commit: `{meta['commit']}`, date: {meta['date']}, {meta['cpus']} CPUs, jobs: {meta['jobs']}",
         f"- objects: {describe_objects(meta.get('object_set', 'scaled'))}",
+        f"- stop rule: {STOP_RULE_TEXT[meta.get('stop', 'ijrr')]}",
         "- models: " + (", ".join(f"{k}: {v}" for k, v in meta["models"].items() if v) or "none"),
         "",
         "| | " + " | ".join(names) + " |",
@@ -374,6 +385,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--object-set", choices=OBJECT_SETS, default="scaled", help="scaled: random_urdfs 900-999 "
                     "scaled to the hand (default hand); household: the held-out household models at true size "
                     "(Panda-like hand, 7.5 cm opening)")
+    ap.add_argument("--stop", choices=STOP_RULES, default=None, help="how a round ends (default: the object set's: "
+                    "standard for household objects, ijrr for scaled ones)")
     ap.add_argument("--precision", action="store_true", help="also check the top 5 of each round's first "
                     "detection against the true meshes (P@1/P@5, bench/containers.py's check)")
     ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes (Ray CPUs with --ray)")
@@ -418,6 +431,7 @@ def main(argv: list[str] | None = None) -> int:
         "service": service,
         "models": dict(models),
         "object_set": args.object_set,
+        "stop": replace(Setting(), objects=args.object_set, stop=args.stop).stop_rule,
         "precision": {},
     }
     md = ""
@@ -429,7 +443,8 @@ def main(argv: list[str] | None = None) -> int:
         scene_pictures(args.out / f"{args.tag}-scenes.png", args.seed)
     try:
         for spec, (det, scene) in zip(args.settings, parsed, strict=True):
-            setting = replace(SCENES[scene], objects=args.object_set, hand=object_set_hand(args.object_set))
+            setting = replace(SCENES[scene], objects=args.object_set, hand=object_set_hand(args.object_set),
+                              stop=args.stop)
             if args.objects is not None:
                 setting = replace(setting, num_objects=args.objects)
             seeds = [args.seed + i for i in range(args.rounds)]

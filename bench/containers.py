@@ -78,6 +78,7 @@ from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E40
 from graspd_lab.sim.object_sets import describe as describe_objects  # noqa: E402
 from graspd_lab.sim.protocol import (  # noqa: E402
     SENSINGS,
+    STOP_RULE_TEXT,
     RoundResult,
     Setting,
     Summary,
@@ -233,6 +234,7 @@ def markdown(per_style: dict[str, dict[str, tuple[Summary, dict[str, Any]]]],
         f"- scenes: {meta['objects']} of {describe_objects(meta.get('object_set', 'scaled'))}, dropped into each "
         "round's container, "
         f"{meta['sensing']} cameras, benchmark depth noise; workspace = container + 5 cm of table",
+        f"- stop rule: {STOP_RULE_TEXT[meta.get('stop', 'ijrr')]}",
         "- P@k: the top 5 of each scene's first detection checked against the true meshes (label_grasps with the "
         "training labels; a hand that touches a container or support fails); mean over scenes with grasps",
         "",
@@ -387,6 +389,7 @@ def main(argv: list[str] | None = None) -> int:
         "jobs": args.jobs, "runner": runner.describe(),
         "gpd": "in-process GraspDetector" if args.in_process else f"POST /detect to {service}",
         "models": dict(models), "split": args.split, "objects": args.objects, "object_set": args.object_set,
+        "stop": next(iter(settings.values())).stop_rule,
         "sensing": args.sensing,
         "styles": styles, "headline_styles": [s for s in styles if s in HELD_OUT_STYLES],
         "containers": {s: [scene_container(s, args.seed + i, args.split).to_dict() for i in range(args.rounds)]

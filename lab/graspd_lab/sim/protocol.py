@@ -1,8 +1,10 @@
 """The dense-clutter benchmark protocol (IJRR Table 1) and its statistics.
 
 A round: build a scene, then repeat sense -> detect -> choose a feasible grasp -> execute until the tray
-is empty, no grasp was found three times, or the same failure happened on the same object three times
-in a row.  Success rate = successes / attempts; cleared = objects lifted out / objects in the scene.
+is empty or the setting's stop rule ends it (STOP_RULES): the IJRR paper's (no grasp found three times in a row,
+or the same failure on the same object three times in a row) or the standard clutter-removal benchmark's (VGN's
+clutter_removal: two failed attempts in a row, or a detection without a grasp).  Success rate = successes /
+attempts; cleared = objects lifted out / objects in the scene.
 """
 
 from __future__ import annotations
@@ -22,12 +24,23 @@ from graspd.core.hand import HandGeometry
 from graspd_lab.sim.containers import scene_container, style_ranges
 from graspd_lab.sim.detectors import SimDetector, Workspace
 from graspd_lab.sim.gripper import Attempt, ExecutionParams, Gripper, Outcome
-from graspd_lab.sim.object_sets import object_set_ids
+from graspd_lab.sim.object_sets import object_set_ids, object_set_stop
 from graspd_lab.sim.sensing import observe
 from graspd_lab.sim.world import SimWorld, build_scene
 from graspd_lab.world.noise import DepthNoise
 
 SENSINGS = ("passive", "active", "side")
+#: How a round ends besides an empty table: "ijrr" (IJRR Table 1 step 6: three detections in a row without a grasp,
+#: or the same failure on the same object three times in a row) or "standard" (the standard clutter-removal
+#: benchmark's: two failed attempts in a row, whatever they failed on, or one detection without a grasp).
+STOP_RULES = ("ijrr", "standard")
+#: Each stop rule in words, for results files.
+STOP_RULE_TEXT = {
+    "ijrr": "IJRR Table 1's: a round ends after 3 detections in a row without a grasp, or the same failure on the "
+            "same object 3 times in a row",
+    "standard": "the standard clutter-removal benchmark's: a round ends after 2 failed attempts in a row, or a "
+                "detection without a grasp",
+}
 #: Called before each executed grasp with the world, the cloud the detector saw, its grasps and the index picked
 #: (diagnostics: bench/approach.py); it must leave the world as it found it.
 Probe = Callable[[SimWorld, ViewpointCloud, GraspSet, int], None]
@@ -51,9 +64,12 @@ class Setting:
     container: str | None = None
     container_split: str = "held_out"
     objects: str = "scaled"  # the object set, by name (graspd_lab.sim.object_sets.OBJECT_SETS)
+    stop: str | None = None  # STOP_RULES; None: the object set's (graspd_lab.sim.object_sets.object_set_stop)
 
     def __post_init__(self) -> None:
         object_set_ids(self.objects)  # raises for an unknown set
+        if self.stop is not None and self.stop not in STOP_RULES:
+            raise ValueError(f"stop must be one of {STOP_RULES}, got {self.stop!r}")
         if (self.scene == "container") != (self.container is not None):
             raise ValueError("scene 'container' needs a container style, and only it takes one")
         if self.container is not None:
@@ -62,6 +78,11 @@ class Setting:
             raise ValueError(f"sensing must be one of {SENSINGS}, got {self.sensing!r}")
         if self.choice not in ("best", "random"):
             raise ValueError(f"choice must be 'best' or 'random', got {self.choice!r}")
+
+    @property
+    def stop_rule(self) -> str:
+        """The rule that ends a round (STOP_RULES): stop, or the object set's."""
+        return self.stop if self.stop is not None else object_set_stop(self.objects)
 
 
 @dataclass
@@ -84,15 +105,23 @@ class RoundResult:
 
 @dataclass
 class StopRule:
-    """Table 1 step 6: stop after three detections in a row without a grasp, or the same failure on the same
-    object three times in a row (a success or another failure breaks the streak)."""
+    """When a round ends (STOP_RULES).  "ijrr": after three detections in a row without a grasp, or the same failure
+    on the same object three times in a row (a success or another failure breaks the streak); "standard": after two
+    failed attempts in a row, or a detection without a grasp."""
 
+    rule: str = "ijrr"
     no_grasp: int = 0
     streak: tuple[str, int | None] | None = None
     streak_len: int = 0
+    failures: int = 0
 
     def update(self, attempt: Attempt) -> str:
         """Record one attempt; the reason to stop, or "" to go on."""
+        if self.rule == "standard":
+            if attempt.outcome is Outcome.NO_GRASP:
+                return "no grasp found"
+            self.failures = 0 if attempt.outcome is Outcome.SUCCESS else self.failures + 1
+            return "2 failures in a row" if self.failures >= 2 else ""
         if attempt.outcome is Outcome.NO_GRASP:
             self.no_grasp += 1
             return "no grasp found 3 times" if self.no_grasp >= 3 else ""
@@ -144,7 +173,7 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
     cams = cameras_for(setting)
     try:
         gripper = Gripper(world, setting.hand, execution)
-        stop = StopRule()
+        stop = StopRule(setting.stop_rule)
         while True:
             if not world.objects:
                 result.end_reason = "tray empty"

@@ -6,7 +6,7 @@ from types import ModuleType
 
 import pytest
 
-from graspd_lab.sim.object_sets import object_set_hand, object_set_ids
+from graspd_lab.sim.object_sets import HEAVY_MASS, object_set_hand, object_set_ids
 from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.sim.world import SimWorld
 from graspd_lab.world import household
@@ -55,7 +55,9 @@ def test_household_option_loads_only_held_out_household_models(tmp_path: Path,
     assert all(household.household_name(i) in household.HELD_OUT for i in loaded)
     assert "held-out household models" in (tmp_path / "h.md").read_text()
     rows = [json.loads(line) for line in (tmp_path / "h.rounds.jsonl").read_text().splitlines()]
-    assert {r["setting"] for r in rows} == {"baseline@pile-side/5/household", "baseline@packed-side/5/household"}
+    assert {r["setting"] for r in rows} == {"baseline@pile-side/5/household/stop-standard",
+                                            "baseline@packed-side/5/household/stop-standard"}
+    assert "2 failed attempts in a row" in (tmp_path / "h.md").read_text()
 
 
 def test_object_sets_are_held_out_and_household_gets_the_panda_like_hand() -> None:
@@ -71,3 +73,5 @@ def test_the_tuning_set_is_the_household_training_models_and_never_a_held_out_on
     names = {household.household_name(i) for i in object_set_ids("household-training")}
     assert names == set(household.training_names()) and not names & set(household.HELD_OUT)
     assert object_set_hand("household-training") == object_set_hand("household")
+    heavy = {household.household_name(i) for i in object_set_ids("household-training-heavy")}
+    assert heavy < names and all(household.household_mass_properties(n).mass >= HEAVY_MASS for n in heavy)

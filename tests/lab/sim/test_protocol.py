@@ -27,6 +27,24 @@ def test_same_failure_on_same_object_three_times_stops() -> None:
     assert "same failure" in rule.update(Attempt(Outcome.EMPTY, 4))
 
 
+def test_standard_rule_stops_after_two_failures_in_a_row_whatever_they_failed_on() -> None:
+    rule = StopRule("standard")
+    assert rule.update(Attempt(Outcome.SLIPPED, 4)) == ""
+    assert rule.update(Attempt(Outcome.SUCCESS, 4)) == ""  # a success resets the count
+    assert rule.update(Attempt(Outcome.COLLISION, 2)) == ""
+    assert "2 failures" in rule.update(Attempt(Outcome.EMPTY, 7))  # another object, another failure: still two
+    assert "no grasp" in StopRule("standard").update(Attempt(Outcome.NO_GRASP, None))  # one empty detection ends it
+
+
+def test_household_sets_take_the_standard_rule_and_an_explicit_rule_wins() -> None:
+    assert Setting(objects="household").stop_rule == "standard"
+    assert Setting(objects="household-training").stop_rule == "standard"
+    assert Setting().stop_rule == "ijrr"  # the scaled set's figures were always measured with it
+    assert Setting(objects="household", stop="ijrr").stop_rule == "ijrr"
+    with pytest.raises(ValueError, match="stop"):
+        Setting(stop="vgn")
+
+
 def test_the_only_protocol_filter_is_the_arms_approach_cone() -> None:
     down = np.column_stack([[0, 0, -1.0], [1.0, 0, 0], [0, 1.0, 0]])
     up = np.column_stack([[0, 0, 1.0], [1.0, 0, 0], [0, -1.0, 0]])
