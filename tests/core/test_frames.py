@@ -98,6 +98,17 @@ def test_non_finite_rows_are_dropped_and_counted() -> None:
     assert inp.warnings == (non_finite_warning(3, 4),) and inp.warnings[0].code == "non_finite_dropped"
     assert "3 of 4" in inp.warnings[0].message
     assert cloud_input(pts[:1]).warnings == ()
+
+
+def test_an_organised_clouds_pixels_without_depth_warn_only_when_almost_none_has_depth() -> None:
+    pixels = np.zeros((20, 3), np.float32) + [0, 0, 1]
+    pixels[:15] = np.nan  # a quarter of the pixels with depth, as a depth camera marks the rest
+    inp = cloud_input(pixels, shape=(4, 5))
+    assert (inp.dropped, inp.received, inp.warnings) == (15, 20, ())
+    pixels[15:19] = np.nan  # one pixel in twenty with depth: a covered lens, a scene out of range
+    warned = cloud_input(pixels, shape=(4, 5)).warnings
+    assert [w.code for w in warned] == ["non_finite_dropped"] and "only 1 of the organised cloud's 20" in \
+        warned[0].message
     with pytest.raises(CloudError) as err:
         cloud_input(np.full((5, 3), np.nan))
     assert err.value.field == "cloud.points" and "no finite point" in err.value.message

@@ -25,6 +25,8 @@ from graspd_client import wire
 
 GPD_KEYS = {"request_id", "method", "frame", "grasps", "timings", "model", "scored", "num_candidates", "num_points",
             "hand", "environment", "warnings", "objects", "max_per_object"}
+#: A request's answer also counts the rows its cloud had and those dropped for a NaN or infinite value.
+INPUT_KEYS = {"num_points_received", "num_points_dropped"}
 TEMPLATE_KEYS = GPD_KEYS - {"environment", "objects", "max_per_object"} | {"num_entries"}
 
 
@@ -81,7 +83,8 @@ def test_zenoh_header_is_part_of_the_model() -> None:
 
 def test_http_answers_validate_against_the_declared_model(client: TestClient, body: dict[str, Any]) -> None:
     out = client.post("/detect", json=body).json()
-    assert set(out) == GPD_KEYS | {"ranking_rule"}  # ranked by selection: the rule, and each grasp's terms
+    assert set(out) == GPD_KEYS | INPUT_KEYS | {"ranking_rule"}  # ranked by selection: the rule, each grasp's terms
+    assert out["num_points_dropped"] == 0 < out["num_points_received"]  # krylon has no NaN row
     assert all("ranking" in g for g in out["grasps"])
     assert DetectResponse.model_validate(out).model_dump(exclude_unset=True) == out
 

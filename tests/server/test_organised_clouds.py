@@ -78,7 +78,8 @@ def test_an_organised_request_detects(client: TestClient) -> None:
     pts = organised_points(40, 50).astype(np.float32)
     r = client.post("/detect", json={"cloud": {"points": encode_array(pts), "shape": [40, 50]}, "num_samples": 20})
     assert r.status_code == 200, r.text
-    assert "non_finite_dropped" in [w["code"] for w in r.json()["warnings"]]
+    assert "non_finite_dropped" not in [w["code"] for w in r.json()["warnings"]]  # pixels without depth: normal
+    assert r.json()["num_points_received"] == len(pts) == r.json()["num_points_dropped"] + np.isfinite(pts).all(1).sum()
 
 
 def test_an_organised_pcd_upload_carries_its_shape_to_the_detector(client: TestClient, real_data: Path) -> None:

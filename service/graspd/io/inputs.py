@@ -1,9 +1,11 @@
 """What a caller sends, made into the detector's cloud one way for every entrance: JSON and uploads (via
 graspd.server.services.mapping), Zenoh and the ROS streams, and the CLI.
 
-- Rows with a NaN or infinite coordinate (organised clouds from depth cameras are full of them) are dropped and
-  counted; the detection then carries the warning "non_finite_dropped" with the count.  A cloud with no finite
-  row at all is refused (CloudError naming the points field: a 422).
+- Rows with a NaN or infinite coordinate are dropped and counted (every answer gives the count).  In an organised
+  cloud they are the pixels without depth, as depth cameras and PCL write them: no warning, unless fewer than
+  MIN_DEPTH_SHARE of the pixels have depth.  In an unorganised cloud they are unexpected: the detection carries
+  the warning "non_finite_dropped" with the count.  A cloud with no finite row at all is refused (CloudError naming
+  the points field: a 422).
 - Camera poses and points_frame (graspd.core.frames): the cloud is moved into the robot frame and its viewpoints
   are the cameras' positions there.
 
@@ -31,6 +33,10 @@ from graspd.core.limits import MAX_VIEWPOINTS
 from graspd.core.warning import DetectionWarning
 from graspd.io.camera_source import nearest_camera
 
+#: An organised cloud with depth on fewer than this share of its pixels warns (non_finite_dropped): a covered
+#: lens, a sensor out of range.  Real captures have depth on 68-79% of their pixels (../shared/data/real).
+MIN_DEPTH_SHARE = 0.1
+
 
 def finite_rows(points: NDArray[np.floating], normals: NDArray[np.floating] | None = None) -> NDArray[np.bool_]:
     """Rows whose three coordinates (and normal, when given) are all finite.  Column by column: `.all(axis=1)`
@@ -50,12 +56,16 @@ def no_finite_point(received: int) -> str:
             "with finite x, y, z (m)")
 
 
-def non_finite_warning(dropped: int, received: int) -> DetectionWarning:
-    """The warning a detection carries when non-finite rows were dropped (the same on every entrance)."""
+def non_finite_warning(dropped: int, received: int, organised: bool = False) -> DetectionWarning:
+    """The warning a detection carries when non-finite rows were dropped from an unorganised cloud, or from an
+    organised one with depth on too few pixels (the same on every entrance)."""
+    if organised:
+        return DetectionWarning("non_finite_dropped", f"only {received - dropped} of the organised cloud's "
+                                f"{received} pixels have depth ({dropped} are NaN or infinite); detected on those: "
+                                "is the camera covered, or the scene out of its range?")
     return DetectionWarning("non_finite_dropped", f"{dropped} of {received} points had a NaN or infinite "
-                            f"coordinate and were dropped; detected on the {received - dropped} finite ones "
-                            "(depth cameras mark pixels without depth so; nothing to fix unless the count is "
-                            "unexpected)")
+                            f"coordinate and were dropped; detected on the {received - dropped} finite ones (an "
+                            "unorganised cloud should hold measured points only)")
 
 
 def keep_finite(points: NDArray[np.floating],
@@ -97,8 +107,15 @@ class CloudInput:
 
     @property
     def warnings(self) -> tuple[DetectionWarning, ...]:
-        """The warnings of the input itself (non-finite rows dropped), for the detection to carry."""
-        return (non_finite_warning(self.dropped, self.received),) if self.dropped else ()
+        """The warnings of the input itself, for the detection to carry: non-finite rows dropped from an
+        unorganised cloud, or an organised cloud with depth on under MIN_DEPTH_SHARE of its pixels."""
+        if not self.dropped:
+            return ()
+        if self.cloud.grid is None:
+            return (non_finite_warning(self.dropped, self.received),)
+        if self.received - self.dropped < MIN_DEPTH_SHARE * self.received:
+            return (non_finite_warning(self.dropped, self.received, organised=True),)
+        return ()
 
 
 def apply_frames(cloud: ViewpointCloud, camera_poses: NDArray[np.float64] | None, points_frame: str | None

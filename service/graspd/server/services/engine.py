@@ -412,7 +412,7 @@ class DetectionEngine:
             timings["total"] = time.perf_counter() - enqueued + before
             self.metrics.observe_timings(timings)
             return Outcome(result, req, cloud, request_id, detection_id, given.frame, parsed.header or None,
-                           timings, crops, fits, parsed.context)
+                           timings, crops, fits, parsed.context, given.received, given.dropped)
 
     @dataclass
     class _Admitted:

@@ -217,10 +217,12 @@ def detection_inputs(req: DetectRequest, given: CloudInput | None = None, target
 
 def result_body(result: GraspResult, *, request_id: str, detection_id: str, timings: dict[str, float],
                 frame: str = "cloud", crops: list[dict[str, Any]] | None = None, header: dict[str, Any] | None = None,
-                model_fits_hand: bool | None = None) -> dict[str, Any]:
+                model_fits_hand: bool | None = None, received: int | None = None, dropped: int = 0
+                ) -> dict[str, Any]:
     """The answer's JSON object for a result (the keys DetectResponse documents; those that do not apply to the
     method left out).  Grasp ids: result.grasp_ids(detection_id); crops: one CropOut-shaped dict per grasp;
-    header: a ROS input's header; frame: the frame the grasps are in (graspd.core.frames)."""
+    header: a ROS input's header; frame: the frame the grasps are in (graspd.core.frames); received, dropped: the
+    rows the request's cloud had and those dropped for a NaN or infinite value (None: not a request's cloud)."""
     g = result.grasps
     cols = (result.grasp_ids(detection_id), g.positions.tolist(), g.approach.tolist(), g.binormal.tolist(),
             g.axis.tolist(), g.widths.tolist(), g.scores.tolist(), g.samples.tolist(), g.poses.tolist(),
@@ -237,6 +239,8 @@ def result_body(result: GraspResult, *, request_id: str, detection_id: str, timi
                            "num_points": result.num_points, "hand": result.hand.to_dict(),
                            "warnings": [w.to_dict() for w in result.warnings],
                            "model": result.model, "scored": result.scored, **result.answer_fields()}
+    if received is not None:
+        out["num_points_received"], out["num_points_dropped"] = received, dropped
     if header is not None:
         out["header"] = header
     if model_fits_hand is not None:
@@ -249,7 +253,8 @@ def response(outcome: Outcome) -> DetectResponse:
     documented).  Cost at 100 grasps: ~1.2 ms to build, validate (pydantic-core) and serialise."""
     return DetectResponse.model_validate(result_body(
         outcome.result, request_id=outcome.request_id, detection_id=outcome.detection_id, timings=outcome.timings,
-        frame=outcome.frame, crops=outcome.crops, header=outcome.header, model_fits_hand=outcome.model_fits_hand))
+        frame=outcome.frame, crops=outcome.crops, header=outcome.header, model_fits_hand=outcome.model_fits_hand,
+        received=outcome.received, dropped=outcome.dropped))
 
 
 def response_json(outcome: Outcome) -> bytes:

@@ -232,7 +232,8 @@ class Outcome:
     """One answered request: the result, the request and cloud it ran on, its frame ("robot" with camera poses,
     else "cloud") and ROS header (a ROS input's), the ids (request_id: the one the client and the log lines see;
     detection_id: what GPD grasp ids start with), the timings (s), the crops (one dict per grasp, or None), whether
-    the model fits the hand, and the transport's own context (Parsed.context)."""
+    the model fits the hand, the transport's own context (Parsed.context), and the rows the request's cloud had
+(received) and those dropped for a NaN or infinite value (graspd.io.inputs.CloudInput)."""
 
     result: GraspResult
     request: DetectRequest
@@ -245,6 +246,8 @@ class Outcome:
     crops: list[dict[str, Any]] | None = None
     model_fits_hand: bool | None = None
     context: Any = None
+    received: int = 0
+    dropped: int = 0
 
     @property
     def warnings(self) -> tuple[DetectionWarning, ...]:

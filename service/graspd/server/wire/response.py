@@ -9,6 +9,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, Field
 
 from graspd.core.warning import WARNING_CODES
+from graspd.io.inputs import MIN_DEPTH_SHARE
 
 from .detect import MAX_PER_OBJECT_TEXT, RANKING
 
@@ -155,6 +156,12 @@ class DetectResponse(BaseModel):  # built by services.mapping.response (the docs
                          "templates, always (match quality)")
     num_candidates: int
     num_points: int = Field(description="points after preprocessing")
+    num_points_received: int | None = Field(None, description="rows the request's cloud had (an organised cloud: "
+                                            "its pixels)")
+    num_points_dropped: int | None = Field(None, description="rows dropped for a NaN or infinite coordinate or "
+                                           "normal: an organised cloud's pixels without depth (no warning unless "
+                                           f"under {MIN_DEPTH_SHARE:.0%} have depth); an unorganised cloud's warn "
+                                           "(non_finite_dropped)")
     hand: dict[str, float] = Field(description="hand geometry used (m)")
     environment: EnvironmentOut | None = Field(None, description="gpd: what the environment stage found")
     warnings: list[WarningOut] = Field(default_factory=list, description="what the service could not do right "
