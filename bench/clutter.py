@@ -236,8 +236,16 @@ def ci(lo_hi: tuple[float, float]) -> str:
     return "" if lo != lo else f" [{100 * lo:.0f}, {100 * hi:.0f}]"
 
 
-def markdown(summaries: dict[str, Summary], meta: dict[str, Any]) -> str:
-    """A Table-3-like markdown table, one column per setting."""
+def left_unfound(rounds: list[dict[str, Any]]) -> Counter[str]:
+    """The objects left in the scene by rounds that ended because a detection returned no feasible grasp, by name:
+    what the detector could not take (round dicts as RoundResult.to_dict() writes them)."""
+    return Counter(name for r in rounds if "no grasp" in r.get("end_reason", "") for name in r.get("left", ()))
+
+
+def markdown(summaries: dict[str, Summary], meta: dict[str, Any],
+             rounds: dict[str, list[dict[str, Any]]] | None = None) -> str:
+    """A Table-3-like markdown table, one column per setting; with the rounds, the objects left where a detection
+    found no grasp."""
     names = list(summaries)
     rows = [
         ("Rounds", lambda s: str(s.rounds)),
@@ -274,6 +282,11 @@ def markdown(summaries: dict[str, Summary], meta: dict[str, Any]) -> str:
         lines += ["| Top-5 failures (first detection) | " + " | ".join(
             ", ".join(f"{k} {v}" for k, v in precision[n]["top5"].items() if k != "ok") + f", no grasp "
             f"{precision[n]['no_grasp']}" if n in precision else "" for n in names) + " |"]
+    for name, rows_of in (rounds or {}).items():
+        left = left_unfound(rows_of)
+        if left:
+            lines += ["", f"{name}: objects left where a detection found no grasp ({sum(left.values())}): "
+                      + ", ".join(f"{k} x{v}" if v > 1 else k for k, v in left.most_common())]
     lines += ["", "Targets (service defaults): piles success >= 90% and cleared >= 95%; trays of 10"
               " success >= 90% and cleared >= 85%.  CIs: percentile bootstrap over rounds."]
     return "\n".join(lines) + "\n"
@@ -316,7 +329,7 @@ def write_results(out: Path, tag: str, summaries: dict[str, Summary], rounds: di
                   meta: dict[str, Any]) -> str:
     """Write <tag>.md, <tag>.json and <tag>.png into out; the markdown."""
     out.mkdir(parents=True, exist_ok=True)
-    md = markdown(summaries, meta)
+    md = markdown(summaries, meta, rounds)
     (out / f"{tag}.md").write_text(md)
     (out / f"{tag}.json").write_text(json.dumps(
         {"meta": meta, "summaries": {k: v.to_dict() for k, v in summaries.items()}, "rounds": rounds}, indent=1))

@@ -41,10 +41,9 @@ from containers import style_setting  # noqa: E402
 from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd_lab.sim.containers import SPLITS, STYLES  # noqa: E402
-from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
+from graspd_lab.sim.object_sets import OBJECT_SETS, object_label, object_set_hand  # noqa: E402
 from graspd_lab.sim.protocol import Setting  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
-from graspd_lab.world.household import household_name, is_household_id  # noqa: E402
 
 #: Bins of the fingertips' reach past the centre of mass along the approach (m), and of the object's mass (kg).
 REACH_BINS = (-np.inf, -0.01, 0.0, 0.01, np.inf)
@@ -61,8 +60,7 @@ def measure(world: SimWorld, grasps: GraspSet, pick: int, hand_depth: float, ini
     com = np.asarray(pb.getBasePositionAndOrientation(body, physicsClientId=c)[0])
     tips = pos + hand_depth * approach
     off = com - middle
-    object_id = world.objects[body]
-    return {"object": household_name(object_id) if is_household_id(object_id) else str(object_id),
+    return {"object": object_label(world.objects[body]),
             "mass": float(pb.getDynamicsInfo(body, -1, physicsClientId=c)[0]),
             "width": float(grasps.widths[pick]), "score": float(grasps.scores[pick]),
             "reach_past_com": float((tips - com) @ approach),

@@ -57,6 +57,11 @@ def object_set_stop(name: str) -> str:
     return "standard" if name.startswith("household") else "ijrr"
 
 
+def object_label(object_id: int) -> str:
+    """How results files name a simulator object: a household model's name, else its id."""
+    return household.household_name(object_id) if household.is_household_id(object_id) else str(object_id)
+
+
 def describe(name: str) -> str:
     """One line for a results file: what the set's objects are."""
     if name == "household":

@@ -24,7 +24,7 @@ from graspd.core.hand import HandGeometry
 from graspd_lab.sim.containers import scene_container, style_ranges
 from graspd_lab.sim.detectors import SimDetector, Workspace
 from graspd_lab.sim.gripper import Attempt, ExecutionParams, Gripper, Outcome
-from graspd_lab.sim.object_sets import object_set_ids, object_set_stop
+from graspd_lab.sim.object_sets import object_label, object_set_ids, object_set_stop
 from graspd_lab.sim.sensing import observe
 from graspd_lab.sim.world import SimWorld, build_scene
 from graspd_lab.world.noise import DepthNoise
@@ -96,6 +96,8 @@ class RoundResult:
     cleared: int = 0
     outcomes: list[str] = field(default_factory=list)
     end_reason: str = ""
+    #: The objects still in the scene when the round ended (object_sets.object_label: names of household models).
+    left: list[str] = field(default_factory=list)
     seconds: float = 0.0
     detect_seconds: float = 0.0
 
@@ -203,6 +205,7 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
             if reason:
                 result.end_reason = reason
                 break
+        result.left = sorted(object_label(o) for o in world.objects.values())
     finally:
         world.close()
     result.seconds = time.perf_counter() - t0

@@ -58,6 +58,18 @@ def test_household_option_loads_only_held_out_household_models(tmp_path: Path,
     assert {r["setting"] for r in rows} == {"baseline@pile-side/5/household/stop-standard",
                                             "baseline@packed-side/5/household/stop-standard"}
     assert "2 failed attempts in a row" in (tmp_path / "h.md").read_text()
+    for row in rows:  # what a round left is named; it did not clear them (some may have fallen off the table)
+        r = row["round"]
+        assert all(name in household.HELD_OUT for name in r["left"])
+        assert len(r["left"]) <= r["num_objects"] - r["cleared"] and (r["left"] or r["end_reason"] == "tray empty")
+
+
+def test_the_objects_rounds_without_a_grasp_left_are_listed() -> None:
+    bench = _bench()
+    rounds = [{"end_reason": "no grasp found", "left": ["stapler", "tube"]},
+              {"end_reason": "2 failures in a row", "left": ["vase"]},  # left by failures: not the detector's
+              {"end_reason": "no grasp found 3 times", "left": ["stapler"]}]
+    assert bench.left_unfound(rounds) == {"stapler": 2, "tube": 1}
 
 
 def test_object_sets_are_held_out_and_household_gets_the_panda_like_hand() -> None:
