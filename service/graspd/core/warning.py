@@ -10,6 +10,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+#: An organised cloud with depth on fewer than this share of its pixels warns non_finite_dropped (a covered lens, a
+#: scene out of the sensor's range); above it, its NaN pixels are normal and only counted.  Real captures have depth
+#: on 68-79% of their pixels (../shared/data/real).
+MIN_DEPTH_SHARE = 0.1
+
 #: The codes graspd emits, with what each means (the response schema documents this table).
 WARNING_CODES: dict[str, str] = {
     "environment_unsure": "the environment stage is unsure what holds the objects (support, walls, container)",
@@ -17,7 +22,8 @@ WARNING_CODES: dict[str, str] = {
     "no_support": "no support surface was found; hands are checked against points only",
     "unknown_space": "the best grasps put part of the hand into space no camera saw",
     "viewpoint_flipped": "most surface normals face away from the cameras: the viewpoint is probably wrong",
-    "non_finite_dropped": "rows with NaN or infinite coordinates were dropped",
+    "non_finite_dropped": "rows of an unorganised cloud with NaN or infinite coordinates were dropped, or an "
+                          "organised cloud has depth on too few of its pixels",
     "few_points": "too few points are left after the workspace crop",
     "model_hand_mismatch": "the model was not trained for the requested hand; scores are less reliable",
     "no_candidates": "no grasp candidate survived; the stage that removed them is named",

@@ -3,9 +3,9 @@ graspd.server.services.mapping), Zenoh and the ROS streams, and the CLI.
 
 - Rows with a NaN or infinite coordinate are dropped and counted (every answer gives the count).  In an organised
   cloud they are the pixels without depth, as depth cameras and PCL write them: no warning, unless fewer than
-  MIN_DEPTH_SHARE of the pixels have depth.  In an unorganised cloud they are unexpected: the detection carries
-  the warning "non_finite_dropped" with the count.  A cloud with no finite row at all is refused (CloudError naming
-  the points field: a 422).
+  graspd.core.warning.MIN_DEPTH_SHARE of the pixels have depth.  In an unorganised cloud they are unexpected:
+  the detection carries the warning "non_finite_dropped" with the count.  A cloud with no finite row at all is
+  refused (CloudError naming the points field: a 422).
 - Camera poses and points_frame (graspd.core.frames): the cloud is moved into the robot frame and its viewpoints
   are the cameras' positions there.
 
@@ -30,12 +30,8 @@ from graspd.core.frames import (
     to_robot,
 )
 from graspd.core.limits import MAX_VIEWPOINTS
-from graspd.core.warning import DetectionWarning
+from graspd.core.warning import MIN_DEPTH_SHARE, DetectionWarning
 from graspd.io.camera_source import nearest_camera
-
-#: An organised cloud with depth on fewer than this share of its pixels warns (non_finite_dropped): a covered
-#: lens, a sensor out of range.  Real captures have depth on 68-79% of their pixels (../shared/data/real).
-MIN_DEPTH_SHARE = 0.1
 
 
 def finite_rows(points: NDArray[np.floating], normals: NDArray[np.floating] | None = None) -> NDArray[np.bool_]:

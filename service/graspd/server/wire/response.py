@@ -8,8 +8,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, Field
 
-from graspd.core.warning import WARNING_CODES
-from graspd.io.inputs import MIN_DEPTH_SHARE
+from graspd.core.warning import MIN_DEPTH_SHARE, WARNING_CODES
 
 from .detect import MAX_PER_OBJECT_TEXT, RANKING
 
