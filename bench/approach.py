@@ -20,12 +20,9 @@ writes bench/results/approach-<tag>.md and .json.
 from __future__ import annotations
 
 import argparse
-import json
-import shlex
 import sys
 from collections import Counter
 from dataclasses import replace
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +44,7 @@ from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.gpd.scene import unobserved_grid  # noqa: E402
 from graspd_lab.sim.gripper import ExecutionParams, Gripper  # noqa: E402
-from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
+from graspd_lab.sim.object_sets import object_set_hand  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
 
 F64 = NDArray[np.float64]
@@ -133,20 +130,13 @@ def cause(hit: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", choices=list(clutter.SCENES), default="pile-side")
-    ap.add_argument("--object-set", choices=OBJECT_SETS, default="household")
-    ap.add_argument("--rounds", type=int, default=30)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--model", default=None)
-    ap.add_argument("--service", default=None, help="URL of a running graspd service (default: start one)")
-    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
-    ap.add_argument("--tag", default="household-pile")
+    clutter.add_look_arguments(ap)
     ap.add_argument("--top", type=int, default=0, help="sweep the top K grasps of each scene's first detection "
                     "instead of running rounds")
     args = ap.parse_args(argv)
     setting = replace(clutter.SCENES[args.scene], objects=args.object_set, hand=object_set_hand(args.object_set))
     hand = setting.hand
     pregrasp = ExecutionParams().pregrasp_distance
-    proc, service = (None, args.service) if args.service else clutter.start_service()
     model = clutter.model_for("gpd", args.model)
 
     def look(world: SimWorld, cloud: ViewpointCloud, grasps: GraspSet, pick: int) -> dict[str, Any]:
@@ -166,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
 
     seeds = range(args.seed, args.seed + args.rounds)
     records: list[dict[str, Any]] = []
-    try:
+    with clutter.serving(args.service) as service:
         if not args.top:
             records = clutter.looked_rounds(setting, model, service, seeds, look)
         else:
@@ -181,17 +171,7 @@ def main(argv: list[str] | None = None) -> int:
                     world.close()
                 print(f"seed {seed}: {sum(1 for r in records[first:] if r['hit'])} of {len(records) - first} "
                       "swept hands enter a body", flush=True)
-    finally:
-        if proc is not None:
-            proc.terminate()
-            proc.wait(timeout=10)
-    md = report(records, {"command": "PYTHONPATH=service:client .venv/bin/python bench/approach.py "
-                          + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
-                          "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": model})
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"approach-{args.tag}.md").write_text(md)
-    (args.out / f"approach-{args.tag}.json").write_text(json.dumps({"records": records}, indent=1))
-    print(md)
+    print(clutter.write_looks(args.out, f"approach-{args.tag}", "approach.py", argv, model, records, report))
     return 0
 
 

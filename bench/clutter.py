@@ -42,7 +42,8 @@ import subprocess
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -65,7 +66,7 @@ from graspd_client import GraspClient  # noqa: E402
 from graspd_lab.cluster import RayMissingError, imap, runner_from_args  # noqa: E402
 from graspd_lab.cluster import add_arguments as add_cluster_arguments  # noqa: E402
 from graspd_lab.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, TopDownBaseline  # noqa: E402
-from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
+from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand, object_set_stop  # noqa: E402
 from graspd_lab.sim.object_sets import describe as describe_objects  # noqa: E402
 from graspd_lab.sim.protocol import (  # noqa: E402
     STOP_RULE_TEXT,
@@ -389,6 +390,45 @@ def start_service() -> tuple[subprocess.Popen[bytes], str]:
     raise SystemExit("the graspd service did not become ready")
 
 
+def add_look_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options of a looked-rounds bench (bench/approach.py, bench/slips.py): object set, rounds, first seed,
+    model, a running service, output folder and tag."""
+    ap.add_argument("--object-set", choices=OBJECT_SETS, default="household")
+    ap.add_argument("--rounds", type=int, default=30)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--model", default=None)
+    ap.add_argument("--service", default=None, help="URL of a running graspd service (default: start one)")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
+    ap.add_argument("--tag", default="household-pile")
+
+
+@contextmanager
+def serving(url: str | None) -> Iterator[str]:
+    """url, or the address of a graspd service started for the block and stopped after it."""
+    if url is not None:
+        yield url
+        return
+    proc, started = start_service()
+    try:
+        yield started
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def write_looks(out: Path, stem: str, script: str, argv: list[str] | None, model: str | None,
+                records: list[dict[str, Any]], report: Callable[[list[dict[str, Any]], dict[str, Any]], str]) -> str:
+    """Write a looked-rounds bench's <stem>.md (report of the records with the command, commit, date and model of
+    bench/<script>) and <stem>.json (the records) into out; the markdown (bench/approach.py, bench/slips.py)."""
+    md = report(records, {"command": f"PYTHONPATH=service:client .venv/bin/python bench/{script} "
+                          + shlex.join(sys.argv[1:] if argv is None else argv), "commit": git_commit(),
+                          "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": model})
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{stem}.md").write_text(md)
+    (out / f"{stem}.json").write_text(json.dumps({"records": records}, indent=1))
+    return md
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--settings", nargs="+", default=list(DEFAULT_SETTINGS), help="DETECTOR@SCENE-SENSING ...")
@@ -444,7 +484,7 @@ def main(argv: list[str] | None = None) -> int:
         "service": service,
         "models": dict(models),
         "object_set": args.object_set,
-        "stop": replace(Setting(), objects=args.object_set, stop=args.stop).stop_rule,
+        "stop": args.stop or object_set_stop(args.object_set),
         "precision": {},
     }
     md = ""

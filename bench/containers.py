@@ -74,7 +74,7 @@ from graspd_lab.sim.containers import (  # noqa: E402
     scene_container,
 )
 from graspd_lab.sim.detectors import SimDetector  # noqa: E402
-from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand  # noqa: E402
+from graspd_lab.sim.object_sets import OBJECT_SETS, object_set_hand, object_set_stop  # noqa: E402
 from graspd_lab.sim.object_sets import describe as describe_objects  # noqa: E402
 from graspd_lab.sim.protocol import (  # noqa: E402
     SENSINGS,
@@ -389,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
         "jobs": args.jobs, "runner": runner.describe(),
         "gpd": "in-process GraspDetector" if args.in_process else f"POST /detect to {service}",
         "models": dict(models), "split": args.split, "objects": args.objects, "object_set": args.object_set,
-        "stop": next(iter(settings.values())).stop_rule,
+        "stop": object_set_stop(args.object_set),
         "sensing": args.sensing,
         "styles": styles, "headline_styles": [s for s in styles if s in HELD_OUT_STYLES],
         "containers": {s: [scene_container(s, args.seed + i, args.split).to_dict() for i in range(args.rounds)]

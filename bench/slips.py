@@ -19,12 +19,9 @@ writes bench/results/slips-<tag>.md and .json.
 from __future__ import annotations
 
 import argparse
-import json
-import shlex
 import sys
 from collections import Counter, defaultdict
 from dataclasses import replace
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +38,7 @@ from containers import style_setting  # noqa: E402
 from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd_lab.sim.containers import SPLITS, STYLES  # noqa: E402
-from graspd_lab.sim.object_sets import OBJECT_SETS, object_label, object_set_hand  # noqa: E402
+from graspd_lab.sim.object_sets import object_label, object_set_hand  # noqa: E402
 from graspd_lab.sim.protocol import Setting  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
 
@@ -125,35 +122,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--container", choices=STYLES, default=None, help="a container style instead of --scene "
                     "(bench/containers.py's setting: 8 objects of a household set, passive cameras)")
     ap.add_argument("--split", choices=SPLITS, default="held_out", help="the container's parameter ranges")
-    ap.add_argument("--object-set", choices=OBJECT_SETS, default="household")
-    ap.add_argument("--rounds", type=int, default=30)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--model", default=None)
-    ap.add_argument("--service", default=None, help="URL of a running graspd service (default: start one)")
-    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
-    ap.add_argument("--tag", default="household-pile")
+    clutter.add_look_arguments(ap)
     args = ap.parse_args(argv)
     setting = setting_for(args.object_set, args.scene, args.container, args.split)
     hand = setting.hand
-    proc, service = (None, args.service) if args.service else clutter.start_service()
     model = clutter.model_for("gpd", args.model)
 
     def look(world: SimWorld, cloud: ViewpointCloud, grasps: GraspSet, pick: int) -> dict[str, Any]:
         return measure(world, grasps, pick, hand.hand_depth, hand.init_bite)
 
-    try:
+    with clutter.serving(args.service) as service:
         records = clutter.looked_rounds(setting, model, service, range(args.seed, args.seed + args.rounds), look)
-    finally:
-        if proc is not None:
-            proc.terminate()
-            proc.wait(timeout=10)
-    md = report(records, {"command": "PYTHONPATH=service:client .venv/bin/python bench/slips.py "
-                          + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
-                          "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": model})
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"slips-{args.tag}.md").write_text(md)
-    (args.out / f"slips-{args.tag}.json").write_text(json.dumps({"records": records}, indent=1))
-    print(md)
+    print(clutter.write_looks(args.out, f"slips-{args.tag}", "slips.py", argv, model, records, report))
     return 0
 
 

@@ -30,17 +30,15 @@ from graspd_lab.sim.world import SimWorld, build_scene
 from graspd_lab.world.noise import DepthNoise
 
 SENSINGS = ("passive", "active", "side")
-#: How a round ends besides an empty table: "ijrr" (IJRR Table 1 step 6: three detections in a row without a grasp,
-#: or the same failure on the same object three times in a row) or "standard" (the standard clutter-removal
-#: benchmark's: two failed attempts in a row, whatever they failed on, or one detection without a grasp).
-STOP_RULES = ("ijrr", "standard")
-#: Each stop rule in words, for results files.
+#: How a round ends besides an empty table, each rule in words for results files: "ijrr" (IJRR Table 1 step 6) or
+#: "standard" (the standard clutter-removal benchmark's: two failed attempts in a row, whatever they failed on).
 STOP_RULE_TEXT = {
     "ijrr": "IJRR Table 1's: a round ends after 3 detections in a row without a grasp, or the same failure on the "
             "same object 3 times in a row",
     "standard": "the standard clutter-removal benchmark's: a round ends after 2 failed attempts in a row, or a "
                 "detection without a grasp",
 }
+STOP_RULES = tuple(STOP_RULE_TEXT)
 #: Called before each executed grasp with the world, the cloud the detector saw, its grasps and the index picked
 #: (diagnostics: bench/approach.py); it must leave the world as it found it.
 Probe = Callable[[SimWorld, ViewpointCloud, GraspSet, int], None]

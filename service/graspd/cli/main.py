@@ -186,7 +186,7 @@ def _detect_one(args: argparse.Namespace, label: str, given: Any, message: dict[
     detection = replace(detection, warnings=(*given.warnings, *detection.warnings))  # the input's first, as served
     detection = _checked(detection, cloud, params, classifier)  # then the request-level checks, as served
     out = {"frame": given.frame, **({"message": message} if message is not None else {}), **_with_ranking(detection),
-           "num_points_received": given.received, "num_points_dropped": given.dropped}  # as the service answers
+           **given.counts}  # as the service answers
     if classifier is None:
         out["note"] = "no classifier: candidates are unscored (the paper's 'no classification' ablation)"
     plot, view = _numbered(args.plot, index), _numbered(args.view, index)

@@ -64,6 +64,11 @@ def non_finite_warning(dropped: int, received: int, organised: bool = False) -> 
                             "unorganised cloud should hold measured points only)")
 
 
+def point_counts(received: int, dropped: int) -> dict[str, int]:
+    """An answer's count of the rows a cloud had and of those dropped for a NaN or infinite value."""
+    return {"num_points_received": received, "num_points_dropped": dropped}
+
+
 def keep_finite(points: NDArray[np.floating],
                 normals: NDArray[np.floating] | None = None, field: str = "cloud.points"
                 ) -> tuple[NDArray[np.bool_] | None, int]:
@@ -100,6 +105,11 @@ class CloudInput:
     #: Which of the received rows were kept (None: all, or not known), to map rows as given (a target's indices
     #: or mask) onto the cloud's.
     kept: NDArray[np.bool_] | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """What every answer says of the input's rows (the same keys on every entrance and the CLI)."""
+        return point_counts(self.received, self.dropped)
 
     @property
     def warnings(self) -> tuple[DetectionWarning, ...]:

@@ -18,7 +18,7 @@ from graspd.core.limits import MAX_POINTS
 from graspd.gpd.detector import DetectionParams
 from graspd.gpd.environment import Box, EnvironmentParams, Plane
 from graspd.gpd.target import OrientedBox, Target, TargetKind
-from graspd.io.inputs import CloudInput, apply_frames, check_shape, keep_finite
+from graspd.io.inputs import CloudInput, apply_frames, check_shape, keep_finite, point_counts
 from graspd.io.png import check_image_size, decode_png_rgb, png_size
 from graspd.server.services.outcome import GraspResult, Outcome
 from graspd.server.wire.detect import Cloud, CropsRequest, DetectRequest, EnvironmentSpec, TargetSpec
@@ -240,7 +240,7 @@ def result_body(result: GraspResult, *, request_id: str, detection_id: str, timi
                            "warnings": [w.to_dict() for w in result.warnings],
                            "model": result.model, "scored": result.scored, **result.answer_fields()}
     if received is not None:
-        out["num_points_received"], out["num_points_dropped"] = received, dropped
+        out.update(point_counts(received, dropped))
     if header is not None:
         out["header"] = header
     if model_fits_hand is not None:
