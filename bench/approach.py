@@ -10,7 +10,8 @@ lies in space no camera saw (the service's unobserved volume: shadow_length = th
 The rounds are bench/clutter.py's (same seeds and scenes, plain POST /detect with the service's defaults); the
 sweep only looks, but its hand is a body of its own for a moment, which can change later physics slightly.
 --top K instead sweeps the K best grasps of each scene's first detection (bench/containers.py's P@k view: more
-hands per minute, no execution).
+hands per minute, no execution).  --container STYLE replays bench/containers.py's rounds of one style instead (8
+objects, passive cameras, the style's --split ranges: training ones for a diagnosis that may guide tuning).
 
   PYTHONPATH=service:client .venv/bin/python bench/approach.py --object-set household --scene pile-side \\
       --rounds 30 --tag household-pile
@@ -22,7 +23,6 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -38,13 +38,12 @@ from scipy.spatial import cKDTree  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 import clutter  # noqa: E402
-from containers import first_detection  # noqa: E402
+from containers import add_scene_arguments, first_detection, looked_setting  # noqa: E402
 from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.gpd.scene import unobserved_grid  # noqa: E402
 from graspd_lab.sim.gripper import ExecutionParams, Gripper  # noqa: E402
-from graspd_lab.sim.object_sets import object_set_hand  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
 
 F64 = NDArray[np.float64]
@@ -129,12 +128,12 @@ def cause(hit: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", choices=list(clutter.SCENES), default="pile-side")
+    add_scene_arguments(ap)
     clutter.add_look_arguments(ap)
     ap.add_argument("--top", type=int, default=0, help="sweep the top K grasps of each scene's first detection "
                     "instead of running rounds")
     args = ap.parse_args(argv)
-    setting = replace(clutter.SCENES[args.scene], objects=args.object_set, hand=object_set_hand(args.object_set))
+    setting = looked_setting(args.object_set, args.scene, args.container, args.split)
     hand = setting.hand
     pregrasp = ExecutionParams().pregrasp_distance
     model = clutter.model_for("gpd", args.model)

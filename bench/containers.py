@@ -47,6 +47,7 @@ import shlex
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -150,6 +151,25 @@ def style_setting(style: str, split: str, object_set: str, objects: int | None =
         objects = default_objects(object_set)
     return Setting(scene="container", container=style, container_split=split, num_objects=objects, sensing=sensing,
                    objects=object_set, hand=object_set_hand(object_set))
+
+
+def add_scene_arguments(ap: argparse.ArgumentParser) -> None:
+    """The scene options of a looked-rounds bench (bench/approach.py, bench/slips.py): a clutter scene, or a
+    container style and its parameter ranges."""
+    ap.add_argument("--scene", choices=list(clutter.SCENES), default="pile-side")
+    ap.add_argument("--container", choices=STYLES, default=None, help="a container style instead of --scene "
+                    "(this benchmark's setting: 8 objects of a household set, passive cameras)")
+    ap.add_argument("--split", choices=SPLITS, default="held_out", help="the container's parameter ranges "
+                    "(training: a diagnosis that may guide tuning)")
+
+
+def looked_setting(object_set: str, scene: str, container: str | None, split: str) -> Setting:
+    """The rounds a looked-rounds bench replays: bench/clutter.py's scene, or with a container style this
+    benchmark's setting of it (8 household objects or 5 scaled ones, passive cameras, the split's parameter
+    ranges); the set's hand."""
+    if container is None:
+        return replace(clutter.SCENES[scene], objects=object_set, hand=object_set_hand(object_set))
+    return style_setting(container, split, object_set)
 
 
 def first_detection(detector: SimDetector, setting: Setting, seed: int

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter, defaultdict
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -34,12 +33,10 @@ import numpy as np  # noqa: E402
 import pybullet as pb  # noqa: E402
 
 import clutter  # noqa: E402
-from containers import style_setting  # noqa: E402
+from containers import add_scene_arguments, looked_setting  # noqa: E402
 from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
-from graspd_lab.sim.containers import SPLITS, STYLES  # noqa: E402
-from graspd_lab.sim.object_sets import object_label, object_set_hand  # noqa: E402
-from graspd_lab.sim.protocol import Setting  # noqa: E402
+from graspd_lab.sim.object_sets import object_label  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
 
 #: Bins of the fingertips' reach past the centre of mass along the approach (m), and of the object's mass (kg).
@@ -108,23 +105,12 @@ def report(records: list[dict[str, Any]], meta: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def setting_for(object_set: str, scene: str, container: str | None, split: str) -> Setting:
-    """The rounds to replay: bench/clutter.py's scene, or with a container style bench/containers.py's setting of it
-    (8 household objects or 5 scaled ones, passive cameras, the split's parameter ranges); the set's hand."""
-    if container is None:
-        return replace(clutter.SCENES[scene], objects=object_set, hand=object_set_hand(object_set))
-    return style_setting(container, split, object_set)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", choices=list(clutter.SCENES), default="pile-side")
-    ap.add_argument("--container", choices=STYLES, default=None, help="a container style instead of --scene "
-                    "(bench/containers.py's setting: 8 objects of a household set, passive cameras)")
-    ap.add_argument("--split", choices=SPLITS, default="held_out", help="the container's parameter ranges")
+    add_scene_arguments(ap)
     clutter.add_look_arguments(ap)
     args = ap.parse_args(argv)
-    setting = setting_for(args.object_set, args.scene, args.container, args.split)
+    setting = looked_setting(args.object_set, args.scene, args.container, args.split)
     hand = setting.hand
     model = clutter.model_for("gpd", args.model)
 

@@ -71,3 +71,13 @@ def test_held_out_styles_have_no_training_ranges() -> None:
     bench = _bench()
     with pytest.raises(SystemExit):
         bench.main(["--split", "training", "--styles", "corner", "--detectors", "baseline"])
+
+
+def test_a_looked_bench_replays_a_container_style_or_a_clutter_scene() -> None:
+    bench = _bench()
+    tray = bench.looked_setting("household", "pile-side", "tray", "held_out")
+    assert (tray.scene, tray.container, tray.container_split, tray.num_objects, tray.sensing, tray.objects) == (
+        "container", "tray", "held_out", 8, "passive", "household")
+    assert tray.hand.max_aperture == pytest.approx(0.075)
+    pile = bench.looked_setting("household", "pile-side", None, "held_out")
+    assert (pile.scene, pile.num_objects, pile.sensing, pile.container) == ("pile", 5, "side", None)

@@ -48,13 +48,3 @@ def test_the_report_bins_attempts_by_reach_and_by_mass() -> None:
     assert "| -1 to 0 cm | 1 | 100% | success 1 |" in md
     assert "| >= 1.5 kg | 2 | 50% |" in md and "| 0.05 to 0.5 kg | 1 | 100% |" in md
     assert "| a | 2.000 | 2 | 1 | -1.5 |" in md
-
-
-def test_a_container_style_replays_the_containers_benchmark_setting() -> None:
-    bench = _bench()
-    tray = bench.setting_for("household", "pile-side", "tray", "held_out")
-    assert (tray.scene, tray.container, tray.container_split, tray.num_objects, tray.sensing, tray.objects) == (
-        "container", "tray", "held_out", 8, "passive", "household")
-    assert tray.hand.max_aperture == pytest.approx(0.075)
-    pile = bench.setting_for("household", "pile-side", None, "held_out")
-    assert (pile.scene, pile.num_objects, pile.sensing, pile.container) == ("pile", 5, "side", None)
