@@ -83,7 +83,8 @@ def test_zenoh_header_is_part_of_the_model() -> None:
 
 def test_http_answers_validate_against_the_declared_model(client: TestClient, body: dict[str, Any]) -> None:
     out = client.post("/detect", json=body).json()
-    assert set(out) == GPD_KEYS | INPUT_KEYS | {"ranking_rule"}  # ranked by selection: the rule, each grasp's terms
+    # ranked by selection: the rule, each grasp's terms; GPD counts what the range window left out
+    assert set(out) == GPD_KEYS | INPUT_KEYS | {"ranking_rule", "num_points_out_of_range"}
     assert out["num_points_dropped"] == 0 < out["num_points_received"]  # krylon has no NaN row
     assert all("ranking" in g for g in out["grasps"])
     assert DetectResponse.model_validate(out).model_dump(exclude_unset=True) == out

@@ -179,14 +179,15 @@ def _detect_one(args: argparse.Namespace, label: str, given: Any, message: dict[
     from graspd.cli.targets import cli_target
     from graspd.gpd.detector import GraspDetector
     from graspd.gpd.preprocess import PreprocessParams, preprocess
+    from graspd.io.inputs import point_counts
 
     cloud = given.cloud
     params = replace(params, target=cli_target(target, given))
     detection = GraspDetector(classifier, hand, prefilter).detect(cloud, params)
     detection = replace(detection, warnings=(*given.warnings, *detection.warnings))  # the input's first, as served
-    detection = _checked(detection, cloud, params, classifier)  # then the request-level checks, as served
+    detection, out_of_range = _checked(detection, cloud, params, classifier)  # the request-level checks, as served
     out = {"frame": given.frame, **({"message": message} if message is not None else {}), **_with_ranking(detection),
-           **given.counts}  # as the service answers
+           **point_counts(given.received, given.dropped, out_of_range)}  # as the service answers
     if classifier is None:
         out["note"] = "no classifier: candidates are unscored (the paper's 'no classification' ablation)"
     plot, view = _numbered(args.plot, index), _numbered(args.view, index)
@@ -238,7 +239,7 @@ def _demo(args: argparse.Namespace) -> int:
     cloud = cluttered_tabletop(num_objects=args.objects, seed=args.seed)
     params = DetectionParams(num_samples=args.samples, exclude_support_plane=True, gravity=GRAVITY,
                              approach_direction=GRAVITY, approach_max_angle_deg=80.0, max_grasps=20)
-    detection = _checked(GraspDetector(classifier).detect(cloud, params), cloud, params, classifier)
+    detection, _ = _checked(GraspDetector(classifier).detect(cloud, params), cloud, params, classifier)
     result = _with_ranking(detection)
     if classifier is None:
         result["note"] = "no classifier in models/: candidates are unscored (the paper's 'no classification' ablation)"
@@ -277,18 +278,21 @@ def _with_ranking(detection: Detection) -> dict[str, Any]:
 
 
 def _checked(detection: Detection, cloud: ViewpointCloud, params: DetectionParams,
-             classifier: Scorer | None) -> Detection:
+             classifier: Scorer | None) -> tuple[Detection, int]:
     """The detection with the service's request-level warnings (graspd.gpd.sanity.check_detection, the same as on
-    every transport), each also printed on stderr."""
+    every transport), each also printed on stderr, and the points the range window left out (as answers count
+    them)."""
     from graspd.gpd.classifier import card_fits_hand
-    from graspd.gpd.sanity import check_detection
+    from graspd.gpd.sanity import check_detection, region_check
 
     card = getattr(classifier, "card", None)
     fits = None if card is None else card_fits_hand(dict(card), detection.hand.to_dict())
-    detection = detection.warned(*check_detection(detection, cloud, params.workspace, params.range_window, fits))
+    region = region_check(cloud, params.workspace, params.range_window)
+    detection = detection.warned(*check_detection(detection, cloud, params.workspace, params.range_window, fits,
+                                                  region))
     for w in detection.warnings:
         print(f"warning {w.code}: {w.message}", file=sys.stderr)
-    return detection
+    return detection, region.left_out
 
 
 _UNSCORED_HINT = "or run unscored with --no-classifier (the paper's 'no classification' ablation)"

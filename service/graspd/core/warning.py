@@ -28,8 +28,6 @@ WARNING_CODES: dict[str, str] = {
     "model_hand_mismatch": "the model was not trained for the requested hand; scores are less reliable",
     "no_candidates": "no grasp candidate survived; the stage that removed them is named",
     "target_too_small": "the request's target holds too little of an object to grasp; the message says why",
-    "range_window": "with no workspace, points far beyond the nearest surface were left out; the message says how "
-                    "many and from what range",
 }
 
 

@@ -3,8 +3,6 @@ with a DetectionWarning, what looks wrong and what to do (graspd.core.warning). 
 
 - viewpoint_warning: the viewpoints could not have seen the cloud (a camera behind the surface: normals, which
   preprocessing turns toward the cameras, then face the wrong way and the grasps come from the wrong side);
-- range_window_warning: with no workspace, points far beyond the nearest surface were left out (how many, from
-  what range, and how to choose the region instead);
 - few_points_warning: too few points left after the workspace crop;
 - model_hand_warning: the model was not trained for the requested hand;
 - no_candidates_warning: no candidate survived, naming the stage that removed them.
@@ -114,7 +112,8 @@ def viewpoint_warning(points: NDArray[np.floating], viewpoints: NDArray[np.float
 @dataclass(frozen=True)
 class RegionCheck:
     """What the request-level checks know of the region a detection worked on (preprocess.region_mask): the
-    hidden_share of its points, how many finite points the range window left out (0 with a workspace) and the
+    hidden_share of its points, how many finite points the range window left out (0 with a workspace; every
+    answer counts them, num_points_out_of_range: the default doing its job is not a fault to warn of) and the
     range (m) from which it did."""
 
     hidden: float
@@ -141,18 +140,6 @@ def _hidden_share_of(cloud: ViewpointCloud, mask: NDArray[np.bool_] | None) -> f
     step = max(1, len(cloud) // (2 * VISIBILITY_MAX_POINTS))
     rows = cloud.points[::step] if mask is None else cloud.points[np.flatnonzero(mask[::step]) * step]
     return hidden_share(rows, cloud.viewpoints)
-
-
-def range_window_warning(check: RegionCheck, total: int, range_window: float) -> DetectionWarning | None:
-    """range_window when the request gave no workspace and the range window left points out of total."""
-    if check.left_out == 0:
-        return None
-    return DetectionWarning(
-        "range_window",
-        f"no workspace was given, so the {check.left_out} of {total} points more than {range_window:g} m beyond the "
-        f"nearest surface the cameras see (farther than {check.far:.2f} m from their camera) were left out: depth "
-        f"noise grows with range and a hand rarely reaches that far.  Give a workspace to choose the region "
-        f"yourself, or range_window 0 to keep every point")
 
 
 def few_points_warning(num_points: int, cropped: bool, limit: int = FEW_POINTS) -> DetectionWarning | None:
@@ -213,7 +200,7 @@ def in_workspace(points: NDArray[np.floating], workspace: Sequence[float] | None
 
 def check_detection(det: Detection, cloud: ViewpointCloud, workspace: Workspace | None, range_window: float,
                     model_fits_hand: bool | None, region: RegionCheck | None = None) -> list[DetectionWarning]:
-    """The request-level warnings of a GPD detection, in this order: viewpoint_flipped, range_window, few_points,
+    """The request-level warnings of a GPD detection, in this order: viewpoint_flipped, few_points,
     model_hand_mismatch, no_candidates.  cloud, workspace and range_window: the cloud and region the detector was
     given, in its frame (m); model_fits_hand: whether the model was made for the hand (None: not known); region:
     region_check of them if already known (the service computes it beside the detection)."""
@@ -221,7 +208,6 @@ def check_detection(det: Detection, cloud: ViewpointCloud, workspace: Workspace 
         region = region_check(cloud, workspace, range_window)
     found = [
         viewpoint_warning(cloud.points, cloud.viewpoints, share=region.hidden),
-        range_window_warning(region, len(cloud), range_window),
         few_points_warning(det.num_points, workspace is not None),
         model_hand_warning(det.model, model_fits_hand, det.hand.to_dict()),
         no_candidates_warning(det.num_points, det.num_candidates, len(det.grasps),

@@ -64,9 +64,13 @@ def non_finite_warning(dropped: int, received: int, organised: bool = False) -> 
                             "unorganised cloud should hold measured points only)")
 
 
-def point_counts(received: int, dropped: int) -> dict[str, int]:
-    """An answer's count of the rows a cloud had and of those dropped for a NaN or infinite value."""
-    return {"num_points_received": received, "num_points_dropped": dropped}
+def point_counts(received: int, dropped: int, out_of_range: int | None = None) -> dict[str, int]:
+    """An answer's count of the rows a cloud had, of those dropped for a NaN or infinite value and (GPD) of the
+    finite ones the range window left out (graspd.gpd.sanity.RegionCheck.left_out)."""
+    counts = {"num_points_received": received, "num_points_dropped": dropped}
+    if out_of_range is not None:
+        counts["num_points_out_of_range"] = out_of_range
+    return counts
 
 
 def keep_finite(points: NDArray[np.floating],
@@ -105,11 +109,6 @@ class CloudInput:
     #: Which of the received rows were kept (None: all, or not known), to map rows as given (a target's indices
     #: or mask) onto the cloud's.
     kept: NDArray[np.bool_] | None = field(default=None, compare=False, repr=False)
-
-    @property
-    def counts(self) -> dict[str, int]:
-        """What every answer says of the input's rows (the same keys on every entrance and the CLI)."""
-        return point_counts(self.received, self.dropped)
 
     @property
     def warnings(self) -> tuple[DetectionWarning, ...]:

@@ -407,12 +407,13 @@ class DetectionEngine:
             self.metrics.grasps.observe(len(result.grasps))
             self.metrics.points.observe(result.num_points)
             fits = self.registry.fits(result.model, result.hand)
-            result = result.checked(cloud, params.workspace, params.range_window, fits,  # request-level checks
-                                    None if shared.region is None else shared.region.result())
+            region = None if shared.region is None else shared.region.result()
+            result = result.checked(cloud, params.workspace, params.range_window, fits, region)  # request-level
             timings["total"] = time.perf_counter() - enqueued + before
             self.metrics.observe_timings(timings)
             return Outcome(result, req, cloud, request_id, detection_id, given.frame, parsed.header or None,
-                           timings, crops, fits, parsed.context, given.received, given.dropped)
+                           timings, crops, fits, parsed.context, given.received, given.dropped,
+                           None if region is None else region.left_out)
 
     @dataclass
     class _Admitted:

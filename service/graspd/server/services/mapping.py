@@ -217,12 +217,13 @@ def detection_inputs(req: DetectRequest, given: CloudInput | None = None, target
 
 def result_body(result: GraspResult, *, request_id: str, detection_id: str, timings: dict[str, float],
                 frame: str = "cloud", crops: list[dict[str, Any]] | None = None, header: dict[str, Any] | None = None,
-                model_fits_hand: bool | None = None, received: int | None = None, dropped: int = 0
-                ) -> dict[str, Any]:
+                model_fits_hand: bool | None = None, received: int | None = None, dropped: int = 0,
+                out_of_range: int | None = None) -> dict[str, Any]:
     """The answer's JSON object for a result (the keys DetectResponse documents; those that do not apply to the
     method left out).  Grasp ids: result.grasp_ids(detection_id); crops: one CropOut-shaped dict per grasp;
     header: a ROS input's header; frame: the frame the grasps are in (graspd.core.frames); received, dropped: the
-    rows the request's cloud had and those dropped for a NaN or infinite value (None: not a request's cloud)."""
+    rows the request's cloud had and those dropped for a NaN or infinite value (None: not a request's cloud);
+    out_of_range: the finite rows the range window left out (None: not known, the templates)."""
     g = result.grasps
     cols = (result.grasp_ids(detection_id), g.positions.tolist(), g.approach.tolist(), g.binormal.tolist(),
             g.axis.tolist(), g.widths.tolist(), g.scores.tolist(), g.samples.tolist(), g.poses.tolist(),
@@ -240,7 +241,7 @@ def result_body(result: GraspResult, *, request_id: str, detection_id: str, timi
                            "warnings": [w.to_dict() for w in result.warnings],
                            "model": result.model, "scored": result.scored, **result.answer_fields()}
     if received is not None:
-        out.update(point_counts(received, dropped))
+        out.update(point_counts(received, dropped, out_of_range))
     if header is not None:
         out["header"] = header
     if model_fits_hand is not None:
@@ -254,7 +255,7 @@ def response(outcome: Outcome) -> DetectResponse:
     return DetectResponse.model_validate(result_body(
         outcome.result, request_id=outcome.request_id, detection_id=outcome.detection_id, timings=outcome.timings,
         frame=outcome.frame, crops=outcome.crops, header=outcome.header, model_fits_hand=outcome.model_fits_hand,
-        received=outcome.received, dropped=outcome.dropped))
+        received=outcome.received, dropped=outcome.dropped, out_of_range=outcome.out_of_range))
 
 
 def response_json(outcome: Outcome) -> bytes:

@@ -232,8 +232,9 @@ class Outcome:
     """One answered request: the result, the request and cloud it ran on, its frame ("robot" with camera poses,
     else "cloud") and ROS header (a ROS input's), the ids (request_id: the one the client and the log lines see;
     detection_id: what GPD grasp ids start with), the timings (s), the crops (one dict per grasp, or None), whether
-    the model fits the hand, the transport's own context (Parsed.context), and the rows the request's cloud had
-(received) and those dropped for a NaN or infinite value (graspd.io.inputs.CloudInput)."""
+    the model fits the hand, the transport's own context (Parsed.context), the rows the request's cloud had
+(received) and those dropped for a NaN or infinite value (graspd.io.inputs.CloudInput), and the finite ones the
+range window left out (GPD only: graspd.gpd.sanity.RegionCheck.left_out; None for the templates)."""
 
     result: GraspResult
     request: DetectRequest
@@ -248,6 +249,7 @@ class Outcome:
     context: Any = None
     received: int = 0
     dropped: int = 0
+    out_of_range: int | None = None
 
     @property
     def warnings(self) -> tuple[DetectionWarning, ...]:

@@ -459,7 +459,8 @@ class DetectRequest(BaseModel):
         DEFAULT_RANGE_WINDOW, ge=0.0, le=MAX_COORDINATE, allow_inf_nan=False,
         description="with no workspace: keep the points at most this far (m) beyond the nearest surface the "
         "cameras see (depth noise grows with range; a room behind the table is sparse and noisy, and a hand "
-        "rarely reaches it); the answer warns `range_window` when it left points out.  0: keep every point")
+        "rarely reaches it); the answer counts the points it left out (num_points_out_of_range).  0: keep every "
+        "point")
     hand: Hand | None = Field(None, description="hand geometry; a plain string is read as {\"preset\": string}")
     model: str | None = Field(None, max_length=200, description="classifier name (GET /models); default: the "
                               "server's default model, if any")

@@ -161,6 +161,11 @@ class DetectResponse(BaseModel):  # built by services.mapping.response (the docs
                                            "normal: an organised cloud's pixels without depth (no warning unless "
                                            f"under {MIN_DEPTH_SHARE:.0%} have depth); an unorganised cloud's warn "
                                            "(non_finite_dropped)")
+    num_points_out_of_range: int | None = Field(None, description="gpd: finite rows left out because they lie "
+                                                "more than range_window (m) beyond the nearest surface the cameras "
+                                                "see (only with no workspace: the room behind a table; 0 when "
+                                                "none); give a workspace to choose the region yourself, or "
+                                                "range_window 0 to keep every point")
     hand: dict[str, float] = Field(description="hand geometry used (m)")
     environment: EnvironmentOut | None = Field(None, description="gpd: what the environment stage found")
     warnings: list[WarningOut] = Field(default_factory=list, description="what the service could not do right "
