@@ -29,6 +29,7 @@ def test_a_pcl_capture_arrives_whole(real_data: Path, tmp_path: Path, capsys: py
     answer = json.loads((tmp_path / "g.json").read_text())
     assert (answer["num_points_dropped"], answer["num_points_received"]) == (nan, len(points))
     assert "non_finite_dropped" not in [w["code"] for w in answer["warnings"]]  # pixels without depth: counted only
+    assert answer["num_points_out_of_range"] > 0  # no workspace: the wall 2.5 m behind the table, left out and counted
 
 
 @pytest.fixture(scope="module")
