@@ -22,9 +22,8 @@ from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.world import household
 
 OBJECT_SETS = ("scaled", "household", "household-training", "household-training-heavy")
-#: The lightest object (kg) of the heavy tuning set: from 0.5 kg up, held-out household objects slip out of the
-#: Panda-like hand in one lift of two (bench/results/slips-household-pile.md), lighter ones in one of ten.
-HEAVY_MASS = 0.5
+#: The lightest object (kg) of the heavy tuning set (graspd_lab.world.household.HEAVY_MASS).
+HEAVY_MASS = household.HEAVY_MASS
 
 #: A Panda-like hand: the panda preset's fingers (45 mm reach, 10 mm thick) and 60 mm body behind the finger
 #: roots, opening 75 mm (outer faces 95 mm apart).
@@ -40,8 +39,7 @@ def object_set_ids(name: str) -> tuple[int, ...]:
     if name == "household-training":
         return tuple(household.household_id(n) for n in household.training_names())
     if name == "household-training-heavy":
-        return tuple(household.household_id(n) for n in household.training_names()
-                     if household.household_mass_properties(n).mass >= HEAVY_MASS)
+        return tuple(household.household_id(n) for n in household.heavy_training_names())
     raise ValueError(f"object set must be one of {OBJECT_SETS}, got {name!r}")
 
 

@@ -123,7 +123,9 @@ class SceneParams:
     hands in unseen space) added to each view's candidates before the draw.  household_share: the expected share
     of a scene's objects that are household models (true size); sensor_mix: (sensor, weight) each scene's sensor
     is drawn from ("kinect" is `noise`, the others graspd_lab.world.noise.sensor_noise).  slip_labels: every kept
-    positive is also lifted in physics (graspd_lab.sim.lift) and is 0 unless it holds the object without slipping."""
+    positive is also lifted in physics (graspd_lab.sim.lift) and is 0 unless it holds the object without slipping.
+    heavy_share: the expected share of a scene's household models drawn from the heavy ones
+    (household.heavy_training_names: those that slip; 0: drawn uniformly, as before)."""
 
     seed: int = 0
     scenes: int = 600
@@ -144,6 +146,7 @@ class SceneParams:
     household_share: float = 0.0
     sensor_mix: tuple[tuple[str, float], ...] = SENSOR_MIXES["kinect"]
     slip_labels: bool = False
+    heavy_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.scenes < 1 or self.views_per_scene < 1:
@@ -154,6 +157,8 @@ class SceneParams:
             raise ValueError("num_samples, per_view (>= 2) and scenes_per_chunk must be positive")
         if not 0.0 <= self.household_share <= 1.0:
             raise ValueError(f"household_share must lie in [0, 1], got {self.household_share}")
+        if not 0.0 <= self.heavy_share <= 1.0:
+            raise ValueError(f"heavy_share must lie in [0, 1], got {self.heavy_share}")
         draw_sensor(self.sensor_mix, np.random.default_rng(0))  # ValueError for an unknown sensor
 
     def object_parts(self) -> dict[str, list[int]]:
@@ -181,12 +186,14 @@ class SceneParams:
         return "test" if u < self.part_fractions[0] else "val" if u < sum(self.part_fractions) else "train"
 
     def to_dict(self) -> dict[str, Any]:
-        """The parameters as JSON-able values; slip_labels only when set, so earlier datasets' params.json still
-        match their parameters (and resume)."""
+        """The parameters as JSON-able values; slip_labels and heavy_share only when set, so earlier datasets'
+        params.json still match their parameters (and resume)."""
         d = asdict(self)
         d["hand"] = self.hand.to_dict()
         if not self.slip_labels:
             del d["slip_labels"]
+        if not self.heavy_share:
+            del d["heavy_share"]
         return d
 
 
@@ -371,12 +378,27 @@ def scene_spec(scene_id: int, params: SceneParams, parts: dict[str, list[int]]) 
         n_house = min(int(np.random.default_rng([params.seed, 18, scene_id]).binomial(n, params.household_share)),
                       int(house.sum()))
     ids = rng.choice(pool[~house], size=n - n_house, replace=False)
-    if n_house:
+    if n_house and params.heavy_share > 0.0:
+        ids = np.r_[ids, _household_draw(pool[house], n_house, params.heavy_share,
+                                         np.random.default_rng([params.seed, 21, scene_id]))]
+    elif n_house:
         ids = np.r_[ids, np.random.default_rng([params.seed, 19, scene_id]).choice(pool[house], size=n_house,
                                                                                    replace=False)]
     sensor = draw_sensor(params.sensor_mix, np.random.default_rng([params.seed, 20, scene_id]))
     return {"id": scene_id, "name": f"scene_{scene_id:05d}", "source": kind, "category": "other", "part": part,
             "objects": [int(i) for i in ids], "sensor": sensor}
+
+
+def _household_draw(pool: NDArray[np.int64], n: int, heavy_share: float, rng: np.random.Generator
+                    ) -> NDArray[np.int64]:
+    """n distinct household ids of pool, each heavy (household.heavy_training_names) with probability heavy_share
+    as far as the pool's heavy and light models go."""
+    heavy_ids = {household.household_id(name) for name in household.heavy_training_names()}
+    is_heavy = np.array([int(i) in heavy_ids for i in pool], bool)
+    n_heavy = min(int(rng.binomial(n, heavy_share)), int(is_heavy.sum()))
+    n_heavy = max(n_heavy, n - int((~is_heavy).sum()))  # too few light ones: more heavy
+    return np.r_[rng.choice(pool[is_heavy], size=n_heavy, replace=False),
+                 rng.choice(pool[~is_heavy], size=n - n_heavy, replace=False)].astype(np.int64)
 
 
 def scene_noise(spec: dict[str, Any], params: SceneParams) -> DepthNoise | SensorNoise:
@@ -518,6 +540,9 @@ def main(argv: list[str] | None = None) -> int:
                     "container family's training styles with some trays and piles)")
     ap.add_argument("--household-share", type=float, default=0.0, metavar="F",
                     help="expected share of each scene's objects that are household models at true size (0-1)")
+    ap.add_argument("--heavy-share", type=float, default=0.0, metavar="F",
+                    help="expected share of the household models drawn from the heavy ones (0.5 kg or more: "
+                    "those that slip; 0: uniform)")
     ap.add_argument("--sensors", choices=sorted(SENSOR_MIXES), default="kinect",
                     help="the sensor each scene is seen with: kinect (the benchmark's model) or mixed (Kinect, "
                     "active stereo and ToF, drawn per scene)")
@@ -533,7 +558,8 @@ def main(argv: list[str] | None = None) -> int:
                              per_view=args.per_view, scenes_per_chunk=args.scenes_per_chunk,
                              hand=hand_preset(args.hand), scene_mix=MIXES[args.mix],
                              hard_negatives_per_view=args.hard_negatives, household_share=args.household_share,
-                             sensor_mix=SENSOR_MIXES[args.sensors], slip_labels=args.slip_labels)
+                             sensor_mix=SENSOR_MIXES[args.sensors], slip_labels=args.slip_labels,
+                             heavy_share=args.heavy_share)
         runner = runner_from_args(args, args.workers, context="spawn")
     except (ValueError, KeyError, RayMissingError) as exc:
         ap.error(str(exc))

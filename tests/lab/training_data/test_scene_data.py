@@ -4,6 +4,7 @@ split by objects, resumable."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +90,20 @@ def test_scenes_draw_household_models_and_sensors_only_when_asked() -> None:
     assert 0.35 < share < 0.65
     held = {household.household_id(n) for n in household.HELD_OUT}
     assert not held & set(ids) and not held & set().union(*map(set, parts.values()))
+
+
+def test_a_heavy_share_weights_the_household_draw_toward_the_models_that_slip() -> None:
+    parts = MIXED.object_parts()
+    heavy = {household.household_id(n) for n in household.heavy_training_names()}
+    plain = [i for k in range(300) for i in scene_spec(k, MIXED, parts)["objects"] if household.is_household_id(i)]
+    weighted_params = replace(MIXED, heavy_share=0.8)
+    weighted = [scene_spec(k, weighted_params, parts) for k in range(300)]
+    drawn = [i for s in weighted for i in s["objects"] if household.is_household_id(i)]
+    assert np.mean([i in heavy for i in plain]) < 0.35 < 0.65 < np.mean([i in heavy for i in drawn])
+    assert all(len(set(s["objects"])) == len(s["objects"]) for s in weighted)  # no model twice in a scene
+    held = {household.household_id(n) for n in household.HELD_OUT}
+    assert not held & set(drawn)
+    assert "heavy_share" not in MIXED.to_dict() and weighted_params.to_dict()["heavy_share"] == 0.8
 
 
 def test_training_scenes_refuse_held_out_household_models() -> None:
