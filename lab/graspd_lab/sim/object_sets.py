@@ -7,8 +7,9 @@
   outside clutter benchmarks use;
 - "household-training": the other household models, the ones training draws from, with the same hand: the set
   to tune selection and execution on, so that the held-out set stays unseen until a result is reported;
-- "household-training-heavy": those of them of HEAVY_MASS or more (their URDF's mass), the same hand: the objects
-  that slip out of 40 N fingers when grasped off their centre of mass, to tune against that failure.
+- "household-training-heavy": household.heavy_training_names, those of them of household.HEAVY_MASS or more
+  (their URDF's mass), the same hand: the objects that slip out of 40 N fingers when grasped off their centre of
+  mass, to tune against that failure.
 The benchmark's reported figures come from the held-out sets only.  Each set has its stop rule
 (graspd_lab.sim.protocol.STOP_RULES): the household sets the standard clutter-removal benchmark's (a round ends
 after two failures in a row, or when no grasp is found), the scaled set the IJRR paper's that its figures were
@@ -22,8 +23,6 @@ from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.world import household
 
 OBJECT_SETS = ("scaled", "household", "household-training", "household-training-heavy")
-#: The lightest object (kg) of the heavy tuning set (graspd_lab.world.household.HEAVY_MASS).
-HEAVY_MASS = household.HEAVY_MASS
 
 #: A Panda-like hand: the panda preset's fingers (45 mm reach, 10 mm thick) and 60 mm body behind the finger
 #: roots, opening 75 mm (outer faces 95 mm apart).
@@ -69,7 +68,7 @@ def describe(name: str) -> str:
         return (f"the {len(household.training_names())} household training models (not the held-out ones; for "
                 "tuning) at their true size, with a Panda-like hand (7.5 cm opening, 40 N per finger)")
     if name == "household-training-heavy":
-        return (f"the {len(object_set_ids(name))} household training models of {HEAVY_MASS} kg or more (not the "
-                "held-out ones; for tuning) at their true size, with a Panda-like hand (7.5 cm opening, 40 N per "
-                "finger)")
+        return (f"the {len(object_set_ids(name))} household training models of {household.HEAVY_MASS} kg or more "
+                "(not the held-out ones; for tuning) at their true size, with a Panda-like hand (7.5 cm opening, 40 N "
+                "per finger)")
     return "pybullet_data random_urdfs 900-999 (held out from training), scaled to the hand"

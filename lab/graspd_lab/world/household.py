@@ -228,6 +228,7 @@ def urdf_mass(urdf_text: str) -> float:
 HEAVY_MASS = 0.5
 
 
+@cache
 def heavy_training_names() -> tuple[str, ...]:
     """The training models of HEAVY_MASS or more (their URDF's mass), sorted: the objects that slip."""
     return tuple(n for n in training_names() if urdf_mass((HOUSEHOLD_DIR / f"{n}.urdf").read_text()) >= HEAVY_MASS)

@@ -112,13 +112,11 @@ def viewpoint_warning(points: NDArray[np.floating], viewpoints: NDArray[np.float
 @dataclass(frozen=True)
 class RegionCheck:
     """What the request-level checks know of the region a detection worked on (preprocess.region_mask): the
-    hidden_share of its points, how many finite points the range window left out (0 with a workspace; every
-    answer counts them, num_points_out_of_range: the default doing its job is not a fault to warn of) and the
-    range (m) from which it did."""
+    hidden_share of its points and how many finite points the range window left out (0 with a workspace; every
+    answer counts them, num_points_out_of_range: the default doing its job is not a fault to warn of)."""
 
     hidden: float
     left_out: int = 0
-    far: float = float("inf")
 
 
 def region_check(cloud: ViewpointCloud, workspace: Workspace | None, range_window: float) -> RegionCheck:
@@ -131,7 +129,7 @@ def region_check(cloud: ViewpointCloud, workspace: Workspace | None, range_windo
     ranges, far = range_limit(cloud.points, cloud.camera_source, cloud.viewpoints, range_window)
     near = ranges <= far  # NaN ranges (non-finite points) compare False: neither kept nor counted
     left_out = int(np.count_nonzero(ranges > far))
-    return RegionCheck(_hidden_share_of(cloud, near), left_out, far)
+    return RegionCheck(_hidden_share_of(cloud, near), left_out)
 
 
 def _hidden_share_of(cloud: ViewpointCloud, mask: NDArray[np.bool_] | None) -> float:

@@ -6,7 +6,7 @@ from types import ModuleType
 
 import pytest
 
-from graspd_lab.sim.object_sets import HEAVY_MASS, object_set_hand, object_set_ids
+from graspd_lab.sim.object_sets import object_set_hand, object_set_ids
 from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.sim.world import SimWorld
 from graspd_lab.world import household
@@ -86,4 +86,4 @@ def test_the_tuning_set_is_the_household_training_models_and_never_a_held_out_on
     assert names == set(household.training_names()) and not names & set(household.HELD_OUT)
     assert object_set_hand("household-training") == object_set_hand("household")
     heavy = {household.household_name(i) for i in object_set_ids("household-training-heavy")}
-    assert heavy < names and all(household.household_mass_properties(n).mass >= HEAVY_MASS for n in heavy)
+    assert heavy < names and all(household.household_mass_properties(n).mass >= household.HEAVY_MASS for n in heavy)

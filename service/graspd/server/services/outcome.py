@@ -233,8 +233,8 @@ class Outcome:
     else "cloud") and ROS header (a ROS input's), the ids (request_id: the one the client and the log lines see;
     detection_id: what GPD grasp ids start with), the timings (s), the crops (one dict per grasp, or None), whether
     the model fits the hand, the transport's own context (Parsed.context), the rows the request's cloud had
-(received) and those dropped for a NaN or infinite value (graspd.io.inputs.CloudInput), and the finite ones the
-range window left out (GPD only: graspd.gpd.sanity.RegionCheck.left_out; None for the templates)."""
+    (received) and those dropped for a NaN or infinite value (graspd.io.inputs.CloudInput), and the finite ones
+    the range window left out (GPD only: graspd.gpd.sanity.RegionCheck.left_out; None for the templates)."""
 
     result: GraspResult
     request: DetectRequest
