@@ -53,9 +53,8 @@ from graspd_lab.training.labels import label_grasps  # noqa: E402
 from graspd_lab.training.scene_data import scene_labels  # noqa: E402
 from graspd_lab.world.noise import DepthNoise  # noqa: E402
 from graspd_lab.world.render import MeshScene  # noqa: E402
+from slips import MASS_BINS, bin_label  # noqa: E402
 
-#: Mass bands (kg) of the report, bench/slips.py's.
-MASS_BINS = (0.0, 0.05, 0.5, 1.5, np.inf)
 #: The arm's approach cone of the clutter protocol (deg from straight down): the grasps a round may execute.
 MAX_APPROACH_DEG = Setting().max_approach_angle_deg
 
@@ -138,10 +137,6 @@ def kg(mass: float | None) -> str:
     return "n/a" if mass is None else f"{mass:.3f}"
 
 
-def band_label(lo: float, hi: float) -> str:
-    return f">= {lo:g} kg" if not np.isfinite(hi) else f"{lo:g} to {hi:g} kg"
-
-
 def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Over the objects: how many, how many had no analytic positive, how many have at least one / at least half
     of their lifted positives held, and the pooled held share of all lifted positives."""
@@ -157,12 +152,12 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def bands(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """summary() of each mass band (MASS_BINS) that holds an object, with its label."""
+    """summary() of each mass band (bench/slips.py's MASS_BINS) that holds an object, with its label."""
     out = []
     for lo, hi in zip(MASS_BINS[:-1], MASS_BINS[1:], strict=True):
         sub = [r for r in rows if r["mass"] is not None and lo <= r["mass"] < hi]
         if sub:
-            out.append({"band": band_label(lo, hi), **summary(sub)})
+            out.append({"band": bin_label(lo, hi, "kg"), **summary(sub)})
     return out
 
 

@@ -62,6 +62,12 @@ def measure(world: SimWorld, grasps: GraspSet, pick: int, hand_depth: float, ini
             "approach_from_down": float(np.degrees(np.arccos(np.clip(-approach[2], -1.0, 1.0))))}
 
 
+def bin_label(lo: float, hi: float, unit: str, scale: float = 1.0) -> str:
+    """A bin's label: "< hi", ">= lo" or "lo to hi", scaled, with its unit."""
+    return (f"< {hi * scale:g} {unit}" if not np.isfinite(lo) else f">= {lo * scale:g} {unit}"
+            if not np.isfinite(hi) else f"{lo * scale:g} to {hi * scale:g} {unit}")
+
+
 def binned(records: list[dict[str, Any]], key: str, edges: tuple[float, ...], unit: str, scale: float
            ) -> list[str]:
     """Markdown rows: per bin of records[key], the attempts, their success share and their outcomes."""
@@ -70,8 +76,7 @@ def binned(records: list[dict[str, Any]], key: str, edges: tuple[float, ...], un
         sub = [r for r in records if lo <= r[key] < hi]
         if not sub:
             continue
-        label = (f"< {hi * scale:g} {unit}" if not np.isfinite(lo) else f">= {lo * scale:g} {unit}"
-                 if not np.isfinite(hi) else f"{lo * scale:g} to {hi * scale:g} {unit}")
+        label = bin_label(lo, hi, unit, scale)
         ok = sum(r["outcome"] == "success" for r in sub)
         rows.append(f"| {label} | {len(sub)} | {100 * ok / len(sub):.0f}% | "
                     f"{', '.join(f'{k} {v}' for k, v in Counter(r['outcome'] for r in sub).most_common())} |")
