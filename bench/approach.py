@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     setting = looked_setting(args.object_set, args.scene, args.container, args.split)
     hand = setting.hand
     pregrasp = ExecutionParams().pregrasp_distance
-    model = clutter.model_for("gpd", args.model)
+    model = args.model  # None: the service picks, as for any user with this hand
 
     def look(world: SimWorld, cloud: ViewpointCloud, grasps: GraspSet, pick: int) -> dict[str, Any]:
         """Sweep the grasp picked for execution; its record gets the seed and outcome once the round is over."""
@@ -156,6 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     seeds = range(args.seed, args.seed + args.rounds)
     records: list[dict[str, Any]] = []
     with clutter.serving(args.service) as service:
+        served = model or f"{clutter.served_model(service, hand)} (the service's default for this hand)"
         if not args.top:
             records = clutter.looked_rounds(setting, model, service, seeds, look)
         else:
@@ -170,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
                     world.close()
                 print(f"seed {seed}: {sum(1 for r in records[first:] if r['hit'])} of {len(records) - first} "
                       "swept hands enter a body", flush=True)
-    print(clutter.write_looks(args.out, f"approach-{args.tag}", "approach.py", argv, model, records, report))
+    print(clutter.write_looks(args.out, f"approach-{args.tag}", "approach.py", argv, served, records, report))
     return 0
 
 

@@ -59,6 +59,7 @@ import numpy as np  # noqa: E402
 from graspd.core.camera import Camera  # noqa: E402
 from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
+from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.core.progress import Progress  # noqa: E402
 from graspd.gpd.classifier import available_models, default_model_name, load_model, read_card  # noqa: E402
 from graspd.gpd.classifier import default_models_dir as models_dir  # noqa: E402
@@ -105,8 +106,10 @@ def parse_setting(spec: str) -> tuple[str, str]:
     return det, scene
 
 
-def model_for(detector: str, model: str | None) -> str | None:
-    """The classifier name a detector needs (None for baseline and gpd-noclass)."""
+def model_for(detector: str, model: str | None, service: str | None = None) -> str | None:
+    """The classifier name a detector sends or loads (None for baseline and gpd-noclass).  Through the service
+    with no model named: None, and the service picks as it does for any user (its default model, or the one
+    trained for the request's hand)."""
 
     if detector in ("baseline", "gpd-noclass"):
         return None
@@ -116,12 +119,28 @@ def model_for(detector: str, model: str | None) -> str | None:
             if str(read_card(models_dir() / f"{name}.json").get("representation")) == rep:
                 return name
         raise SystemExit(f"{detector}: no model of representation {rep} in {models_dir()}")
+    if model is None and service is not None:
+        return None
     if model is None:
         names = available_models()
         if not names:
             raise SystemExit(f"{detector}: no classifier in {models_dir()}; pass --model or train one")
         return default_model_name() if default_model_name() in names else names[0]
     return model
+
+
+def served_model(service: str, hand: HandGeometry) -> str | None:
+    """The model the service answers a request carrying `hand` with, asked with one small request (a 5 cm cube
+    on a 30 cm table seen from 50 cm above): what a user with that hand gets by default."""
+    u = np.linspace(-0.15, 0.15, 31)
+    table = np.stack(np.meshgrid(u, u), -1).reshape(-1, 2)
+    v = np.linspace(-0.025, 0.025, 11)
+    top = np.stack(np.meshgrid(v, v), -1).reshape(-1, 2)
+    points = np.r_[np.c_[table, np.zeros(len(table))], np.c_[top, np.full(len(top), 0.05)]]
+    with GraspClient(service, timeout=120.0) as client:
+        answer = client.detect(points, np.array([[0.0, 0.0, 0.5]]), np.zeros(len(points), np.int64),
+                               hand=hand.to_dict(), seed=0)
+    return answer.model
 
 
 def make_detector(detector: str, model: str | None, service: str | None) -> SimDetector:
@@ -470,7 +489,11 @@ def main(argv: list[str] | None = None) -> int:
     service = args.service
     if service is None and not args.in_process and any(det != "baseline" for det, _ in parsed):
         proc, service = start_service()
-    models = {spec: model_for(det, args.model) for spec, (det, _) in zip(args.settings, parsed, strict=True)}
+    hand = object_set_hand(args.object_set)
+    models = {spec: model_for(det, args.model, service) for spec, (det, _) in zip(args.settings, parsed, strict=True)}
+    served = {spec: m if m is not None or service is None or det in ("baseline", "gpd-noclass")
+              else f"{served_model(service, hand)} (the service's default for this hand)"
+              for (spec, m), (det, _) in zip(models.items(), parsed, strict=True)}
     summaries: dict[str, Summary] = {}
     rounds: dict[str, list[dict[str, Any]]] = {}
     meta = {
@@ -482,7 +505,7 @@ def main(argv: list[str] | None = None) -> int:
         "jobs": args.jobs,
         "runner": runner.describe(),
         "service": service,
-        "models": dict(models),
+        "models": served,
         "object_set": args.object_set,
         "stop": args.stop or object_set_stop(args.object_set),
         "precision": {},
@@ -496,8 +519,7 @@ def main(argv: list[str] | None = None) -> int:
         scene_pictures(args.out / f"{args.tag}-scenes.png", args.seed)
     try:
         for spec, (det, scene) in zip(args.settings, parsed, strict=True):
-            setting = replace(SCENES[scene], objects=args.object_set, hand=object_set_hand(args.object_set),
-                              stop=args.stop)
+            setting = replace(SCENES[scene], objects=args.object_set, hand=hand, stop=args.stop)
             if args.objects is not None:
                 setting = replace(setting, num_objects=args.objects)
             seeds = [args.seed + i for i in range(args.rounds)]

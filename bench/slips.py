@@ -117,14 +117,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     setting = looked_setting(args.object_set, args.scene, args.container, args.split)
     hand = setting.hand
-    model = clutter.model_for("gpd", args.model)
+    model = args.model  # None: the service picks, as for any user with this hand
 
     def look(world: SimWorld, cloud: ViewpointCloud, grasps: GraspSet, pick: int) -> dict[str, Any]:
         return measure(world, grasps, pick, hand.hand_depth, hand.init_bite)
 
     with clutter.serving(args.service) as service:
+        served = model or f"{clutter.served_model(service, hand)} (the service's default for this hand)"
         records = clutter.looked_rounds(setting, model, service, range(args.seed, args.seed + args.rounds), look)
-    print(clutter.write_looks(args.out, f"slips-{args.tag}", "slips.py", argv, model, records, report))
+    print(clutter.write_looks(args.out, f"slips-{args.tag}", "slips.py", argv, served, records, report))
     return 0
 
 

@@ -521,6 +521,16 @@ def generate_scene_dataset(out_dir: str | Path, params: SceneParams, workers: in
     return manifest
 
 
+def hand_with_opening(preset: str, opening: float | None) -> HandGeometry:
+    """A named hand, its opening (m) replaced when given: the outer faces move, the fingers stay as they are."""
+    hand = hand_preset(preset)
+    if opening is None:
+        return hand
+    if not 0.0 < opening <= 0.3:
+        raise ValueError(f"--hand-opening must be in (0, 0.3] m, got {opening}")
+    return hand.with_overrides(hand_outer_diameter=opening + 2.0 * hand.finger_width)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m graspd_lab.training.scene_data",
                                  description="Generate labelled grasp images from cluttered scenes (see module doc).")
@@ -531,6 +541,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--per-view", type=int, default=160, help="most rows kept per view")
     ap.add_argument("--objects", type=int, nargs=2, default=(4, 10), metavar=("MIN", "MAX"))
     ap.add_argument("--hand", default="gpd", help=f"hand preset: {sorted(HAND_PRESETS)}")
+    ap.add_argument("--hand-opening", type=float, default=None, metavar="M",
+                    help="the preset's opening between the fingers replaced by this one (m): e.g. --hand panda "
+                    "--hand-opening 0.075 is the household benchmarks' Panda-like hand")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2, help="processes (or Ray CPUs with --ray)")
     add_cluster_arguments(ap)
@@ -556,7 +569,7 @@ def main(argv: list[str] | None = None) -> int:
         params = SceneParams(seed=args.seed, scenes=args.scenes, views_per_scene=args.views,
                              objects=(args.objects[0], args.objects[1]), num_samples=args.samples,
                              per_view=args.per_view, scenes_per_chunk=args.scenes_per_chunk,
-                             hand=hand_preset(args.hand), scene_mix=MIXES[args.mix],
+                             hand=hand_with_opening(args.hand, args.hand_opening), scene_mix=MIXES[args.mix],
                              hard_negatives_per_view=args.hard_negatives, household_share=args.household_share,
                              sensor_mix=SENSOR_MIXES[args.sensors], slip_labels=args.slip_labels,
                              heavy_share=args.heavy_share)
@@ -575,4 +588,5 @@ if __name__ == "__main__":
     raise SystemExit(main())
 
 
-__all__ = ["SceneParams", "SceneView", "generate_scene_dataset", "scene_noise", "scene_spec", "scene_views"]
+__all__ = ["SceneParams", "SceneView", "generate_scene_dataset", "hand_with_opening", "scene_noise", "scene_spec",
+           "scene_views"]

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from graspd.core.hand import HAND_PRESETS
 from graspd_lab.training.dataset import iter_chunks, read_split
 from graspd_lab.training.scene_data import (
     HOUSEHOLD_MIX,
@@ -125,3 +126,17 @@ def test_precision_at_k_counts_the_first_k_returned() -> None:
     p = precision_at_k(ranked)
     assert p["p@1"] == 1.0 and p["p@5"] == pytest.approx(0.6) and p["p@10"] == pytest.approx(4 / 6)
     assert np.isnan(precision_at_k(np.zeros(0))["p@1"])
+
+
+def test_a_hand_opening_makes_the_household_benchmarks_hand_and_a_bad_one_is_refused(tmp_path: Path) -> None:
+    """--hand panda --hand-opening 0.075 is the hand the household benchmarks execute with: same fingers, a
+    7.5 cm opening; an opening outside (0, 0.3] m stops the command before it writes anything."""
+    from graspd_lab.sim.object_sets import PANDA_LIKE  # noqa: PLC0415
+    from graspd_lab.training.scene_data import hand_with_opening, main  # noqa: PLC0415
+
+    hand = hand_with_opening("panda", 0.075)
+    assert hand == PANDA_LIKE and hand.max_aperture == pytest.approx(0.075)
+    assert hand_with_opening("panda", None) == HAND_PRESETS["panda"]
+    with pytest.raises(SystemExit) as refused:
+        main(["--out", str(tmp_path / "out"), "--hand", "panda", "--hand-opening", "0"])
+    assert refused.value.code == 2 and not (tmp_path / "out").exists()
