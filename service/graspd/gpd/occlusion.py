@@ -3,10 +3,11 @@
 The collision check of the hand search is right about what the cameras saw, but a neighbour seen only in part
 goes on behind its visible surface.  The unobserved volume (Scene.unobserved_within: voxels behind the surface
 from every camera that saw the cloud, holding no point) is marked as deep behind the surface as the open hand
-and its path reach (hand_shadow_length: a real object can hide that far behind what was seen of it); each open
-hand is sampled on a grid at most SAMPLE_SPACING apart over the real outline of its fingers, its palm and their
-path back from the pre-grasp pose, shrunk by a margin (sensor noise; the fingers touch the object they grasp),
-and each sample is looked up in that volume.  All in the cloud frame, metres; vectorised over hands.
+and its path reach, and at least as deep as a bin's wall can hide (hand_shadow_length: a real object can hide
+that far behind what was seen of it); each open hand is sampled on a grid at most SAMPLE_SPACING apart over the
+real outline of its fingers, its palm and their path back from the pre-grasp pose, shrunk by a margin (sensor
+noise; the fingers touch the object they grasp), and each sample is looked up in that volume.  All in the cloud
+frame, metres; vectorised over hands.
 """
 
 from __future__ import annotations
@@ -36,12 +37,19 @@ UNKNOWN_MARGIN = 0.004
 SAMPLE_SPACING = 0.006
 
 
+#: Least depth (m) the unseen-space check looks behind a seen surface: a container's wall hides the space below
+#: its rim as deep as the wall is tall and more (seen over a 20 cm wall from 45 degrees up, the floor beside it lies
+#: up to 28 cm behind the wall's face along the camera's rays), far past what the hand itself reaches.
+MIN_SHADOW_LENGTH = 0.30
+
+
 def hand_shadow_length(hand: HandGeometry, approach_distance: float) -> float:
     """How deep (m) behind a seen surface the unseen-space check looks: as far as the open hand reaches along its
-    approach, fingers, palm and path from the pre-grasp pose (hand_depth + palm_depth + approach_distance), and
-    at least the opening (the images' shadow).  Shorter, the far side of an object larger than the opening reads
-    as free, and a pre-grasp pose inside its hidden part passes."""
-    return max(hand.hand_depth + hand.palm_depth + approach_distance, hand.max_aperture)
+    approach, fingers, palm and path from the pre-grasp pose (hand_depth + palm_depth + approach_distance), at
+    least the opening (the images' shadow), and at least MIN_SHADOW_LENGTH.  Shorter, the far side of an object
+    larger than the opening reads as free, a pre-grasp pose inside its hidden part passes, and so does a finger
+    reaching down beside a deep bin's wall into the space the wall hides."""
+    return max(hand.hand_depth + hand.palm_depth + approach_distance, hand.max_aperture, MIN_SHADOW_LENGTH)
 
 
 def hand_samples(hand: HandGeometry, approach_distance: float, margin: float = UNKNOWN_MARGIN,
