@@ -98,6 +98,31 @@ def test_the_hidden_part_of_a_long_object_beyond_the_opening_is_unseen_space_to_
     assert deep.contains(inside.astype(np.float32)).mean() >= 0.6  # marching rays on voxels leaves holes
 
 
+def test_the_floor_a_deep_bins_wall_hides_is_unseen_space_to_the_hand_though_it_lies_past_the_hands_reach() -> None:
+    """Seen over a 22 cm wall from 45 degrees up, the floor beside the wall's far face lies 16-25 cm behind the
+    wall's near face along the camera's rays: past the 15.5 cm the hand reaches (fingers, palm, path), so only
+    the shadow's floor (occlusion.MIN_SHADOW_LENGTH) makes a finger reaching down there meet unseen space."""
+    hand = hand_preset("panda").with_overrides(hand_outer_diameter=0.095)
+    wall = (-0.01, 0.0, -0.15, 0.15, 0.0, 0.22)
+    cam = tabletop_cameras(1, distance=0.8, elevation_deg=45.0, azimuth_deg=180.0)  # on the -x side of the wall
+    cloud = render_scene([_box(TABLE), _box(wall)], cam, DepthNoise(), 0)
+    p = DetectionParams(num_samples=50, use_classifier=False)
+    scene = GraspDetector(None, hand).prepare(cloud, p, hand).scene
+    eye = np.asarray(cam[0].position)
+    assert eye[0] < -0.3, "the camera must look over the wall from its near side"
+    grid = np.stack(np.meshgrid([0.13, 0.15, 0.17], [-0.02, 0.0, 0.02], [0.01, 0.02], indexing="ij"), -1)
+    hidden = grid.reshape(-1, 3)
+    reach = hand.hand_depth + hand.palm_depth + p.approach_distance
+    for q in hidden:  # each point's distance behind the wall's near face (x = -0.01) along its camera ray
+        ray = (q - eye) / np.linalg.norm(q - eye)
+        enter = eye + ray * (-0.01 - eye[0]) / ray[0]
+        assert enter[2] < 0.22, "the ray must pass through the wall, not over it"
+        assert reach < np.linalg.norm(q - enter) < hand_shadow_length(hand, p.approach_distance)
+    assert not scene.unobserved_within(reach).contains(hidden.astype(np.float32)).any()
+    deep = scene.unobserved_within(hand_shadow_length(hand, p.approach_distance))
+    assert deep.contains(hidden.astype(np.float32)).mean() >= 0.6  # marching rays on voxels leaves holes
+
+
 def test_returned_hands_keep_their_clearance_from_the_points_they_would_graze(ledge_scene: Any) -> None:
     base = {"num_samples": 300, "use_classifier": False, "max_grasps": 1000, "use_selection": False}
     c = DetectionParams().clearance
