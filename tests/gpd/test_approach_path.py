@@ -17,6 +17,7 @@ from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry, hand_preset
 from graspd.gpd.detector import DetectionParams, GraspDetector
 from graspd.gpd.occlusion import hand_shadow_length
+from graspd.gpd.scene import unobserved_grid
 from graspd_lab.world.noise import DepthNoise
 from graspd_lab.world.render import render_scene
 
@@ -123,6 +124,25 @@ def test_the_floor_a_deep_bins_wall_hides_is_unseen_space_to_the_hand_though_it_
     assert not scene.unobserved_within(reach).contains(hidden.astype(np.float32)).any()
     deep = scene.unobserved_within(hand_shadow_length(hand, p.approach_distance))
     assert deep.contains(hidden.astype(np.float32)).mean() >= 0.6  # marching rays on voxels leaves holes
+
+
+def test_a_focused_unseen_volume_marks_the_whole_ones_cells_inside_its_focus_in_a_smaller_grid() -> None:
+    """Where hands can reach (the focus box) the grid bounded by it marks the very cells the grid over the whole
+    cloud marks, 30 cm shadows cast from a wall outside the focus included, in under half the cells."""
+    wall = (-0.25, -0.24, -0.15, 0.15, 0.0, 0.22)
+    cam = tabletop_cameras(2, distance=0.8, elevation_deg=45.0, azimuth_deg=180.0)
+    cloud = render_scene([_box(TABLE), _box(LONG), _box(wall)], cam, DepthNoise(), 0)
+    focus = (np.array([-0.15, -0.12, -0.02]), np.array([0.12, 0.12, 0.15]))
+    whole = unobserved_grid(cloud.points, cloud.viewpoints, 0.004, 0.30)
+    part = unobserved_grid(cloud.points, cloud.viewpoints, 0.004, 0.30, focus)
+    assert part.voxel == whole.voxel and part.cells.size < whole.cells.size / 2
+    first = np.ceil((focus[0] - whole.origin) / whole.voxel)  # the centres of the whole grid's cells in the focus
+    last = np.floor((focus[1] - whole.origin) / whole.voxel) - 1
+    axes = [whole.origin[i] + (np.arange(first[i], last[i] + 1) + 0.5) * whole.voxel for i in range(3)]
+    inside = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3).astype(np.float32)
+    marked = whole.contains(inside)
+    assert marked.sum() > 1000, "the focus must hold unseen space, or this compares nothing"
+    assert np.array_equal(part.contains(inside), marked)
 
 
 def test_returned_hands_keep_their_clearance_from_the_points_they_would_graze(ledge_scene: Any) -> None:

@@ -112,37 +112,58 @@ def unobserved_grid(points: NDArray[np.float32], viewpoints: NDArray[np.float32]
     lo = pts.min(axis=0) - length
     hi = pts.max(axis=0) + length
     v = max(voxel, float(np.cbrt(np.prod(hi - lo) / MAX_GRID_CELLS)))
-    shape = tuple(int(s) for s in np.ceil((hi - lo) / v).astype(np.int64) + 1)
-    cells = np.empty(shape, bool)
+    whole = np.ceil((hi - lo) / v).astype(np.int64) + 1
+    first, shape = np.zeros(3, np.int64), whole
+    if focus is not None:
+        # Only the focus box is exact, so only the cells from two before it to two past it are kept: the same
+        # cells of the same lattice as the whole box's, which a deep shadow would otherwise allocate in vain.
+        # Points off them still cast shadows into them: they are thinned to one a cell of the whole lattice
+        # (the first, as the kernel thins the others), so the marked cells are exactly the whole grid's.
+        first = np.clip(np.floor((np.asarray(focus[0], np.float64) - lo) / v).astype(np.int64) - 2, 0, whole - 1)
+        last = np.clip(np.floor((np.asarray(focus[1], np.float64) - lo) / v).astype(np.int64) + 3, first + 1, whole)
+        shape = last - first
+        cell = np.floor((pts - lo) / v).astype(np.int64)
+        off = np.any((cell < first) | (cell >= last), axis=1)
+        if off.any():
+            keys = np.ravel_multi_index(tuple(np.minimum(cell[off], whole - 1).T), tuple(whole))
+            _, once = np.unique(keys, return_index=True)
+            pts = np.concatenate([pts[~off], pts[np.flatnonzero(off)[np.sort(once)]]])
+    cells = np.empty(tuple(int(s) for s in shape), bool)
     steps = np.arange(1, int(np.ceil(length / v)) + 1, dtype=np.float64) * v
     # a cell of margin round the focus: a shadow passing just outside it still marks the cells it rounds into
     near_lo = lo if focus is None else np.asarray(focus[0], np.float64) - v
     near_hi = hi if focus is None else np.asarray(focus[1], np.float64) + v
-    _unobserved(pts, viewpoints.astype(np.float64), lo, v, steps, near_lo, near_hi, cells)
-    # The box reaches `length` past every point, so border cells are (at most) the shadows' rounding
-    # spill: clear them, which lets lookups clip out-of-grid positions onto the border.
+    _unobserved(pts, viewpoints.astype(np.float64), lo, first, v, steps, near_lo, near_hi, cells)
+    # The box reaches `length` past every point, so the whole grid's border cells are (at most) the shadows'
+    # rounding spill, and a focused grid's lie outside the focus: clear them, which lets lookups clip
+    # out-of-grid positions onto the border.
     cells[[0, -1], :, :] = False
     cells[:, [0, -1], :] = False
     cells[:, :, [0, -1]] = False
-    return VoxelGrid(lo, v, cells)
+    return VoxelGrid(lo + first * v, v, cells)
 
 
 @kernel
-def _unobserved(pts: NDArray[np.float64], cams: NDArray[np.float64], lo: NDArray[np.float64], v: float,
-                steps: NDArray[np.float64], near_lo: NDArray[np.float64], near_hi: NDArray[np.float64],
-                cells: NDArray[np.bool_]) -> None:
-    """cells (grid of voxel v from lo): True where every camera's shadow (each surface voxel's first point marched
-    away from the camera by steps, m) reaches and no point lies; shadows whose bounds miss the box [near_lo,
-    near_hi] are not marched."""
+def _unobserved(pts: NDArray[np.float64], cams: NDArray[np.float64], lo: NDArray[np.float64],
+                first: NDArray[np.int64], v: float, steps: NDArray[np.float64], near_lo: NDArray[np.float64],
+                near_hi: NDArray[np.float64], cells: NDArray[np.bool_]) -> None:
+    """cells (the cells from index first on of a lattice of voxel v from lo): True where every camera's shadow
+    (each surface voxel's first point marched away from the camera by steps, m) reaches and no point lies;
+    shadows whose bounds miss the box [near_lo, near_hi] are not marched.  Points off cells are taken as given
+    (already one a voxel)."""
     s0, s1, s2 = cells.shape
+    f0, f1, f2 = first[0], first[1], first[2]
     occupied = np.zeros((s0, s1, s2), np.bool_)
     surface = np.empty(len(pts), np.int64)  # surface points thinned to one per voxel (the first): shadows are
     n = 0  # resolved at the voxel size anyway
     for i in range(len(pts)):
-        a = int(np.floor((pts[i, 0] - lo[0]) / v))
-        b = int(np.floor((pts[i, 1] - lo[1]) / v))
-        c = int(np.floor((pts[i, 2] - lo[2]) / v))
-        if not occupied[a, b, c]:
+        a = int(np.floor((pts[i, 0] - lo[0]) / v)) - f0
+        b = int(np.floor((pts[i, 1] - lo[1]) / v)) - f1
+        c = int(np.floor((pts[i, 2] - lo[2]) / v)) - f2
+        if not (0 <= a < s0 and 0 <= b < s1 and 0 <= c < s2):  # off the cells: its shadow may still cross them
+            surface[n] = i
+            n += 1
+        elif not occupied[a, b, c]:
             occupied[a, b, c] = True
             surface[n] = i
             n += 1
@@ -162,9 +183,9 @@ def _unobserved(pts: NDArray[np.float64], cams: NDArray[np.float64], lo: NDArray
                     or max(pts[p, 2], e2) < near_lo[2] or min(pts[p, 2], e2) > near_hi[2]):
                 continue  # the shadow's bounds miss the box
             for step in steps:
-                m0 = min(max(int(np.floor((pts[p, 0] + r0 * step - lo[0]) / v)), 0), s0 - 1)
-                m1 = min(max(int(np.floor((pts[p, 1] + r1 * step - lo[1]) / v)), 0), s1 - 1)
-                m2 = min(max(int(np.floor((pts[p, 2] + r2 * step - lo[2]) / v)), 0), s2 - 1)
+                m0 = min(max(int(np.floor((pts[p, 0] + r0 * step - lo[0]) / v)) - f0, 0), s0 - 1)
+                m1 = min(max(int(np.floor((pts[p, 1] + r1 * step - lo[1]) / v)) - f1, 0), s1 - 1)
+                m2 = min(max(int(np.floor((pts[p, 2] + r2 * step - lo[2]) / v)) - f2, 0), s2 - 1)
                 mine[m0, m1, m2] = True
         cells &= mine
     cells &= ~occupied
