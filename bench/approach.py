@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     seeds = range(args.seed, args.seed + args.rounds)
     records: list[dict[str, Any]] = []
     with clutter.serving(args.service) as service:
-        served = model or f"{clutter.served_model(service, hand)} (the service's default for this hand)"
+        served = clutter.reported_model("gpd", model, service, hand)
         if not args.top:
             records = clutter.looked_rounds(setting, model, service, seeds, look)
         else:

@@ -34,6 +34,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import shlex
@@ -83,6 +84,8 @@ from graspd_lab.sim.sensing import observe, render_rgb  # noqa: E402
 from graspd_lab.sim.world import SimWorld, build_scene  # noqa: E402
 from graspd_lab.world.noise import DepthNoise  # noqa: E402
 
+#: Detectors that score no grasp with a model.
+UNSCORED = ("baseline", "gpd-noclass")
 DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-cluster", "gpd-rep15", "gpd-rep12", "gpd-rep3")
 SCENES: dict[str, Setting] = {
     "pour-passive": Setting(scene="pour", num_objects=10, sensing="passive"),
@@ -111,7 +114,7 @@ def model_for(detector: str, model: str | None, service: str | None = None) -> s
     with no model named: None, and the service picks as it does for any user (its default model, or the one
     trained for the request's hand)."""
 
-    if detector in ("baseline", "gpd-noclass"):
+    if detector in UNSCORED:
         return None
     if detector.startswith("gpd-rep"):
         rep = detector.removeprefix("gpd-rep")
@@ -129,6 +132,7 @@ def model_for(detector: str, model: str | None, service: str | None = None) -> s
     return model
 
 
+@functools.cache
 def served_model(service: str, hand: HandGeometry) -> str | None:
     """The model the service answers a request carrying `hand` with, asked with one small request (a 5 cm cube
     on a 30 cm table seen from 50 cm above): what a user with that hand gets by default."""
@@ -141,6 +145,14 @@ def served_model(service: str, hand: HandGeometry) -> str | None:
         answer = client.detect(points, np.array([[0.0, 0.0, 0.5]]), np.zeros(len(points), np.int64),
                                hand=hand.to_dict(), seed=0)
     return answer.model
+
+
+def reported_model(detector: str, model: str | None, service: str | None, hand: HandGeometry) -> str | None:
+    """The model a results file names for a detector: the one the bench names (or loads in process), else the one
+    the service answers requests carrying `hand` with; None for a detector that scores with none."""
+    if detector in UNSCORED or model is not None or service is None:
+        return model
+    return f"{served_model(service, hand)} (the service's default for this hand)"
 
 
 def make_detector(detector: str, model: str | None, service: str | None) -> SimDetector:
@@ -491,9 +503,8 @@ def main(argv: list[str] | None = None) -> int:
         proc, service = start_service()
     hand = object_set_hand(args.object_set)
     models = {spec: model_for(det, args.model, service) for spec, (det, _) in zip(args.settings, parsed, strict=True)}
-    served = {spec: m if m is not None or service is None or det in ("baseline", "gpd-noclass")
-              else f"{served_model(service, hand)} (the service's default for this hand)"
-              for (spec, m), (det, _) in zip(models.items(), parsed, strict=True)}
+    reported = {spec: reported_model(det, models[spec], service, hand)
+                for spec, (det, _) in zip(args.settings, parsed, strict=True)}
     summaries: dict[str, Summary] = {}
     rounds: dict[str, list[dict[str, Any]]] = {}
     meta = {
@@ -505,7 +516,7 @@ def main(argv: list[str] | None = None) -> int:
         "jobs": args.jobs,
         "runner": runner.describe(),
         "service": service,
-        "models": served,
+        "models": reported,
         "object_set": args.object_set,
         "stop": args.stop or object_set_stop(args.object_set),
         "precision": {},

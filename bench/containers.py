@@ -402,9 +402,7 @@ def main(argv: list[str] | None = None) -> int:
         proc, service = clutter.start_service()
     models = {d: clutter.model_for(d, args.model, service) for d in detectors}
     hand = object_set_hand(args.object_set)
-    served = {d: m if m is not None or service is None or d in ("baseline", "gpd-noclass")
-              else f"{clutter.served_model(service, hand)} (the service's default for this hand)"
-              for d, m in models.items()}
+    reported = {d: clutter.reported_model(d, m, service, hand) for d, m in models.items()}
     stem = f"containers-{args.tag}"
     meta: dict[str, Any] = {
         "command": "PYTHONPATH=service:client .venv/bin/python bench/containers.py "
@@ -412,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
         "commit": git_commit(), "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "cpus": os.cpu_count(),
         "jobs": args.jobs, "runner": runner.describe(),
         "gpd": "in-process GraspDetector" if args.in_process else f"POST /detect to {service}",
-        "models": served, "split": args.split, "objects": args.objects, "object_set": args.object_set,
+        "models": reported, "split": args.split, "objects": args.objects, "object_set": args.object_set,
         "stop": object_set_stop(args.object_set),
         "sensing": args.sensing,
         "styles": styles, "headline_styles": [s for s in styles if s in HELD_OUT_STYLES],

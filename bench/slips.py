@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         return measure(world, grasps, pick, hand.hand_depth, hand.init_bite)
 
     with clutter.serving(args.service) as service:
-        served = model or f"{clutter.served_model(service, hand)} (the service's default for this hand)"
+        served = clutter.reported_model("gpd", model, service, hand)
         records = clutter.looked_rounds(setting, model, service, range(args.seed, args.seed + args.rounds), look)
     print(clutter.write_looks(args.out, f"slips-{args.tag}", "slips.py", argv, served, records, report))
     return 0

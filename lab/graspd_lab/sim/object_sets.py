@@ -26,7 +26,7 @@ OBJECT_SETS = ("scaled", "household", "household-training", "household-training-
 
 #: A Panda-like hand: the panda preset's fingers (45 mm reach, 10 mm thick) and 60 mm body behind the finger
 #: roots, opening 75 mm (outer faces 95 mm apart).
-PANDA_LIKE = hand_preset("panda").with_overrides(hand_outer_diameter=0.095)
+PANDA_LIKE = hand_preset("panda").with_opening(0.075)
 
 
 def object_set_ids(name: str) -> tuple[int, ...]:

@@ -528,7 +528,7 @@ def hand_with_opening(preset: str, opening: float | None) -> HandGeometry:
         return hand
     if not 0.0 < opening <= 0.3:
         raise ValueError(f"--hand-opening must be in (0, 0.3] m, got {opening}")
-    return hand.with_overrides(hand_outer_diameter=opening + 2.0 * hand.finger_width)
+    return hand.with_opening(opening)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -73,6 +73,11 @@ class HandGeometry:
         palm = (x < 0) & (x > -self.palm_depth) & (ay < self.hand_outer_diameter / 2)
         return np.asarray(in_z & (finger | palm))
 
+    def with_opening(self, opening: float) -> HandGeometry:
+        """A copy whose open fingers stand `opening` (m) apart (max_aperture): the outer faces move, the fingers
+        stay as they are (validated)."""
+        return replace(self, hand_outer_diameter=opening + 2.0 * self.finger_width)
+
     def with_overrides(self, **overrides: Any) -> HandGeometry:
         """A copy with some fields replaced (validated)."""
         return replace(self, **overrides)

@@ -125,7 +125,7 @@ def unobserved_grid(points: NDArray[np.float32], viewpoints: NDArray[np.float32]
         cell = np.floor((pts - lo) / v).astype(np.int64)
         off = np.any((cell < first) | (cell >= last), axis=1)
         if off.any():
-            keys = np.ravel_multi_index(tuple(np.minimum(cell[off], whole - 1).T), tuple(whole))
+            keys = np.ravel_multi_index(tuple(cell[off].T), tuple(whole))  # cells of the whole box
             _, once = np.unique(keys, return_index=True)
             pts = np.concatenate([pts[~off], pts[np.flatnonzero(off)[np.sort(once)]]])
     cells = np.empty(tuple(int(s) for s in shape), bool)
