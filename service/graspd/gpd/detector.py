@@ -28,6 +28,7 @@ from graspd.gpd.images import encode_batches
 from graspd.gpd.objects import SceneObject, Segmentation, segment_objects
 from graspd.gpd.occlusion import (
     MAX_UNKNOWN_SHARE,
+    UNKNOWN_FALLBACK_SHARE,
     UNKNOWN_SPACE_MODES,
     UnknownSpace,
     hand_shadow_length,
@@ -72,7 +73,9 @@ class DetectionParams:
     first pass scores every candidate and only the best cascade_keep fraction (at least cascade_min) are
     encoded and scored by the full model; the rest are dropped.  unknown_space "avoid" (default): a hand with
     more than max_unknown (default none) of its fingers, palm or approach path in space no camera saw (behind a
-    seen surface from every camera) is treated as colliding; "allow" checks the seen points only, as GPD does.
+    seen surface from every camera) is treated as colliding, unless no hand is left: then those with at most
+    unknown_fallback come back, with a warning; "strict" never falls back; "allow" checks the seen points only,
+    as GPD does.
     target (graspd.gpd.target): sample on it only and keep the hands whose closing region holds no object point
     outside it; a target of sample points replaces sample_points.  max_per_object (0 = off): the ranked list gives
     no object more than this many grasps before every other object with a grasp has one (selection.cover_order).
@@ -112,6 +115,7 @@ class DetectionParams:
     cascade_min: int = 200
     unknown_space: UnknownSpace = "avoid"
     max_unknown: float = MAX_UNKNOWN_SHARE
+    unknown_fallback: float = UNKNOWN_FALLBACK_SHARE
     sample_points: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
     target: Target | None = field(default=None, compare=False, repr=False)
     max_per_object: int = DEFAULT_MAX_PER_OBJECT
@@ -139,6 +143,8 @@ class DetectionParams:
             raise ValueError(f"unknown_space must be one of {UNKNOWN_SPACE_MODES}, got {self.unknown_space!r}")
         if not 0.0 <= self.max_unknown <= 1.0:
             raise ValueError(f"max_unknown must be in [0, 1], got {self.max_unknown}")
+        if not 0.0 <= self.unknown_fallback <= 1.0:
+            raise ValueError(f"unknown_fallback must be in [0, 1], got {self.unknown_fallback}")
         if not 0.0 <= self.clearance <= 0.02:
             raise ValueError(f"clearance must be in [0, 0.02] m, got {self.clearance}")
         if not 0.0 <= self.width_margin <= 0.1:
@@ -245,10 +251,10 @@ class GraspDetector:
         scene, env, sampling, sel = prep.scene, prep.environment, prep.sampling, prep.selection
         scorer = self.classifier if p.use_classifier else None
 
-        def candidates_for(s: SamplingParams) -> GraspSet:
+        def candidates_for(s: SamplingParams, q: DetectionParams = p) -> GraspSet:
             """Sample, filter (feasibility, environment) and score the hands of s; stage times add up."""
             t_start = time.perf_counter()
-            cands, region = self.search(prep, s, p, h)
+            cands, region = self.search(prep, s, q, h)
             t_batch = time.perf_counter()
             timings["sample"] = timings.get("sample", 0.0) + t_batch - t_start
             if scorer is None or not len(cands):
@@ -279,6 +285,9 @@ class GraspDetector:
                     break
         else:
             candidates = candidates_for(sampling)
+        fallback = not len(candidates) and p.unknown_space == "avoid" and p.unknown_fallback > p.max_unknown
+        if fallback:  # no hand keeps out of unseen space: those that enter it least, with a warning, not none
+            candidates = candidates_for(sampling, replace(p, max_unknown=p.unknown_fallback))
         t = time.perf_counter()
         rng = np.random.default_rng(p.seed)
         grasps = select(candidates, sel, use_selection=p.use_selection, rng=rng)
@@ -292,6 +301,12 @@ class GraspDetector:
                     "unknown_space", f"{int((share > p.max_unknown).sum())} of the top {len(top)} grasps put "
                     f"up to {100 * float(share.max()):.0f}% of the hand into space no camera saw (unknown_space "
                     "is 'allow'); a hidden neighbour may be there"))
+        if fallback and len(grasps):
+            warnings.append(DetectionWarning(
+                "unknown_space", f"no hand keeps out of space no camera saw; these grasps put up to "
+                f"{100 * float(np.nanmax(grasps.unknown_share)):.0f}% of the hand and its approach path into it (at "
+                f"most unknown_fallback, {100 * p.unknown_fallback:.0f}%): a hidden neighbour may be there; a view "
+                "from another side shows it"))
         if p.target is not None and not len(grasps):
             warnings.append(target_warning(prep, p.target, len(candidates)))
         lap("select")
@@ -369,7 +384,7 @@ class GraspDetector:
             feasible &= ~grasps_env
             feasible[feasible] = ~hand_hits_environment(cands.positions[feasible], cands.rotations[feasible], h, env,
                                                         p.approach_distance)
-        if p.unknown_space == "avoid" and feasible.any():
+        if p.unknown_space != "allow" and feasible.any():
             share = np.full(len(cands), np.nan)
             unseen = prep.scene.unobserved_within(hand_shadow_length(h, p.approach_distance))
             share[feasible] = unknown_share(unseen, cands.positions[feasible],

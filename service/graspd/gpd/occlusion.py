@@ -24,11 +24,16 @@ from graspd.core.types import F64
 from graspd.gpd.scene import VoxelGrid
 
 F32 = np.float32
-UnknownSpace = Literal["avoid", "allow"]
-UNKNOWN_SPACE_MODES: tuple[str, ...] = ("avoid", "allow")
+UnknownSpace = Literal["avoid", "strict", "allow"]
+UNKNOWN_SPACE_MODES: tuple[str, ...] = ("avoid", "strict", "allow")
 #: Default most share of a hand's samples that may lie in unseen space under "avoid": none (the margin below
 #: absorbs sensor noise at the surface; a tolerance let fingertips a centimetre into a hidden object through).
 MAX_UNKNOWN_SHARE = 0.0
+#: Default most share under "avoid" when no hand keeps within MAX_UNKNOWN_SHARE (the floor of a deep bin beside its
+#: walls, seen from one side, where every hand's fingertips dip into the walls' shadow): those hands come back, with
+#: a warning, instead of no grasp ("strict" returns none).  Chosen on the training objects' deep bins
+#: (bench/containers.py --split training).
+UNKNOWN_FALLBACK_SHARE = 0.05
 #: Default distance (m) the hand's samples keep inside its faces: unseen space closer than this is tolerated.
 UNKNOWN_MARGIN = 0.004
 #: Most distance (m) between neighbouring samples of a hand along each of its axes: a shadow voxel and a half, so
