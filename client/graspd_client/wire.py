@@ -127,8 +127,8 @@ def build_detect_request(
     camera_poses: one camera-to-robot transform per camera (4x4, or {"position", "quat_xyzw"}, or 7 numbers x, y,
     z, qx, qy, qz, qw) with points_frame "camera" or "robot" (see the module's note on frames); viewpoints are
     then left out.  normals (N,3): optional unit normals pointing toward the cameras.  unknown_space "avoid" (the
-    server's default: a hand reaching into space no camera saw collides; when none is left, those reaching least
-    into it come back with a warning), "strict" (no such fallback) or "allow" (seen points only).
+    server's default: a hand reaching into space no camera saw collides), "fallback" (the same; when no hand is
+    left, those reaching least into it come back with a warning) or "allow" (seen points only).
     target: what to grasp, one of {"indices": rows}, {"mask": PNG bytes, a boolean (H, W) image or COCO RLE
     {"size", "counts"}}, {"box": {"centre", "rotation" or "quat_xyzw", "half_extents"}}, {"points": (K, 3)} or
     {"object": id} (build_target).  max_per_object: most grasps per object before every other object has one

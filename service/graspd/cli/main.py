@@ -412,10 +412,10 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
     d.add_argument("--environment", choices=("auto", "declared", "none"), default="auto",
                    help="environment model: auto (find the support levels, walls and rims; default) or none "
                    "(ablation)")
-    d.add_argument("--unknown-space", choices=("avoid", "strict", "allow"), default="avoid",
-                   help="space no camera saw: avoid (default: a hand reaching into it collides; when no hand is "
-                   "left, those reaching least into it come back with a warning), strict (no fallback) or allow "
-                   "(check the seen points only, as GPD does; the answer warns when the best grasps reach into it)")
+    d.add_argument("--unknown-space", choices=("avoid", "fallback", "allow"), default="avoid",
+                   help="space no camera saw: avoid (default: a hand reaching into it collides), fallback (the same; "
+                   "when no hand is left, those reaching least into it come back with a warning) or allow (check "
+                   "the seen points only, as GPD does; the answer warns when the best grasps reach into it)")
     d.add_argument("--approach-distance", type=float, default=0.05,
                    help="pre-grasp distance (m) whose path must be free of points and environment")
     d.add_argument("--seed", type=int, default=0)

@@ -73,8 +73,8 @@ class DetectionParams:
     first pass scores every candidate and only the best cascade_keep fraction (at least cascade_min) are
     encoded and scored by the full model; the rest are dropped.  unknown_space "avoid" (default): a hand with
     more than max_unknown (default none) of its fingers, palm or approach path in space no camera saw (behind a
-    seen surface from every camera) is treated as colliding, unless no hand is left: then those with at most
-    unknown_fallback come back, with a warning; "strict" never falls back; "allow" checks the seen points only,
+    seen surface from every camera) is treated as colliding; "fallback" does the same, but when that leaves no
+    hand returns those with at most unknown_fallback there, with a warning; "allow" checks the seen points only,
     as GPD does.
     target (graspd.gpd.target): sample on it only and keep the hands whose closing region holds no object point
     outside it; a target of sample points replaces sample_points.  max_per_object (0 = off): the ranked list gives
@@ -285,7 +285,7 @@ class GraspDetector:
                     break
         else:
             candidates = candidates_for(sampling)
-        fallback = not len(candidates) and p.unknown_space == "avoid" and p.unknown_fallback > p.max_unknown
+        fallback = not len(candidates) and p.unknown_space == "fallback" and p.unknown_fallback > p.max_unknown
         if fallback:  # no hand keeps out of unseen space: those that enter it least, with a warning, not none
             candidates = candidates_for(sampling, replace(p, max_unknown=p.unknown_fallback))
         t = time.perf_counter()
@@ -304,9 +304,9 @@ class GraspDetector:
         if fallback and len(grasps):
             warnings.append(DetectionWarning(
                 "unknown_space", f"no hand keeps out of space no camera saw; these grasps put up to "
-                f"{100 * float(np.nanmax(grasps.unknown_share)):.0f}% of the hand and its approach path into it (at "
-                f"most unknown_fallback, {100 * p.unknown_fallback:.0f}%): a hidden neighbour may be there; a view "
-                "from another side shows it"))
+                f"{100 * float(np.nanmax(grasps.unknown_share)):.0f}% of the hand and its approach path into it "
+                f"(unknown_space 'fallback', at most {100 * p.unknown_fallback:.0f}%): a hidden neighbour may be "
+                "there; a view from another side shows it"))
         if p.target is not None and not len(grasps):
             warnings.append(target_warning(prep, p.target, len(candidates)))
         lap("select")

@@ -24,15 +24,15 @@ from graspd.core.types import F64
 from graspd.gpd.scene import VoxelGrid
 
 F32 = np.float32
-UnknownSpace = Literal["avoid", "strict", "allow"]
-UNKNOWN_SPACE_MODES: tuple[str, ...] = ("avoid", "strict", "allow")
+UnknownSpace = Literal["avoid", "fallback", "allow"]
+UNKNOWN_SPACE_MODES: tuple[str, ...] = ("avoid", "fallback", "allow")
 #: Default most share of a hand's samples that may lie in unseen space under "avoid": none (the margin below
 #: absorbs sensor noise at the surface; a tolerance let fingertips a centimetre into a hidden object through).
 MAX_UNKNOWN_SHARE = 0.0
-#: Default most share under "avoid" when no hand keeps within MAX_UNKNOWN_SHARE (the floor of a deep bin beside its
+#: Most share under "fallback" when no hand keeps within MAX_UNKNOWN_SHARE (the floor of a deep bin beside its
 #: walls, seen from one side, where every hand's fingertips dip into the walls' shadow): those hands come back, with
-#: a warning, instead of no grasp ("strict" returns none).  Chosen on the training objects' deep bins
-#: (bench/containers.py --split training).
+#: a warning, instead of no grasp.  Chosen on the training objects' deep bins (bench/containers.py --split
+#: training); opt-in, since on held-out containers it traded success for cleared objects (docs: Benchmarks).
 UNKNOWN_FALLBACK_SHARE = 0.05
 #: Default distance (m) the hand's samples keep inside its faces: unseen space closer than this is tolerated.
 UNKNOWN_MARGIN = 0.004

@@ -51,7 +51,7 @@ DEFAULT_RANGE_WINDOW = 1.0
 #: The default of max_per_object: the detector's (graspd.gpd.selection.DEFAULT_MAX_PER_OBJECT; a test keeps them
 #: equal).
 DEFAULT_MAX_PER_OBJECT = 1
-#: The most share of a hand in unseen space when "avoid" falls back: the detector's
+#: The most share of a hand in unseen space when unknown_space "fallback" falls back: the detector's
 #: (graspd.gpd.occlusion.UNKNOWN_FALLBACK_SHARE; a test keeps them equal).
 UNKNOWN_FALLBACK_SHARE = 0.05
 
@@ -499,13 +499,12 @@ class DetectRequest(BaseModel):
     cascade: bool = Field(True, description="with the service's cascade model (GRASPD_CASCADE_MODEL, made for the "
                           "request's hand): a cheap first pass scores every candidate and the full model only the "
                           "best 30% (at least 200); false: the full model scores every candidate")
-    unknown_space: Literal["avoid", "strict", "allow"] = Field(
+    unknown_space: Literal["avoid", "fallback", "allow"] = Field(
         "avoid", description="space no camera saw (behind a seen surface from every camera): 'avoid' treats a "
         "hand with any of its fingers, palm or approach path there (beyond 4 mm) as colliding (a neighbour seen "
-        "only in part may be there); when that leaves no hand, those with at most "
-        f"{UNKNOWN_FALLBACK_SHARE:.0%} there come back and the answer warns (unknown_space); 'strict' returns no "
-        "grasp instead; 'allow' checks the seen points only, as GPD does, "
-        "and warns when the best grasps reach into unseen space")
+        "only in part may be there); 'fallback' does the same, but when that leaves no hand, those with at most "
+        f"{UNKNOWN_FALLBACK_SHARE:.0%} there come back and the answer warns (unknown_space); 'allow' checks the "
+        "seen points only, as GPD does, and warns when the best grasps reach into unseen space")
     min_aperture: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False,
                                        description="drop grasps whose width (object extent between the fingers) "
                                        "is below this (m)")
