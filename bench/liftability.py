@@ -66,10 +66,12 @@ def set_objects(object_set: str, count: int | None = None) -> list[tuple[int, st
 
 
 def object_liftability(object_id: int, index: int, seed: int, hand: HandGeometry, grasps: int = 20,
-                       sensing: str = "side", num_samples: int | None = None) -> dict[str, Any]:
+                       sensing: str = "side", num_samples: int | None = None,
+                       flat_objects: bool = False) -> dict[str, Any]:
     """One object alone on the table (settled from seed * 100_003 + index), one view of it, the detector's
     candidates, their analytic labels, and up to `grasps` analytic positives (a uniform draw seeded by seed and
-    index) lifted with the clutter benchmark's ExecutionParams(): the object's record."""
+    index) lifted with the clutter benchmark's ExecutionParams(): the object's record.  flat_objects: the
+    request option (DetectionParams.flat_objects)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng([seed, index, 13])
     row: dict[str, Any] = {"object": object_label(object_id), "id": int(object_id), "index": index, "mass": None,
@@ -90,7 +92,7 @@ def object_liftability(object_id: int, index: int, seed: int, hand: HandGeometry
             row["note"] = "fewer than 50 points seen"
             return _timed(row, t0)
         det = GraspDetector(None, hand)
-        p = DetectionParams(workspace=region, seed=int(rng.integers(2**31)))
+        p = DetectionParams(workspace=region, seed=int(rng.integers(2**31)), flat_objects=flat_objects)
         if num_samples is not None:
             p = replace(p, num_samples=num_samples)
         prep = det.prepare(cloud, p, hand)
@@ -175,7 +177,8 @@ def report(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
              f"- command: `{meta['command']}`", f"- commit: `{meta['commit']}`, date {meta['date']}",
              f"- objects: {meta['objects']}",
              f"- per object: one settled drop on the table, one view ({meta['sensing']} sensing, Kinect noise), the "
-             f"detector's candidates (default DetectionParams, num_samples {meta['num_samples']}), analytic labels "
+             f"detector's candidates (default DetectionParams, num_samples {meta['num_samples']}"
+             f"{', flat_objects' if meta.get('flat_objects') else ''}), analytic labels "
              f"(scene_data.scene_labels()), up to {meta['grasps']} positives lifted with the clutter benchmark's "
              "ExecutionParams() (a slip is a drop only)",
              f"- in the arm's cone: approach within {MAX_APPROACH_DEG:g} degrees of straight down, the grasps a "
@@ -208,6 +211,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sensing", choices=SENSINGS, default="side", help="the benchmark's cameras (default: the "
                     "household piles' side camera)")
     ap.add_argument("--samples", type=int, default=None, help="detector num_samples (default: DetectionParams')")
+    ap.add_argument("--flat-objects", action="store_true", help="the request option flat_objects (objects lying "
+                    "flat are grasped by their edges; off by default)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--tag", default=None, help="output file stem after liftability- (default: the object set)")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
@@ -218,7 +223,8 @@ def main(argv: list[str] | None = None) -> int:
     objects = set_objects(args.object_set, args.objects)
     rows = []
     for index, (object_id, name) in enumerate(objects):
-        row = object_liftability(object_id, index, args.seed, hand, args.grasps, args.sensing, args.samples)
+        row = object_liftability(object_id, index, args.seed, hand, args.grasps, args.sensing, args.samples,
+                                 args.flat_objects)
         rows.append(row)
         print(f"[{index + 1}/{len(objects)}] {name}: {kg(row['mass'])} kg, {row['positives']} positives, "
               f"{row['held']}/{row['tried']} held {row['outcomes'] or row['note']} "
@@ -231,6 +237,7 @@ def main(argv: list[str] | None = None) -> int:
                                                             else ""),
             "sensing": args.sensing, "grasps": args.grasps, "seed": args.seed,
             "num_samples": args.samples or DetectionParams().num_samples, "execution": "ExecutionParams()",
+            "flat_objects": args.flat_objects,
             "hand": hand.to_dict()}
     md = report(rows, meta)
     stem = f"liftability-{args.tag or args.object_set}"

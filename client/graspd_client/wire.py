@@ -112,6 +112,7 @@ def build_detect_request(
     unknown_space: str | None = None,
     target: Mapping[str, Any] | None = None,
     max_per_object: int | None = None,
+    flat_objects: bool | None = None,
 ) -> dict[str, Any]:
     """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
 
@@ -132,7 +133,8 @@ def build_detect_request(
     target: what to grasp, one of {"indices": rows}, {"mask": PNG bytes, a boolean (H, W) image or COCO RLE
     {"size", "counts"}}, {"box": {"centre", "rotation" or "quat_xyzw", "half_extents"}}, {"points": (K, 3)} or
     {"object": id} (build_target).  max_per_object: most grasps per object before every other object has one
-    (0 = pure ranking; default the server's).
+    (0 = pure ranking; default the server's).  flat_objects=True also grasps objects lying flat (a packet 1 cm
+    thick) by their edges, the fingertips stopping above the table (off by default: such grasps hold less often).
     """
     body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source, camera_poses=camera_poses,
                                                  points_frame=points_frame, normals=normals)}
@@ -148,7 +150,7 @@ def build_detect_request(
                "selection": selection, "seed": seed, "clustering": clustering, "use_classifier": use_classifier,
                "exclude_support_plane": exclude_support_plane, "min_aperture": min_aperture,
                "max_aperture": max_aperture, "approach_distance": approach_distance, "unknown_space": unknown_space,
-               "max_per_object": max_per_object}
+               "max_per_object": max_per_object, "flat_objects": flat_objects}
     body.update({k: v for k, v in options.items() if v is not None})
     if environment is not None:
         body["environment"] = environment if isinstance(environment, str) else dict(environment)

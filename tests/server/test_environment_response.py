@@ -1,5 +1,6 @@
 """What the environment stage found travels in every /detect answer (surfaces with kinds, planes and confidence),
-and the unseen-space option is a request option like the others: checked, honoured, and the same over uploads."""
+and the unseen-space and flat-objects options are request options like the others: checked, honoured, and the
+unseen-space one the same over uploads."""
 
 from __future__ import annotations
 
@@ -8,10 +9,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import open3d as o3d
 from fastapi.testclient import TestClient
 
+from graspd.core.camera import tabletop_cameras
 from graspd.io.cloud_files import read_cloud
 from graspd_client import build_detect_request
+from graspd_lab.world.noise import DepthNoise
+from graspd_lab.world.render import render_scene
 
 MUG = "table_mug.pcd"
 
@@ -52,3 +57,22 @@ def test_unknown_space_is_checked_and_honoured(client: TestClient, real_data: Pa
                          content=(real_data / MUG).read_bytes(), headers={"Content-Type": "application/octet-stream"})
     assert upload.status_code == 200, upload.text
     assert upload.json()["num_candidates"] == loose["num_candidates"]
+
+
+def test_flat_objects_is_a_request_option_like_the_others(client: TestClient) -> None:
+    """A packet 1 cm thick lying flat has no hand by default; with flat_objects it is grasped by its edges, over a
+    JSON body, and a wrong type is a 422 naming the field."""
+    def box(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float) -> o3d.geometry.TriangleMesh:
+        return o3d.geometry.TriangleMesh.create_box(x1 - x0, y1 - y0, z1 - z0).translate((x0, y0, z0))
+
+    cloud = render_scene([box(-0.3, 0.3, -0.3, 0.3, -0.02, 0.0), box(-0.0225, 0.0225, -0.035, 0.035, 0.0, 0.01)],
+                         tabletop_cameras(2, distance=0.7, elevation_deg=50.0, azimuth_deg=-90.0), DepthNoise(), 0)
+    options = {"num_samples": 300, "use_classifier": False}
+    body = build_detect_request(cloud.points, cloud.viewpoints, camera_source=cloud.camera_source, **options)
+    plain = client.post("/detect", json=body)
+    flat = client.post("/detect", json={**body, "flat_objects": True})
+    assert plain.status_code == flat.status_code == 200, plain.text
+    assert plain.json()["grasps"] == [] and len(flat.json()["grasps"]) >= 5
+    assert {w["code"] for w in flat.json()["warnings"]}.isdisjoint({"no_candidates", "no_grasps"})
+    bad = client.post("/detect", json={**body, "flat_objects": "sometimes"})
+    assert bad.status_code == 422 and "flat_objects" in bad.json()["field"]

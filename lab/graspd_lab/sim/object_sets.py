@@ -9,7 +9,9 @@
   to tune selection and execution on, so that the held-out set stays unseen until a result is reported;
 - "household-training-heavy": household.heavy_training_names, those of them of household.HEAVY_MASS or more
   (their URDF's mass), the same hand: the objects that slip out of 40 N fingers when grasped off their centre of
-  mass, to tune against that failure.
+  mass, to tune against that failure;
+- "household-training-flat": household.flat_training_names, those of them under household.FLAT_THICKNESS thick
+  (packets, a phone, tape), the same hand: the objects held only by their edges above the table.
 The benchmark's reported figures come from the held-out sets only.  Each set has its stop rule
 (graspd_lab.sim.protocol.STOP_RULES): the household sets the standard clutter-removal benchmark's (a round ends
 after two failures in a row, or when no grasp is found), the scaled set the IJRR paper's that its figures were
@@ -22,7 +24,7 @@ from graspd.core.hand import HandGeometry, hand_preset
 from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.world import household
 
-OBJECT_SETS = ("scaled", "household", "household-training", "household-training-heavy")
+OBJECT_SETS = ("scaled", "household", "household-training", "household-training-heavy", "household-training-flat")
 
 #: A Panda-like hand: the panda preset's fingers (45 mm reach, 10 mm thick) and 60 mm body behind the finger
 #: roots, opening 75 mm (outer faces 95 mm apart).
@@ -39,6 +41,8 @@ def object_set_ids(name: str) -> tuple[int, ...]:
         return tuple(household.household_id(n) for n in household.training_names())
     if name == "household-training-heavy":
         return tuple(household.household_id(n) for n in household.heavy_training_names())
+    if name == "household-training-flat":
+        return tuple(household.household_id(n) for n in household.flat_training_names())
     raise ValueError(f"object set must be one of {OBJECT_SETS}, got {name!r}")
 
 
@@ -71,4 +75,8 @@ def describe(name: str) -> str:
         return (f"the {len(object_set_ids(name))} household training models of {household.HEAVY_MASS} kg or more "
                 "(not the held-out ones; for tuning) at their true size, with a Panda-like hand (7.5 cm opening, 40 N "
                 "per finger)")
+    if name == "household-training-flat":
+        return (f"the {len(object_set_ids(name))} household training models under "
+                f"{household.FLAT_THICKNESS * 100:.0f} cm thick (not the held-out ones; for tuning) at their true "
+                "size, with a Panda-like hand (7.5 cm opening, 40 N per finger)")
     return "pybullet_data random_urdfs 900-999 (held out from training), scaled to the hand"

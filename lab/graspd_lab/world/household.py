@@ -234,6 +234,18 @@ def heavy_training_names() -> tuple[str, ...]:
     return tuple(n for n in training_names() if urdf_mass((HOUSEHOLD_DIR / f"{n}.urdf").read_text()) >= HEAVY_MASS)
 
 
+#: The thickest model (m, smallest side of its collision mesh's box in its link frame) counted flat: packets and
+#: tools that lie flat on the table, held only by their edges between fingertips that stop above it.
+FLAT_THICKNESS = 0.02
+
+
+@cache
+def flat_training_names() -> tuple[str, ...]:
+    """The training models thinner than FLAT_THICKNESS, sorted: the objects a hand holds only by their edges."""
+    return tuple(n for n in training_names()
+                 if float(np.min(_collision_mesh(n).get_axis_aligned_bounding_box().get_extent())) < FLAT_THICKNESS)
+
+
 @cache
 def household_mass_properties(name: str) -> MassProperties:
     """A model's mass properties from its collision mesh and its URDF's mass (link frame)."""

@@ -122,6 +122,7 @@ def _detect(args: argparse.Namespace) -> int:
             exclude_support_plane=True if args.exclude_table else None,
             environment=EnvironmentParams(mode=args.environment),
             unknown_space=args.unknown_space,
+            flat_objects=args.flat_objects,
             approach_distance=args.approach_distance,
             seed=args.seed,
         )
@@ -416,6 +417,8 @@ def build_parser(load: Collection[str] | bool = ()) -> argparse.ArgumentParser:
                    help="space no camera saw: avoid (default: a hand reaching into it collides), fallback (the same; "
                    "when no hand is left, those reaching least into it come back with a warning) or allow (check "
                    "the seen points only, as GPD does; the answer warns when the best grasps reach into it)")
+    d.add_argument("--flat-objects", action="store_true", help="also grasp objects lying flat (a packet 1 cm thick) "
+                   "by their edges, the fingertips stopping above the table (such grasps hold less often)")
     d.add_argument("--approach-distance", type=float, default=0.05,
                    help="pre-grasp distance (m) whose path must be free of points and environment")
     d.add_argument("--seed", type=int, default=0)

@@ -4,7 +4,9 @@ For each sampled point p: a Darboux frame from the eigenvectors of the summed no
 in an r-ball (largest eigenvalue: smoothed normal; smallest: the curvature axis); then a grid over
 finger placements y (along the binormal) and orientations phi (about the curvature axis); each hand is
 pushed forward along its approach until a finger or the palm touches the cloud, and kept when the
-fingertips reach at least init_bite past p (so the closing region holds p).
+fingertips reach at least init_bite past p (so the closing region holds p).  On request (a support_bite), a hand
+at the top of an object lying flat, thinner than that, whose fingertips the support plane stops sooner, needs
+reach only support_bite past p: it holds the object by its edges.
 
 Collision checks are binned along the closing direction at a resolution of a quarter finger width:
 a point within one bin of a finger counts as touching it, a conservative margin for sensor noise.  With a
@@ -34,6 +36,10 @@ from graspd.gpd.placement import place_hands, slab_coordinates, slab_neighbours
 from graspd.gpd.scene import ClosingRegionPoints, Scene, ball_pairs
 
 MIN_FRAME_POINTS = 3
+#: The support_bite (m) of a request for flat objects (DetectionParams.flat_objects): a packet 0.7-1.3 cm thick
+#: lying flat is held by its edges between fingertips that stop the support's clearance above the table, where
+#: init_bite leaves it no hand (bench/results/liftability-household-training-flat*.md).
+SUPPORT_BITE = 0.004
 CHUNK = 128  # samples per task of the hand search: smaller tasks balance 2 cores better, in cache
 
 
@@ -46,10 +52,12 @@ class SamplingParams:
     plus approach distance); None checks only the points within the hand's own reach, as GPD does.
     obstacles: the points the hands test against (default all); support (its normal toward the free side)
     stops each hand support_clearance (m) short of the plane in closed form, so the support's points need not
-    be among the obstacles (most of a tabletop cloud is table).  centre_on_object: each hand moves to the
-    collision-free finger placement nearest the middle of the points between its fingers (False: the middle
-    of the collision-free placements, GPD's choice).  clearance (m): how far the hand's outline keeps from the
-    obstacle points, except across its inner finger faces and its palm's face (0: flush against them, as GPD)."""
+    be among the obstacles (most of a tabletop cloud is table); where it stops the fingertips of a hand at a sample
+    less than init_bite above it, they need reach only support_bite (m; None: init_bite, as GPD) past the sample.
+    centre_on_object: each hand moves to the collision-free finger placement nearest the middle of the points
+    between its fingers (False: the middle of the collision-free placements, GPD's choice).  clearance (m): how far
+    the hand's outline keeps from the obstacle points, except across its inner finger faces and its palm's face (0:
+    flush against them, as GPD)."""
 
     num_samples: int = 1000
     num_orientations: int = 8
@@ -62,6 +70,7 @@ class SamplingParams:
     obstacles: NDArray[np.bool_] | None = None
     support: Plane | None = None
     support_clearance: float = 0.0
+    support_bite: float | None = None
     centre_on_object: bool = True
     clearance: float = 0.0
 
@@ -266,6 +275,17 @@ def _support_limit(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.fl
     return np.where(na3 < 0.0, toward, np.where(away_ok, np.inf, -np.inf))
 
 
+def _low_bite(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.float32]) -> NDArray[np.float64] | None:
+    """(S,) least fingertip depth (m past the sample) where the support stops the fingertips: support_bite at a
+    sample less than init_bite above the support's clearance (the top of an object lying flat, which only its
+    edges hold), else the hand's init_bite (a hand low on a taller object must bite as deep as anywhere); None
+    without a support or a support_bite."""
+    if p.support is None or p.support_bite is None:
+        return None
+    height = p.support.distance(samples.astype(np.float64)) - p.support_clearance
+    return np.where(height < hand.init_bite, min(hand.init_bite, p.support_bite), hand.init_bite)
+
+
 def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_idx: NDArray[np.int64],
                   frames: NDArray[np.float64], obstacles: _Obstacles) -> tuple[GraspSet, ClosingRegionPoints]:
     """Algorithm 2 steps 5-10 for a batch of samples with their frames, tested against the obstacle points."""
@@ -313,10 +333,11 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
                         *bin_range(s - od / 2 - clear, s + od / 2 + clear))  # palm
                        for s in s_grid], np.int64).reshape(-1, 6)
     support = None if p.support is None else _support_limit(p, hand, samples, frames, phis, s_grid, behind)
+    low_bite = _low_bite(p, hand, samples)
     si, pi, bj, tip, ymin, ymax, local, elem, cand = place_hands(
         starts, local_x, local_y, z, phis, s_grid, ranges, support, y_max=y_max, bin_w=bin_w, n_bins=n_bins, hd=hd,
-        clear=clear, init_bite=hand.init_bite, half_w=hand.closing_half_width, half_h=hh / 2.0,
-        centre=p.centre_on_object)
+        clear=clear, init_bite=hand.init_bite, low_bite=low_bite, half_w=hand.closing_half_width,
+        half_h=hh / 2.0, centre=p.centre_on_object)
     t_star = tip.astype(np.float64)
 
     c, s_ = np.cos(phis[pi])[:, None], np.sin(phis[pi])[:, None]

@@ -22,7 +22,7 @@ from graspd.core.hand import HandGeometry
 from graspd.core.limits import MAX_NUM_SAMPLES
 from graspd.core.parallel import THREADS
 from graspd.core.warning import DetectionWarning
-from graspd.gpd.candidates import SamplingParams, search_hands
+from graspd.gpd.candidates import SUPPORT_BITE, SamplingParams, search_hands
 from graspd.gpd.environment import Environment, EnvironmentParams, Label, hand_hits_environment, model_environment
 from graspd.gpd.images import encode_batches
 from graspd.gpd.objects import SceneObject, Segmentation, segment_objects
@@ -81,7 +81,10 @@ class DetectionParams:
     no object more than this many grasps before every other object with a grasp has one (selection.cover_order).
     clearance (m): how far the open hand's outline, at the pre-grasp pose, along its path and at the grasp, keeps
     from the cloud's points except across its inner finger faces and its palm's face (what it grasps may touch
-    them; candidates.SamplingParams.clearance; 0 places it flush against them, as GPD does)."""
+    them; candidates.SamplingParams.clearance; 0 places it flush against them, as GPD does).  flat_objects (off by
+    default): an object lying flat, thinner than the hand's init_bite above the support's clearance (a packet 1 cm
+    thick), gets hands whose fingertips stop above the support and hold its edges, candidates.SUPPORT_BITE deep;
+    such grasps hold less often than deeper ones."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -120,6 +123,7 @@ class DetectionParams:
     target: Target | None = field(default=None, compare=False, repr=False)
     max_per_object: int = DEFAULT_MAX_PER_OBJECT
     clearance: float = HAND_CLEARANCE
+    flat_objects: bool = False
 
     def __post_init__(self) -> None:
         if self.max_per_object < 0:
@@ -365,7 +369,8 @@ class GraspDetector:
                                   seed=p.seed, sample_pool=pool, sample_indices=_nearest(scene, p),
                                   clear_behind=h.palm_depth + p.approach_distance,
                                   obstacles=None if plane is None else ~env.closed_form_mask(prepared.points),
-                                  support=plane, support_clearance=env.clearance, clearance=p.clearance)
+                                  support=plane, support_clearance=env.clearance, clearance=p.clearance,
+                                  support_bite=SUPPORT_BITE if p.flat_objects else None)
         scene = replace(scene, focus=hand_focus(prepared.points, sampling, h, p.approach_distance))
         return Prepared(cloud=prepared, environment=env, scene=scene, sampling=sampling,
                         selection=p.selection(h, env), segmentation=segmentation, target=target)

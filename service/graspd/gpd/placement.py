@@ -103,9 +103,10 @@ def _placements(starts: NDArray[np.int64], lx: NDArray[np.float32], ly: NDArray[
                 cos: NDArray[np.float32], sin: NDArray[np.float32], s_grid: NDArray[np.float64],
                 ranges: NDArray[np.int64], support: NDArray[np.float64], use_support: bool,
                 y_max: float, bin_w: float, n_bins: int, hd: float, clear: float, init_bite: float,
-                tip: NDArray[np.float32], valid: NDArray[np.bool_]) -> None:
+                low_bite: NDArray[np.float32], tip: NDArray[np.float32], valid: NDArray[np.bool_]) -> None:
     """tip (S, Phi, Y): the deepest collision-free fingertip depth (m past the sample) of every placement; valid
-    where it reaches init_bite.  ranges (Y, 6): each placement's left finger, right finger and palm bin ranges."""
+    where it reaches init_bite, or the sample's low_bite (S,) where the support plane stops the fingertips first.
+    ranges (Y, 6): each placement's left finger, right finger and palm bin ranges."""
     n_s, n_phi, n_y = tip.shape
     depth = np.empty(n_bins, np.float32)
     y_off, bw = F32(y_max), F32(bin_w)
@@ -136,10 +137,12 @@ def _placements(starts: NDArray[np.int64], lx: NDArray[np.float32], ly: NDArray[
                     palm = min(palm, depth[i])
                 v = min(min(left, right) - clear32, palm + hd32)
                 v = min(v, hd32)
-                if use_support:
-                    v = F32(min(np.float64(v), support[s, k, j]))
+                need = bite
+                if use_support and support[s, k, j] < v:  # the support stops the fingertips, not a point
+                    v = F32(support[s, k, j])
+                    need = low_bite[s]
                 tip[s, k, j] = v
-                valid[s, k, j] = v >= bite
+                valid[s, k, j] = v >= need
 
 
 @kernel
@@ -245,21 +248,25 @@ def _fill_regions(tip: NDArray[np.float32], chosen: NDArray[np.int64], offsets: 
 def place_hands(starts: NDArray[np.int64], lx: NDArray[np.float32], ly: NDArray[np.float32],
                 z: NDArray[np.float32], phis: NDArray[np.float64], s_grid: NDArray[np.float64],
                 ranges: NDArray[np.int64], support: NDArray[np.float64] | None, *, y_max: float, bin_w: float,
-                n_bins: int, hd: float, clear: float, init_bite: float, half_w: float, half_h: float,
-                centre: bool) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float32],
-                                       NDArray[np.float64], NDArray[np.float64], NDArray[np.float32],
-                                       NDArray[np.int64], NDArray[np.int64]]:
+                n_bins: int, hd: float, clear: float, init_bite: float, low_bite: NDArray[np.float64] | None,
+                half_w: float, half_h: float, centre: bool
+                ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float32],
+                           NDArray[np.float64], NDArray[np.float64], NDArray[np.float32], NDArray[np.int64],
+                           NDArray[np.int64]]:
     """The hands of S samples whose slab points (sample frame, float32, m; sample s's rows starts[s]:starts[s+1])
     are given: for every (sample, orientation) with a collision-free placement whose closing region holds points,
     its sample row, orientation row and placement row, its fingertip depth past the sample (m) and its points' y
-    bounds (hand frame, m); and their closing-region points: hand row, hand-frame x, y, z (m) and slab row."""
+    bounds (hand frame, m); and their closing-region points: hand row, hand-frame x, y, z (m) and slab row.
+    A placement is kept when its fingertips reach init_bite past the sample, or the sample's low_bite (S,; m; None:
+    init_bite) where the support plane stops them first."""
     n_s, n_phi, n_y = len(starts) - 1, len(phis), len(s_grid)
     cos, sin = np.cos(phis).astype(np.float32), np.sin(phis).astype(np.float32)
     tip = np.empty((n_s, n_phi, n_y), np.float32)
     valid = np.empty((n_s, n_phi, n_y), np.bool_)
     sup = np.zeros((0, 0, 0)) if support is None else np.ascontiguousarray(support, np.float64)
     _placements(starts, lx, ly, cos, sin, s_grid, ranges, sup, support is not None, y_max, bin_w, n_bins, hd,
-                clear, init_bite, tip, valid)
+                clear, init_bite, np.full(n_s, init_bite, np.float32) if low_bite is None
+                else np.ascontiguousarray(low_bite, np.float32), tip, valid)
     chosen = np.full((n_s, n_phi), -1, np.int64)
     counts = np.zeros((n_s, n_phi), np.int64)
     ymin, ymax = np.full((n_s, n_phi), np.inf), np.full((n_s, n_phi), -np.inf)

@@ -89,3 +89,12 @@ def test_the_held_out_list_is_a_seeded_fifth_of_each_family() -> None:
         members = [n for n in household.household_names() if household.name_family(n) == family]
         held = [n for n in household.HELD_OUT if household.name_family(n) == family]
         assert len(held) == round(0.2 * len(members))
+
+
+def test_the_flat_training_set_is_the_thin_training_models_and_none_held_out() -> None:
+    flat = household.flat_training_names()
+    assert 10 <= len(flat) < len(household.training_names()) and not set(flat) & set(household.HELD_OUT)
+    for name in household.training_names():
+        thinnest = float(np.min(household.collision_mesh(name).get_axis_aligned_bounding_box().get_extent()))
+        assert (name in flat) == (thinnest < household.FLAT_THICKNESS), name
+    assert "SoftCheese_800_tex" in flat and "CokePlasticSmall_800_tex" not in flat

@@ -160,6 +160,7 @@ def detection_params(req: DetectRequest, target: Target | None = None) -> Detect
             early_stop=req.early_stop,
             cascade=req.cascade,
             unknown_space=req.unknown_space,
+            flat_objects=req.flat_objects,
             seed=req.seed,
             target=target,
             max_per_object=req.max_per_object,

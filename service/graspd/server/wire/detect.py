@@ -505,6 +505,10 @@ class DetectRequest(BaseModel):
         "only in part may be there); 'fallback' does the same, but when that leaves no hand, those with at most "
         f"{UNKNOWN_FALLBACK_SHARE:.0%} there come back and the answer warns (unknown_space); 'allow' checks the "
         "seen points only, as GPD does, and warns when the best grasps reach into unseen space")
+    flat_objects: bool = Field(False, description="grasp objects lying flat, thinner than the hand's init_bite "
+                               "above the table (a packet 1 cm thick), by their edges: the fingertips stop above the "
+                               "table and reach a few millimetres past its top.  Off by default: in the benchmark's "
+                               "physics such grasps hold less often than deeper ones")
     min_aperture: float | None = Field(None, ge=0.0, le=1.0, allow_inf_nan=False,
                                        description="drop grasps whose width (object extent between the fingers) "
                                        "is below this (m)")
