@@ -104,27 +104,14 @@ def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0
     return bool(len(tops) >= 3 and np.mean(np.abs(tops - np.median(tops)) <= tolerance) >= share)
 
 
-#: How far below a rim's top (m) other points beside it make it an object's rounded ridge instead (a bottle lying
-#: on the table: its flanks fall away beside the ridge; a thin wall's sides drop straight down).
-RIM_FLANK_DEPTH = 0.02
-
-
-def _off_line(rel: F64, direction: F64, up: F64) -> F64:
-    """Horizontal distance (m) of points (relative to a point on a horizontal line) from the line."""
-    along = rel @ direction
-    return np.linalg.norm(rel - np.outer(along, direction) - np.outer(rel @ up, up), axis=1)
-
-
 def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentParams, min_length: float,
               rng: np.random.Generator, candidates: NDArray[np.bool_]) -> list[tuple[Box, F64, F64, float, int]]:
     """Rims: long, thin, horizontal lines of points above the support (a thin wall's top seen from above, its
-    faces unseen), each at least min_length gap-free with nothing else beside it from RIM_FLANK_DEPTH below its
-    height to 1 cm above.  Returns (box
+    faces unseen), each at least min_length gap-free with nothing else at its height beside it.  Returns (box
     down to the support, point on the line, direction, length, points) per rim."""
     up = support.normal
     h = support.distance(points)
     idx = np.flatnonzero(candidates & (h > 0.015) & (normals @ up > 0.7))  # a rim's top faces up
-    others = np.flatnonzero(candidates & (h > 0.005))
     rims: list[tuple[Box, F64, F64, float, int]] = []
     if len(idx) < 20:
         return rims
@@ -155,8 +142,11 @@ def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentPara
         # verify on every candidate point
         rel = points[idx] - o3
         t = rel @ d3
-        off_all = _off_line(rel, d3, up)
-        on = (np.abs(rel @ up) <= 0.01) & (off_all <= params.rim_width)
+        lateral = rel - np.outer(t, d3) - np.outer(rel @ up, up)
+        off_all = np.linalg.norm(lateral, axis=1)
+        same_h = np.abs(rel @ up) <= 0.01
+        on = same_h & (off_all <= params.rim_width)
+        beside = same_h & (off_all > 2 * params.rim_width) & (off_all <= 0.03)
         sub = np.setdiff1d(sub, idx[on])
         if on.sum() < 15:
             continue
@@ -166,14 +156,7 @@ def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentPara
         s0, s1 = max(runs, key=lambda r: r[1] - r[0])
         length_run = s1 - s0
         near_run = (t >= s0) & (t <= s1)
-        # a thin wall's top has nothing beside it from a little below to above its height, whichever way it faces;
-        # a lying bottle's ridge has its flanks there
-        rel_b = points[others] - o3
-        t_b, dh_b = rel_b @ d3, rel_b @ up
-        beside = (dh_b >= -RIM_FLANK_DEPTH) & (dh_b <= 0.01) & (t_b >= s0) & (t_b <= s1)
-        off_b = _off_line(rel_b[beside], d3, up)
-        if length_run < min_length or np.count_nonzero((off_b > params.rim_width) & (off_b <= 0.03)) \
-                > 0.3 * np.count_nonzero(on & near_run):
+        if length_run < min_length or (beside & near_run).sum() > 0.3 * (on & near_run).sum():
             continue
         top = float(np.percentile(h[idx[on & near_run]], 90.0)) + 0.01
         across = np.cross(up, d3)
