@@ -9,14 +9,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import open3d as o3d
 from fastapi.testclient import TestClient
 
+from box_scene import pose_from, render_boxes, table_box
 from graspd.core.camera import tabletop_cameras
 from graspd.io.cloud_files import read_cloud
 from graspd_client import build_detect_request
-from graspd_lab.world.noise import DepthNoise
-from graspd_lab.world.render import render_scene
 
 MUG = "table_mug.pcd"
 
@@ -62,11 +60,9 @@ def test_unknown_space_is_checked_and_honoured(client: TestClient, real_data: Pa
 def test_flat_objects_is_a_request_option_like_the_others(client: TestClient) -> None:
     """A packet 1 cm thick lying flat has no hand by default; with flat_objects it is grasped by its edges, over a
     JSON body, and a wrong type is a 422 naming the field."""
-    def box(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float) -> o3d.geometry.TriangleMesh:
-        return o3d.geometry.TriangleMesh.create_box(x1 - x0, y1 - y0, z1 - z0).translate((x0, y0, z0))
-
-    cloud = render_scene([box(-0.3, 0.3, -0.3, 0.3, -0.02, 0.0), box(-0.0225, 0.0225, -0.035, 0.035, 0.0, 0.01)],
-                         tabletop_cameras(2, distance=0.7, elevation_deg=50.0, azimuth_deg=-90.0), DepthNoise(), 0)
+    packet = ((0.045, 0.07, 0.01), pose_from(np.eye(3), (0.0, 0.0, 0.005)))  # 4.5 x 7 cm, 1 cm thick
+    eyes = np.array([c.position for c in tabletop_cameras(2, distance=0.7, elevation_deg=50.0, azimuth_deg=-90.0)])
+    cloud = render_boxes([table_box(0.3), packet], eyes, (0.0, 0.0, 0.0), width=320, height=240, noise=0.001)
     options = {"num_samples": 300, "use_classifier": False}
     body = build_detect_request(cloud.points, cloud.viewpoints, camera_source=cloud.camera_source, **options)
     plain = client.post("/detect", json=body)

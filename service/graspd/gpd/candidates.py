@@ -251,14 +251,14 @@ def slab_pairs(obstacles: _Obstacles, samples: NDArray[np.float32], axes: NDArra
     return np.concatenate(sids).astype(np.int64), np.concatenate(idxs).astype(np.int64)
 
 
-def _support_limit(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.float32],
+def _support_limit(p: SamplingParams, hand: HandGeometry, height: NDArray[np.float64],
                    frames: NDArray[np.float64], phis: NDArray[np.float64], s_grid: NDArray[np.float64],
                    behind: float) -> NDArray[np.float64]:
     """(samples, orientations, placements) furthest fingertip depth (m past the sample) that keeps the whole
-    hand, and its path back by `behind`, support_clearance above the support plane; -inf where no depth does."""
+    hand, and its path back by `behind`, support_clearance above the support plane; -inf where no depth does.
+    height (S,): each sample's height above the support less support_clearance (m)."""
     assert p.support is not None
     n = p.support.normal
-    height = p.support.distance(samples.astype(np.float64)) - p.support_clearance  # (S,)
     nf = frames.transpose(0, 2, 1) @ n  # (S, 3): n in each sample frame
     c, s_ = np.cos(phis)[None, :], np.sin(phis)[None, :]
     na = c * nf[:, 0:1] + s_ * nf[:, 1:2]  # (S, Phi): n . approach
@@ -275,14 +275,13 @@ def _support_limit(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.fl
     return np.where(na3 < 0.0, toward, np.where(away_ok, np.inf, -np.inf))
 
 
-def _low_bite(p: SamplingParams, hand: HandGeometry, samples: NDArray[np.float32]) -> NDArray[np.float64] | None:
+def _low_bite(p: SamplingParams, hand: HandGeometry, height: NDArray[np.float64]) -> NDArray[np.float64] | None:
     """(S,) least fingertip depth (m past the sample) where the support stops the fingertips: support_bite at a
-    sample less than init_bite above the support's clearance (the top of an object lying flat, which only its
-    edges hold), else the hand's init_bite (a hand low on a taller object must bite as deep as anywhere); None
-    without a support or a support_bite."""
-    if p.support is None or p.support_bite is None:
+    sample less than init_bite above the support's clearance (height, as _support_limit takes it: the top of an
+    object lying flat, which only its edges hold), else the hand's init_bite (a hand low on a taller object must
+    bite as deep as anywhere); None without a support_bite."""
+    if p.support_bite is None:
         return None
-    height = p.support.distance(samples.astype(np.float64)) - p.support_clearance
     return np.where(height < hand.init_bite, min(hand.init_bite, p.support_bite), hand.init_bite)
 
 
@@ -332,8 +331,11 @@ def _search_chunk(scene: Scene, hand: HandGeometry, p: SamplingParams, sample_id
                         *bin_range(s + od / 2 - fw, s + od / 2 + clear),  # right finger
                         *bin_range(s - od / 2 - clear, s + od / 2 + clear))  # palm
                        for s in s_grid], np.int64).reshape(-1, 6)
-    support = None if p.support is None else _support_limit(p, hand, samples, frames, phis, s_grid, behind)
-    low_bite = _low_bite(p, hand, samples)
+    support, low_bite = None, None
+    if p.support is not None:  # each sample's height above the support's clearance, m
+        height = p.support.distance(samples.astype(np.float64)) - p.support_clearance
+        support = _support_limit(p, hand, height, frames, phis, s_grid, behind)
+        low_bite = _low_bite(p, hand, height)
     si, pi, bj, tip, ymin, ymax, local, elem, cand = place_hands(
         starts, local_x, local_y, z, phis, s_grid, ranges, support, y_max=y_max, bin_w=bin_w, n_bins=n_bins, hd=hd,
         clear=clear, init_bite=hand.init_bite, low_bite=low_bite, half_w=hand.closing_half_width,
