@@ -104,14 +104,54 @@ def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0
     return bool(len(tops) >= 3 and np.mean(np.abs(tops - np.median(tops)) <= tolerance) >= share)
 
 
+#: Beside a rim's crest (m, horizontally): a lying object's flanks lie RIM_FLANK_OFFSET from it, falling from
+#: RIM_FLANK_DEPTH below its height to 1 cm above; a thin wall's own faces lie closer (half its thickness).
+RIM_FLANK_OFFSET = (0.010, 0.030)
+RIM_FLANK_DEPTH = 0.02
+
+
+def _crest_offset(lateral: F64, height: F64, step: float = 0.002) -> float:
+    """Across a line (m): where the step-wide slice of up-facing points with the highest 90th-percentile height
+    lies (a bottle's ridge, a wall's top), so that flanks are measured from the ridge, not from a fitted line."""
+    cells = np.floor(lateral / step).astype(np.int64)
+    order = np.lexsort((height, cells))
+    cells_s = cells[order]
+    first = np.flatnonzero(np.r_[True, cells_s[1:] != cells_s[:-1]])
+    count = np.diff(np.r_[first, len(cells_s)])
+    p90 = height[order][first + np.floor(0.9 * (count - 1)).astype(np.int64)]
+    p90 = np.where(count >= 5, p90, -np.inf)
+    return float((cells_s[first][int(np.argmax(p90))] + 0.5) * step)
+
+
+def _has_flanks(tops: F64, objects: F64, origin: F64, direction: F64, up: F64, run: tuple[float, float],
+                on_count: int) -> bool:
+    """Whether a rim candidate is an object's rounded ridge (a bottle lying on the table): more object points
+    (any normal) than 0.3 x its on-line points lie RIM_FLANK_OFFSET beside its crest, from RIM_FLANK_DEPTH below
+    its height to 1 cm above.  tops: the up-facing points along its run; objects: all object points."""
+    across = np.cross(up, direction)
+    lateral = (tops - origin) @ across
+    near = np.abs(lateral) <= RIM_FLANK_OFFSET[1]
+    if np.count_nonzero(near) < 5:
+        return False
+    crest = _crest_offset(lateral[near], tops[near] @ up)
+    rel = objects - origin
+    t, dh = rel @ direction, rel @ up
+    off = np.abs(rel @ across - crest)
+    beside = ((t >= run[0]) & (t <= run[1]) & (dh >= -RIM_FLANK_DEPTH) & (dh <= 0.01)
+              & (off >= RIM_FLANK_OFFSET[0]) & (off <= RIM_FLANK_OFFSET[1]))
+    return bool(np.count_nonzero(beside) > 0.3 * on_count)
+
+
 def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentParams, min_length: float,
               rng: np.random.Generator, candidates: NDArray[np.bool_]) -> list[tuple[Box, F64, F64, float, int]]:
     """Rims: long, thin, horizontal lines of points above the support (a thin wall's top seen from above, its
-    faces unseen), each at least min_length gap-free with nothing else at its height beside it.  Returns (box
-    down to the support, point on the line, direction, length, points) per rim."""
+    faces unseen), each at least min_length gap-free with nothing else at its height beside it, and no object
+    falling away beside its crest (_has_flanks: a bottle lying on the table).  Returns (box down to the support,
+    point on the line, direction, length, points) per rim."""
     up = support.normal
     h = support.distance(points)
     idx = np.flatnonzero(candidates & (h > 0.015) & (normals @ up > 0.7))  # a rim's top faces up
+    others = np.flatnonzero(candidates & (h > 0.005))
     rims: list[tuple[Box, F64, F64, float, int]] = []
     if len(idx) < 20:
         return rims
@@ -157,6 +197,8 @@ def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentPara
         length_run = s1 - s0
         near_run = (t >= s0) & (t <= s1)
         if length_run < min_length or (beside & near_run).sum() > 0.3 * (on & near_run).sum():
+            continue
+        if _has_flanks(points[idx[near_run]], points[others], o3, d3, up, (s0, s1), int((on & near_run).sum())):
             continue
         top = float(np.percentile(h[idx[on & near_run]], 90.0)) + 0.01
         across = np.cross(up, d3)
