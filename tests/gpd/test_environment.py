@@ -172,3 +172,25 @@ def test_a_bottle_lying_on_the_table_is_an_object_not_a_container_rim(radius: fl
     assert found.environment is not None
     assert [s.kind for s in found.environment.surfaces] == ["support"]
     assert len(found.grasps) >= 20
+
+
+@pytest.mark.parametrize("heading_deg", [30.0, 90.0])
+def test_two_bottles_lying_side_by_side_are_objects_not_two_walls(heading_deg: float) -> None:
+    """Each bottle's flank seen from the side is a long steep patch with a level top, and the two together look
+    like a container's walls; their normals turning upward with height tell a curved flank from a flat wall.
+    Before, both were walls and at most 11 of 200 hands were left."""
+    def lying(radius: float, length: float, across: float) -> o3d.geometry.TriangleMesh:
+        m = o3d.geometry.TriangleMesh.create_cylinder(radius=radius, height=length, resolution=48)
+        m.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0.0, np.pi / 2, 0.0)), center=(0, 0, 0))
+        m.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0.0, 0.0, np.radians(heading_deg))), center=(0, 0, 0))
+        side = np.array([-np.sin(np.radians(heading_deg)), np.cos(np.radians(heading_deg))]) * across
+        return m.translate((side[0], side[1], radius))
+
+    table = o3d.geometry.TriangleMesh.create_box(0.6, 0.6, 0.02).translate((-0.3, -0.3, -0.02))
+    cloud = render_scene([table, lying(0.02, 0.19, 0.03), lying(0.028, 0.16, -0.03)], sensing_cameras("side"),
+                         DepthNoise.benchmark(), 0)
+    p = DetectionParams(num_samples=200, use_classifier=False, workspace=(-0.2, 0.2, -0.2, 0.2, -0.005, 0.4))
+    found = GraspDetector(None, PANDA_LIKE).detect(cloud, p)
+    assert found.environment is not None
+    assert [s.kind for s in found.environment.surfaces] == ["support"]
+    assert len(found.grasps) >= 50

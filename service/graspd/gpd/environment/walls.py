@@ -32,6 +32,7 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     if candidates is not None:
         pool &= candidates
     remaining = points[pool]
+    remaining_up = normals[pool] @ up  # the vertical component of each remaining point's normal
     walls: list[tuple[Box, Plane, float, int, float, bool]] = []
     min_points = 30
     # a wall is among the largest planes left: fewer hypotheses on fewer points find it (half the cost)
@@ -46,8 +47,8 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         inliers = np.abs(plane.distance(remaining)) <= params.plane_distance
         if inliers.sum() < params.wall_min_points:
             break  # the largest plane left is too small to be a wall: the rest are objects' faces
-        patch = remaining[inliers]
-        remaining = remaining[~inliers]
+        patch, patch_up = remaining[inliers], remaining_up[inliers]
+        remaining, remaining_up = remaining[~inliers], remaining_up[~inliers]
         if abs(float(plane.normal @ up)) > np.sin(np.radians(params.wall_max_tilt_deg)):
             continue  # not vertical: an object's top, or a second level
         across = plane.normal - (plane.normal @ up) * up  # the face's horizontal normal, toward the cameras
@@ -61,10 +62,13 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         longest = max(b - a for a, b in runs)
         # the longest gap-free run makes it a wall; objects in front may hide parts of it, so it spans all runs
         s0, s1 = min(a for a, _ in runs), max(b for _, b in runs)
-        run = patch[(patch @ along >= s0) & (patch @ along <= s1)]
+        in_run = (patch @ along >= s0) & (patch @ along <= s1)
+        run = patch[in_run]
         h = support.distance(run)
         if not _level_top(run @ along, h):
             continue  # faces of several objects that happen to line up: their tops are at many heights
+        if _curved_flank(h, patch_up[in_run]):
+            continue  # a long object lying on its side (a bottle, a cucumber): its flank curves up its height
         foot = float(np.percentile(h, 1.0))
         stands = any(abs(foot - lv) <= params.wall_base_gap or foot <= lv + params.wall_base_gap
                      for lv in level_heights)
@@ -85,6 +89,24 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         half = np.array([(front + back) / 2.0, (s1 - s0) / 2.0 + 0.01, (top - base) / 2.0])
         walls.append((Box(centre, rotation, half), Plane(across, -face), longest, len(run), top - 0.01, stands))
     return walls
+
+
+#: A wall's face is flat up its height; a lying object's flank curves: its normals turn upward with height, by
+#: more than a radian per CURVED_FLANK_RADIUS (m), with at least CURVED_FLANK_CORRELATION between the two.
+CURVED_FLANK_RADIUS = 0.10
+CURVED_FLANK_CORRELATION = 0.7
+
+
+def _curved_flank(height: F64, normal_up: F64) -> bool:
+    """Whether a steep patch (its points' heights above the support, m, and their normals' vertical components) is
+    the rounded flank of an object lying on its side, not a wall: its normals turn upward with height as a
+    cylinder's of radius under CURVED_FLANK_RADIUS do (n . up = (h - axis height) / radius)."""
+    hc, nc = height - height.mean(), normal_up - normal_up.mean()
+    var_h, var_n, cov = float(hc @ hc), float(nc @ nc), float(hc @ nc)
+    if len(height) < 10 or var_h <= 0.0 or var_n <= 0.0:
+        return False
+    return bool(cov / var_h >= 1.0 / CURVED_FLANK_RADIUS
+                and cov / np.sqrt(var_h * var_n) >= CURVED_FLANK_CORRELATION)
 
 
 def freestanding_sheet(box: Box, length: float, min_length: float, p: EnvironmentParams) -> bool:
