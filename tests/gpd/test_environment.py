@@ -155,20 +155,29 @@ def test_the_same_cloud_and_seed_give_the_same_environment(tray: ViewpointCloud)
     assert np.array_equal(first.labels, second.labels)
 
 
+def _lying_on_table(cylinders: list[tuple[float, float, float]], heading_deg: float) -> Detection:
+    """Cylinders (radius, length, offset across their axis; m) lying side by side on a table, their axes heading_deg
+    about the vertical, seen by the household benchmark's side camera with its noise: the detection of a
+    Panda-like hand, 200 samples, unscored."""
+    heading = np.radians(heading_deg)
+    meshes = [o3d.geometry.TriangleMesh.create_box(0.6, 0.6, 0.02).translate((-0.3, -0.3, -0.02))]
+    for radius, length, across in cylinders:
+        m = o3d.geometry.TriangleMesh.create_cylinder(radius=radius, height=length, resolution=48)
+        m.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0.0, np.pi / 2, 0.0)), center=(0, 0, 0))
+        m.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0.0, 0.0, heading)), center=(0, 0, 0))
+        meshes.append(m.translate((-np.sin(heading) * across, np.cos(heading) * across, radius)))
+    cloud = render_scene(meshes, sensing_cameras("side"), DepthNoise.benchmark(), 0)
+    p = DetectionParams(num_samples=200, use_classifier=False, workspace=(-0.2, 0.2, -0.2, 0.2, -0.005, 0.4))
+    return GraspDetector(None, PANDA_LIKE).detect(cloud, p)
+
+
 @pytest.mark.parametrize(("radius", "length", "heading_deg"), [(0.0225, 0.16, 60.0), (0.0175, 0.23, 60.0),
                                                                (0.0175, 0.23, 90.0), (0.03, 0.16, 0.0)])
 def test_a_bottle_lying_on_the_table_is_an_object_not_a_container_rim(radius: float, length: float,
                                                                        heading_deg: float) -> None:
     """Its ridge is a long line of up-facing points, as a thin wall's top is; its flanks falling away beside the
-    ridge tell it from one.  Seen by the household benchmark's side camera, with its noise, Panda-like hand."""
-    bottle = o3d.geometry.TriangleMesh.create_cylinder(radius=radius, height=length, resolution=48)
-    bottle.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0.0, np.pi / 2, 0.0)), center=(0, 0, 0))
-    bottle.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0.0, 0.0, np.radians(heading_deg))), center=(0, 0, 0))
-    table = o3d.geometry.TriangleMesh.create_box(0.6, 0.6, 0.02).translate((-0.3, -0.3, -0.02))
-    cloud = render_scene([table, bottle.translate((0.0, 0.0, radius))], sensing_cameras("side"),
-                         DepthNoise.benchmark(), 0)
-    p = DetectionParams(num_samples=200, use_classifier=False, workspace=(-0.2, 0.2, -0.2, 0.2, -0.005, 0.4))
-    found = GraspDetector(None, PANDA_LIKE).detect(cloud, p)
+    ridge tell it from one."""
+    found = _lying_on_table([(radius, length, 0.0)], heading_deg)
     assert found.environment is not None
     assert [s.kind for s in found.environment.surfaces] == ["support"]
     assert len(found.grasps) >= 20
@@ -179,18 +188,7 @@ def test_two_bottles_lying_side_by_side_are_objects_not_two_walls(heading_deg: f
     """Each bottle's flank seen from the side is a long steep patch with a level top, and the two together look
     like a container's walls; their normals turning upward with height tell a curved flank from a flat wall.
     Before, both were walls and at most 11 of 200 hands were left."""
-    def lying(radius: float, length: float, across: float) -> o3d.geometry.TriangleMesh:
-        m = o3d.geometry.TriangleMesh.create_cylinder(radius=radius, height=length, resolution=48)
-        m.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0.0, np.pi / 2, 0.0)), center=(0, 0, 0))
-        m.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0.0, 0.0, np.radians(heading_deg))), center=(0, 0, 0))
-        side = np.array([-np.sin(np.radians(heading_deg)), np.cos(np.radians(heading_deg))]) * across
-        return m.translate((side[0], side[1], radius))
-
-    table = o3d.geometry.TriangleMesh.create_box(0.6, 0.6, 0.02).translate((-0.3, -0.3, -0.02))
-    cloud = render_scene([table, lying(0.02, 0.19, 0.03), lying(0.028, 0.16, -0.03)], sensing_cameras("side"),
-                         DepthNoise.benchmark(), 0)
-    p = DetectionParams(num_samples=200, use_classifier=False, workspace=(-0.2, 0.2, -0.2, 0.2, -0.005, 0.4))
-    found = GraspDetector(None, PANDA_LIKE).detect(cloud, p)
+    found = _lying_on_table([(0.02, 0.19, 0.03), (0.028, 0.16, -0.03)], heading_deg)
     assert found.environment is not None
     assert [s.kind for s in found.environment.surfaces] == ["support"]
     assert len(found.grasps) >= 50
