@@ -173,10 +173,10 @@ def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentPara
     up = support.normal
     h = support.distance(points)
     idx = np.flatnonzero(candidates & (h > 0.015) & (normals @ up > 0.7))  # a rim's top faces up
-    others = np.flatnonzero(candidates & (h > 0.005))
     rims: list[tuple[Box, F64, F64, float, int]] = []
     if len(idx) < 20:
         return rims
+    objects = points[candidates & (h > 0.005)]  # every object point above the support, for _has_flanks
     sub = idx if len(idx) <= 1500 else rng.choice(idx, 1500, replace=False)
     axes2 = in_plane_axes(up)
     for _ in range(3):
@@ -220,7 +220,7 @@ def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentPara
         near_run = (t >= s0) & (t <= s1)
         if length_run < min_length or (beside & near_run).sum() > 0.3 * (on & near_run).sum():
             continue
-        if _has_flanks(points[idx[near_run]], points[others], o3, d3, up, (s0, s1), int((on & near_run).sum())):
+        if _has_flanks(points[idx[near_run]], objects, o3, d3, up, (s0, s1), int((on & near_run).sum())):
             continue
         top = float(np.percentile(h[idx[on & near_run]], 90.0)) + 0.01
         across = np.cross(up, d3)
