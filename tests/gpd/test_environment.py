@@ -186,8 +186,7 @@ def test_a_bottle_lying_on_the_table_is_an_object_not_a_container_rim(radius: fl
 @pytest.mark.parametrize("heading_deg", [30.0, 90.0])
 def test_two_bottles_lying_side_by_side_are_objects_not_two_walls(heading_deg: float) -> None:
     """Each bottle's flank seen from the side is a long steep patch with a level top, and the two together look
-    like a container's walls; their normals turning upward with height tell a curved flank from a flat wall.
-    Before, both were walls and at most 11 of 200 hands were left."""
+    like a container's walls; their normals turning upward with height tell a curved flank from a flat wall."""
     found = _lying_on_table([(0.02, 0.19, 0.03), (0.028, 0.16, -0.03)], heading_deg)
     assert found.environment is not None
     assert [s.kind for s in found.environment.surfaces] == ["support"]
