@@ -28,6 +28,7 @@ WARNING_CODES: dict[str, str] = {
     "model_hand_mismatch": "the model was not trained for the requested hand; scores are less reliable",
     "no_candidates": "no grasp candidate survived; the stage that removed them is named",
     "target_too_small": "the request's target holds too little of an object to grasp; the message says why",
+    "unseen_floor": "no grasp, and part of a container's floor wide enough to hide an object was seen by no camera",
 }
 
 

@@ -24,6 +24,7 @@ from graspd.core.parallel import THREADS
 from graspd.core.warning import DetectionWarning
 from graspd.gpd.candidates import SUPPORT_BITE, SamplingParams, search_hands
 from graspd.gpd.environment import Environment, EnvironmentParams, Label, hand_hits_environment, model_environment
+from graspd.gpd.environment.coverage import unseen_floor_warning
 from graspd.gpd.images import encode_batches
 from graspd.gpd.objects import SceneObject, Segmentation, segment_objects
 from graspd.gpd.occlusion import (
@@ -313,6 +314,9 @@ class GraspDetector:
                 "there; a view from another side shows it"))
         if p.target is not None and not len(grasps):
             warnings.append(target_warning(prep, p.target, len(candidates)))
+        hidden = None if len(grasps) or env.mode == "none" else unseen_floor_warning(prep.cloud.points, env)
+        if hidden is not None:  # no grasp need not mean an empty container: say what no camera saw
+            warnings.append(hidden)
         lap("select")
         timings["total"] = time.perf_counter() - t0
         return Detection(

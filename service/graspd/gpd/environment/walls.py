@@ -126,6 +126,11 @@ def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0
     return bool(len(tops) >= 3 and np.mean(np.abs(tops - np.median(tops)) <= tolerance) >= share)
 
 
+#: Rims sought per cloud: a four-walled container seen from above shows four, and each try spends the points of
+#: the line it tried (so a refused line, a lying bottle's ridge, does not hide a wall's).
+MAX_RIMS = 4
+RIM_TRIES = 6
+
 #: Beside a rim's crest (m, horizontally): a lying object's flanks lie RIM_FLANK_OFFSET from it, falling from
 #: RIM_FLANK_DEPTH below its height to 1 cm above; a thin wall's own faces lie closer (half its thickness).
 RIM_FLANK_OFFSET = (0.010, 0.030)
@@ -149,19 +154,24 @@ def _has_flanks(tops: F64, objects: F64, origin: F64, direction: F64, up: F64, r
                 on_count: int) -> bool:
     """Whether a rim candidate is an object's rounded ridge (a bottle lying on the table): more object points
     (any normal) than 0.3 x its on-line points lie RIM_FLANK_OFFSET beside its crest, from RIM_FLANK_DEPTH below
-    its height to 1 cm above.  tops: the up-facing points along its run; objects: all object points."""
+    its height to 1 cm above, crest and flanks away from its ends (within RIM_FLANK_OFFSET of an end, a
+    container's next wall meets it at a corner: its top and face are neither).  tops: the up-facing points along
+    its run; objects: all object points."""
+    inner = (run[0] + RIM_FLANK_OFFSET[1], run[1] - RIM_FLANK_OFFSET[1])
+    if inner[1] <= inner[0]:
+        return False
     across = np.cross(up, direction)
-    lateral = (tops - origin) @ across
-    near = np.abs(lateral) <= RIM_FLANK_OFFSET[1]
+    lateral, along = (tops - origin) @ across, (tops - origin) @ direction
+    near = (np.abs(lateral) <= RIM_FLANK_OFFSET[1]) & (along >= inner[0]) & (along <= inner[1])
     if np.count_nonzero(near) < 5:
         return False
     crest = _crest_offset(lateral[near], tops[near] @ up)
     rel = objects - origin
     t, dh = rel @ direction, rel @ up
     off = np.abs(rel @ across - crest)
-    beside = ((t >= run[0]) & (t <= run[1]) & (dh >= -RIM_FLANK_DEPTH) & (dh <= 0.01)
+    beside = ((t >= inner[0]) & (t <= inner[1]) & (dh >= -RIM_FLANK_DEPTH) & (dh <= 0.01)
               & (off >= RIM_FLANK_OFFSET[0]) & (off <= RIM_FLANK_OFFSET[1]))
-    return bool(np.count_nonzero(beside) > 0.3 * on_count)
+    return bool(np.count_nonzero(beside) > 0.3 * on_count * (inner[1] - inner[0]) / (run[1] - run[0]))
 
 
 def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentParams, min_length: float,
@@ -179,8 +189,8 @@ def find_rims(points: F64, normals: F64, support: Plane, params: EnvironmentPara
     objects = points[candidates & (h > 0.005)]  # every object point above the support, for _has_flanks
     sub = idx if len(idx) <= 1500 else rng.choice(idx, 1500, replace=False)
     axes2 = in_plane_axes(up)
-    for _ in range(3):
-        if len(sub) < 20:
+    for _ in range(RIM_TRIES):
+        if len(sub) < 20 or len(rims) >= MAX_RIMS:
             break
         pairs = rng.integers(0, len(sub), size=(150, 2))
         a, b = points[sub[pairs[:, 0]]], points[sub[pairs[:, 1]]]
