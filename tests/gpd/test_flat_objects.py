@@ -16,7 +16,7 @@ import pytest
 from graspd.core.camera import tabletop_cameras
 from graspd.core.hand import HandGeometry
 from graspd.gpd.candidates import SUPPORT_BITE, search_hands
-from graspd.gpd.detector import DetectionParams, GraspDetector
+from graspd.gpd.detector import DetectionParams, GraspDetector, flat_objects_warning
 from graspd_lab.world.noise import DepthNoise
 from graspd_lab.world.render import render_scene
 
@@ -89,3 +89,29 @@ def test_hands_low_on_a_taller_object_still_bite_init_bite_deep(packet_scene: An
     assert (bite >= HAND.init_bite - 1e-6).all()
     low = grasps.samples[:, 2] < 0.03  # hands on its lower half: the ones the table can stop
     assert low.sum() >= 3
+
+
+def test_no_grasp_on_a_lone_flat_packet_says_flat_objects_would_try_it() -> None:
+    alone = render_scene([_box(TABLE), _box(PACKET)], CAMERAS, DepthNoise(), 0)
+    p = DetectionParams(num_samples=300, use_classifier=False, seed=0)
+    default = GraspDetector(None, HAND).detect(alone, p)
+    assert len(default.grasps) == 0
+    flat = [w for w in default.warnings if w.code == "flat_objects"]
+    assert len(flat) == 1 and "1 object(s) lie flat" in flat[0].message and "flat_objects: true" in flat[0].message
+    asked = GraspDetector(None, HAND).detect(alone, replace(p, flat_objects=True))
+    assert len(asked.grasps) > 0
+    assert "flat_objects" not in [w.code for w in asked.warnings]
+
+
+def test_a_flat_packet_beside_a_graspable_block_gets_no_flat_objects_warning(packet_scene: Any) -> None:
+    det = GraspDetector(None, HAND).detect(packet_scene, DetectionParams(num_samples=300, use_classifier=False, seed=0))
+    assert len(det.grasps) > 0
+    assert "flat_objects" not in [w.code for w in det.warnings]
+
+
+def test_a_block_standing_6_cm_tall_is_not_flat() -> None:
+    """Only objects the default bite leaves no hand on are named: a block a hand fits from above is not."""
+    scene = render_scene([_box(TABLE), _box(BLOCK)], CAMERAS, DepthNoise(), 0)
+    prep = GraspDetector(None, HAND).prepare(scene, DetectionParams(num_samples=300, use_classifier=False), HAND)
+    assert len(prep.segmentation.objects) == 1
+    assert flat_objects_warning(prep, HAND) is None

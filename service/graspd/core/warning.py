@@ -29,6 +29,7 @@ WARNING_CODES: dict[str, str] = {
     "no_candidates": "no grasp candidate survived; the stage that removed them is named",
     "target_too_small": "the request's target holds too little of an object to grasp; the message says why",
     "unseen_floor": "no grasp, and part of a container's floor wide enough to hide an object was seen by no camera",
+    "flat_objects": "no grasp, and objects lie too flat for the hand's init_bite: the flat_objects option tries them",
 }
 
 

@@ -317,6 +317,9 @@ class GraspDetector:
         hidden = None if len(grasps) or env.mode == "none" else unseen_floor_warning(prep.cloud.points, env)
         if hidden is not None:  # no grasp need not mean an empty container: say what no camera saw
             warnings.append(hidden)
+        flat = None if len(grasps) or p.flat_objects else flat_objects_warning(prep, h)
+        if flat is not None:  # objects the default bite leaves no hand on, and the option that tries them
+            warnings.append(flat)
         lap("select")
         timings["total"] = time.perf_counter() - t0
         return Detection(
@@ -516,6 +519,28 @@ def target_warning(prep: Prepared, target: Target, num_candidates: int) -> Detec
         why = (f"no collision-free hand closes on its {on_objects} object points ({100 * span:.1f} cm across) "
                "without taking in a point of another object")
     return DetectionWarning("target_too_small", f"{target.field}: {why}; no grasp returned")
+
+
+def flat_objects_warning(prep: Prepared, hand: HandGeometry) -> DetectionWarning | None:
+    """flat_objects when objects lie flatter than the hand's init_bite above the support's clearance (their tops,
+    m, the 75th percentile of their points' heights: a packet's top face, above its noise): no hand reaches
+    init_bite past such a top without touching the support, so the default leaves them none
+    (candidates._low_bite gives them a shallower bite when the request asks for flat_objects)."""
+    env, seg = prep.environment, prep.segmentation
+    if env.support is None or not seg.objects:
+        return None
+    height = env.support.distance(prep.cloud.points.astype(np.float64))
+    tops = np.array([np.percentile(height[seg.labels == o.id], 75.0) if o.num_points >= MIN_TARGET_POINTS
+                     else np.inf for o in seg.objects])
+    flat = tops - env.clearance < hand.init_bite
+    if not flat.any():
+        return None
+    thickest = float(tops[flat].max())
+    return DetectionWarning(
+        "flat_objects", f"no grasp, and {int(flat.sum())} object(s) lie flat (their tops {100 * thickest:.1f} cm or "
+        f"less above the support): a hand's fingertips must reach init_bite ({100 * hand.init_bite:.1f} cm) past "
+        "an object's top and stop short of the support, which leaves them no hand; flat_objects: true holds them "
+        "by their edges with a shallower bite (such grasps hold less often)")
 
 
 MIN_SCORE_PIECE = 64  # images scored together at least: below this a second thread saves less than it costs
