@@ -191,3 +191,41 @@ def test_two_bottles_lying_side_by_side_are_objects_not_two_walls(heading_deg: f
     assert found.environment is not None
     assert [s.kind for s in found.environment.surfaces] == ["support"]
     assert len(found.grasps) >= 50
+
+
+def _tray_with_a_box_before(wall_side: float) -> tuple[ViewpointCloud, Box]:
+    """The tray (TRAY_WALLS) with a block 8 cm tall standing 1 cm in front of the middle of its y = wall_side wall,
+    seen by the benchmark's passive cameras: the block hides that wall's middle from the camera that sees it."""
+    sign = 1.0 if wall_side > 0 else -1.0
+    face = 0.14 * sign
+    block = (-0.03, 0.03, min(face - sign * 0.04, face - sign * 0.01), max(face - sign * 0.04, face - sign * 0.01),
+             0.0, 0.08)
+    floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
+    cloud = render_scene([floor, *[box_mesh(w) for w in TRAY_WALLS], box_mesh(block)], sensing_cameras("passive"),
+                         DepthNoise.benchmark(), 0)
+    wall = next(w for w in TRAY_WALLS if (w[2] + w[3]) / 2.0 * sign > 0.1)
+    return cloud, Box.from_bounds(wall)
+
+
+@pytest.mark.parametrize("wall_side", [0.145, -0.145])
+def test_a_tray_wall_whose_middle_an_object_hides_is_still_a_wall(wall_side: float) -> None:
+    """Both ends of the wall show, 10-14 cm each (under the 18 cm a wall must run unbroken), and meet the side
+    walls at the corners: the gap is what stands in front of it, not the wall's end."""
+    cloud, wall = _tray_with_a_box_before(wall_side)
+    det = detect(cloud, max_grasps=1000, use_selection=False)
+    env = det.environment
+    assert env is not None
+    found = [s.box for s in env.surfaces if s.kind == "wall" and s.box is not None]
+    assert any(wall.contains(b.centre[None], margin=0.02)[0] and 2 * b.half_extents[1] > 0.3 for b in found), \
+        "the hidden wall is found along its whole length"
+    assert not np.any(wall.contains(det.grasps.samples, margin=0.004)), "no grasp is sampled on it"
+
+
+def test_object_faces_in_a_line_with_gaps_are_no_wall() -> None:
+    """Three blocks in a row on a table, their faces in one plane with 5 cm gaps, are objects: no wall meets them."""
+    floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
+    blocks = [box_mesh((x, x + 0.06, 0.0, 0.04, 0.0, 0.07)) for x in (-0.16, -0.05, 0.06)]
+    cloud = render_scene([floor, *blocks], sensing_cameras("passive"), DepthNoise.benchmark(), 0)
+    env = detect(cloud, max_grasps=10).environment
+    assert env is not None
+    assert [s.kind for s in env.surfaces] == ["support"]

@@ -57,6 +57,11 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
             across = -across
         along = np.cross(up, across)
         runs = gap_free_runs(patch @ along, gap=0.04, min_count=10)
+        if len(runs) > 1 and _meets_at_corner(plane, up, [w[0] for w in walls]):
+            # a container's side that meets a wall found at a corner: an object standing in front hides part of
+            # it, so its gaps there are no ends
+            runs = _bridge_hidden_gaps(runs, points @ along, points @ across - float(np.median(patch @ across)),
+                                       height, float(np.percentile(support.distance(patch), 1.0)))
         if not runs or max(b - a for a, b in runs) < min_length:
             continue
         longest = max(b - a for a, b in runs)
@@ -95,6 +100,48 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
 #: more than a radian per CURVED_FLANK_RADIUS (m), with at least CURVED_FLANK_CORRELATION between the two.
 CURVED_FLANK_RADIUS = 0.10
 CURVED_FLANK_CORRELATION = 0.7
+
+
+#: In front of a wall (m, toward the cameras): how far an object that hides part of it may stand, and how many of
+#: its points in a gap of the wall's face make that gap hidden rather than the wall's end.
+HIDING_DEPTH = 0.15
+HIDING_POINTS = 10
+
+
+def _bridge_hidden_gaps(runs: list[tuple[float, float]], along: F64, in_front: F64, height: F64, foot: float
+                        ) -> list[tuple[float, float]]:
+    """Gap-free runs of a wall's face (m along it), with each gap joined where something stands in front of it
+    (HIDING_POINTS of the cloud's points within HIDING_DEPTH in front of the face, above the wall's foot, in the
+    gap): what hides the wall there, so the wall goes on behind it.  along, in_front, height: every point's
+    position along the face, distance in front of it and height above the support."""
+    near = (in_front > 0.01) & (in_front < HIDING_DEPTH) & (height > foot)
+    out = [runs[0]]
+    for a, b in runs[1:]:
+        gap = near & (along > out[-1][1]) & (along < a)
+        if np.count_nonzero(gap) >= HIDING_POINTS:
+            out[-1] = (out[-1][0], b)
+        else:
+            out.append((a, b))
+    return out
+
+
+#: A container's sides meet at corners: square to a wall found (within CORNER_ANGLE_DEG) and within CORNER_REACH
+#: (m) of one of its ends.
+CORNER_ANGLE_DEG = 10.0
+CORNER_REACH = 0.03
+
+
+def _meets_at_corner(face: Plane, up: F64, walls: list[Box]) -> bool:
+    """Whether a vertical face is square to one of the walls found and passes within CORNER_REACH of one of its
+    ends (the wall boxes' ends along their length, at mid-height): a container's next side."""
+    for w in walls:
+        along = w.rotation[:, 1]
+        if abs(float(face.normal @ along)) < np.cos(np.radians(CORNER_ANGLE_DEG)):
+            continue
+        ends = w.centre + np.outer([-1.0, 1.0], along) * w.half_extents[1]
+        if np.min(np.abs(face.distance(ends))) <= CORNER_REACH:
+            return True
+    return False
 
 
 def _curved_flank(height: F64, normal_up: F64) -> bool:
