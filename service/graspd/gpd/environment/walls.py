@@ -33,6 +33,7 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         pool &= candidates
     remaining = points[pool]
     remaining_up = normals[pool] @ up  # the vertical component of each remaining point's normal
+    remaining_h = height[pool]
     walls: list[tuple[Box, Plane, float, int, float, bool]] = []
     min_points = 30
     # a wall is among the largest planes left: fewer hypotheses on fewer points find it (half the cost)
@@ -47,8 +48,8 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         inliers = np.abs(plane.distance(remaining)) <= params.plane_distance
         if inliers.sum() < params.wall_min_points:
             break  # the largest plane left is too small to be a wall: the rest are objects' faces
-        patch, patch_up = remaining[inliers], remaining_up[inliers]
-        remaining, remaining_up = remaining[~inliers], remaining_up[~inliers]
+        patch, patch_up, patch_h = remaining[inliers], remaining_up[inliers], remaining_h[inliers]
+        remaining, remaining_up, remaining_h = remaining[~inliers], remaining_up[~inliers], remaining_h[~inliers]
         if abs(float(plane.normal @ up)) > np.sin(np.radians(params.wall_max_tilt_deg)):
             continue  # not vertical: an object's top, or a second level
         across = plane.normal - (plane.normal @ up) * up  # the face's horizontal normal, toward the cameras
@@ -56,21 +57,23 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         if float((cameras.mean(axis=0) - patch.mean(axis=0)) @ across) < 0.0:
             across = -across
         along = np.cross(up, across)
-        runs = gap_free_runs(patch @ along, gap=0.04, min_count=10)
+        patch_along = patch @ along
+        runs = gap_free_runs(patch_along, gap=0.04, min_count=10)
+        points_along, points_across = points @ along, points @ across
         if len(runs) > 1 and _meets_at_corner(plane, up, [w[0] for w in walls]):
             # a container's side that meets a wall found at a corner: an object standing in front hides part of
             # it, so its gaps there are no ends
-            runs = _bridge_hidden_gaps(runs, points @ along, points @ across - float(np.median(patch @ across)),
-                                       height, float(np.percentile(support.distance(patch), 1.0)))
+            runs = _bridge_hidden_gaps(runs, points_along, points_across - float(np.median(patch @ across)),
+                                       height, float(np.percentile(patch_h, 1.0)))
         if not runs or max(b - a for a, b in runs) < min_length:
             continue
         longest = max(b - a for a, b in runs)
         # the longest gap-free run makes it a wall; objects in front may hide parts of it, so it spans all runs
         s0, s1 = min(a for a, _ in runs), max(b for _, b in runs)
-        in_run = (patch @ along >= s0) & (patch @ along <= s1)
+        in_run = (patch_along >= s0) & (patch_along <= s1)
         run = patch[in_run]
-        h = support.distance(run)
-        if not _level_top(run @ along, h):
+        h = patch_h[in_run]
+        if not _level_top(patch_along[in_run], h):
             continue  # faces of several objects that happen to line up: their tops are at many heights
         if _curved_flank(h, patch_up[in_run]):
             continue  # a long object lying on its side (a bottle, a cucumber): its flank curves up its height
@@ -80,8 +83,8 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         face = float(np.median(run @ across))
         # the wall's other face: steep points just behind this one, facing the other way (a wall seen from both
         # sides, or a thin sheet): the box ends there instead of wall_thickness behind
-        behind = (points @ across) - face
-        strip = ((points @ along >= s0) & (points @ along <= s1) & steep & (behind < -params.plane_distance)
+        behind = points_across - face
+        strip = ((points_along >= s0) & (points_along <= s1) & steep & (behind < -params.plane_distance)
                  & (behind > -params.wall_thickness - 0.01) & ((normals @ across) < -0.7))
         back = params.wall_thickness
         if strip.sum() >= 20:
