@@ -3,7 +3,7 @@ above the support: sheet walls seen from above), each modelled as a box (cloud f
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -12,10 +12,16 @@ from graspd.core.types import F64
 from graspd.gpd.environment.planes import fit_plane, gap_free_runs, in_plane_axes
 from graspd.gpd.environment.types import Box, EnvironmentParams, Plane
 
+#: A wall found: its box, its visible face's plane, its longest gap-free run (m), its points, its top's height
+#: above the support (m), and whether it stands on a support level.
+Wall = tuple[Box, Plane, float, int, float, bool]
+#: _wall's answer for a face refused only because its top is not level.
+UNEVEN_TOP = "uneven top"
+
 
 def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: EnvironmentParams,
                min_length: float, rng: np.random.Generator, candidates: NDArray[np.bool_] | None = None,
-               level_heights: tuple[float, ...] = (0.0,)) -> list[tuple[Box, Plane, float, int, float, bool]]:
+               level_heights: tuple[float, ...] = (0.0,)) -> list[Wall]:
     """Walls: near-vertical planar patches at least min_length long, among the candidate points.
 
     Each box spans the patch's longest gap-free run along the support, from below the support to a little
@@ -34,11 +40,15 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     remaining = points[pool]
     remaining_up = normals[pool] @ up  # the vertical component of each remaining point's normal
     remaining_h = height[pool]
-    walls: list[tuple[Box, Plane, float, int, float, bool]] = []
+    walls: list[Wall] = []
+    # faces refused only for an uneven top: a container's side that objects in front rise above, retried once the
+    # walls it meets are known
+    uneven: list[tuple[Plane, F64, F64, F64]] = []
     min_points = 30
     # a wall is among the largest planes left: fewer hypotheses on fewer points find it (half the cost)
     wall_ransac = replace(params, ransac_points=min(params.ransac_points, 3000),
                           ransac_iterations=min(params.ransac_iterations, 120))
+    scene = _Scene(points, normals, height, steep, cameras, up, support, params, min_length, level_heights)
     for _ in range(params.wall_rounds):
         if len(remaining) < min_points or len(walls) >= params.max_walls:
             break
@@ -52,51 +62,93 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         remaining, remaining_up, remaining_h = remaining[~inliers], remaining_up[~inliers], remaining_h[~inliers]
         if abs(float(plane.normal @ up)) > np.sin(np.radians(params.wall_max_tilt_deg)):
             continue  # not vertical: an object's top, or a second level
-        across = plane.normal - (plane.normal @ up) * up  # the face's horizontal normal, toward the cameras
-        across /= np.linalg.norm(across)
-        if float((cameras.mean(axis=0) - patch.mean(axis=0)) @ across) < 0.0:
-            across = -across
-        along = np.cross(up, across)
-        patch_along = patch @ along
-        runs = gap_free_runs(patch_along, gap=0.04, min_count=10)
-        points_along, points_across = points @ along, points @ across
-        if len(runs) > 1 and _meets_at_corner(plane, up, [w[0] for w in walls]):
-            # a container's side that meets a wall found at a corner: an object standing in front hides part of
-            # it, so its gaps there are no ends
-            runs = _bridge_hidden_gaps(runs, points_along, points_across - float(np.median(patch @ across)),
-                                       height, float(np.percentile(patch_h, 1.0)))
-        if not runs or max(b - a for a, b in runs) < min_length:
-            continue
-        longest = max(b - a for a, b in runs)
-        # the longest gap-free run makes it a wall; objects in front may hide parts of it, so it spans all runs
-        s0, s1 = min(a for a, _ in runs), max(b for _, b in runs)
-        in_run = (patch_along >= s0) & (patch_along <= s1)
-        run = patch[in_run]
-        h = patch_h[in_run]
-        if not _level_top(patch_along[in_run], h):
-            continue  # faces of several objects that happen to line up: their tops are at many heights
-        if _curved_flank(h, patch_up[in_run]):
-            continue  # a long object lying on its side (a bottle, a cucumber): its flank curves up its height
-        foot = float(np.percentile(h, 1.0))
-        stands = any(abs(foot - lv) <= params.wall_base_gap or foot <= lv + params.wall_base_gap
-                     for lv in level_heights)
-        face = float(np.median(run @ across))
-        # the wall's other face: steep points just behind this one, facing the other way (a wall seen from both
-        # sides, or a thin sheet): the box ends there instead of wall_thickness behind
-        behind = points_across - face
-        strip = ((points_along >= s0) & (points_along <= s1) & steep & (behind < -params.plane_distance)
-                 & (behind > -params.wall_thickness - 0.01) & ((normals @ across) < -0.7))
-        back = params.wall_thickness
-        if strip.sum() >= 20:
-            back = min(back, float(-np.percentile(behind[strip], 10.0)) + 0.003)
-        front = params.plane_distance + 0.002
-        base, top = -0.02, float(np.percentile(h, 99.0)) + 0.01
-        centre = (along * (s0 + s1) / 2.0 + across * (face + (front - back) / 2.0)
-                  + up * ((base + top) / 2.0 - support.offset))
-        rotation = np.stack([across, along, up], axis=1)
-        half = np.array([(front + back) / 2.0, (s1 - s0) / 2.0 + 0.01, (top - base) / 2.0])
-        walls.append((Box(centre, rotation, half), Plane(across, -face), longest, len(run), top - 0.01, stands))
+        wall = _wall(scene, plane, patch, patch_up, patch_h, walls, corner_side=False)
+        if isinstance(wall, tuple):
+            walls.append(wall)
+        elif wall == UNEVEN_TOP:
+            uneven.append((plane, patch, patch_up, patch_h))
+    for plane, patch, patch_up, patch_h in uneven:
+        if len(walls) >= params.max_walls:
+            break
+        if _corners_met(plane, up, [w[0] for w in walls]) >= 2:
+            wall = _wall(scene, plane, patch, patch_up, patch_h, walls, corner_side=True)
+            if isinstance(wall, tuple):
+                walls.append(wall)
     return walls
+
+
+@dataclass(frozen=True)
+class _Scene:
+    """What every candidate wall is measured against: the whole cloud (points, normals, heights above the
+    support, which points are steep) and find_walls' arguments."""
+
+    points: F64
+    normals: F64
+    height: F64
+    steep: NDArray[np.bool_]
+    cameras: F64
+    up: F64
+    support: Plane
+    params: EnvironmentParams
+    min_length: float
+    level_heights: tuple[float, ...]
+
+
+def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, walls: list[Wall],
+          corner_side: bool) -> Wall | str | None:
+    """The wall a vertical planar patch (its points, their normals' vertical components and heights) makes, or
+    None, or UNEVEN_TOP when only its top's levelness refused it.  corner_side: the face spans between two walls
+    found, square to both at their ends (a container's side), so objects rising above its top in front of it do
+    not refuse it."""
+    up, params = scene.up, scene.params
+    across = plane.normal - (plane.normal @ up) * up  # the face's horizontal normal, toward the cameras
+    across /= np.linalg.norm(across)
+    if float((scene.cameras.mean(axis=0) - patch.mean(axis=0)) @ across) < 0.0:
+        across = -across
+    along = np.cross(up, across)
+    patch_along = patch @ along
+    runs = gap_free_runs(patch_along, gap=0.04, min_count=10)
+    points_along, points_across = scene.points @ along, scene.points @ across
+    if len(runs) > 1 and _meets_at_corner(plane, up, [w[0] for w in walls]):
+        # a container's side that meets a wall found at a corner: an object standing in front hides part of
+        # it, so its gaps there are no ends
+        runs = _bridge_hidden_gaps(runs, points_along, points_across - float(np.median(patch @ across)),
+                                   scene.height, float(np.percentile(patch_h, 1.0)))
+    if not runs or max(b - a for a, b in runs) < scene.min_length:
+        return None
+    longest = max(b - a for a, b in runs)
+    # the longest gap-free run makes it a wall; objects in front may hide parts of it, so it spans all runs
+    s0, s1 = min(a for a, _ in runs), max(b for _, b in runs)
+    in_run = (patch_along >= s0) & (patch_along <= s1)
+    run = patch[in_run]
+    h = patch_h[in_run]
+    if not corner_side and not _level_top(patch_along[in_run], h):
+        # faces of several objects that happen to line up: their tops are at many heights (or a container's
+        # side that objects in front rise above)
+        return UNEVEN_TOP
+    if _curved_flank(h, patch_up[in_run]):
+        return None  # a long object lying on its side (a bottle, a cucumber): its flank curves up its height
+    foot = float(np.percentile(h, 1.0))
+    stands = any(abs(foot - lv) <= params.wall_base_gap or foot <= lv + params.wall_base_gap
+                 for lv in scene.level_heights)
+    face = float(np.median(run @ across))
+    # the wall's other face: steep points just behind this one, facing the other way (a wall seen from both
+    # sides, or a thin sheet): the box ends there instead of wall_thickness behind
+    behind = points_across - face
+    strip = ((points_along >= s0) & (points_along <= s1) & scene.steep & (behind < -params.plane_distance)
+             & (behind > -params.wall_thickness - 0.01) & ((scene.normals @ across) < -0.7))
+    back = params.wall_thickness
+    if strip.sum() >= 20:
+        back = min(back, float(-np.percentile(behind[strip], 10.0)) + 0.003)
+    front = params.plane_distance + 0.002
+    # a side with objects rising above it in front: its top is where most of its length ends
+    top_h = _common_top(patch_along[in_run], h) if corner_side else float(np.percentile(h, 99.0))
+    base, top = -0.02, top_h + 0.01
+    centre = (along * (s0 + s1) / 2.0 + across * (face + (front - back) / 2.0)
+              + up * ((base + top) / 2.0 - scene.support.offset))
+    rotation = np.stack([across, along, up], axis=1)
+    half = np.array([(front + back) / 2.0, (s1 - s0) / 2.0 + 0.01, (top - base) / 2.0])
+    return Box(centre, rotation, half), Plane(across, -face), longest, len(run), top - 0.01, stands
 
 
 #: A wall's face is flat up its height; a lying object's flank curves: its normals turn upward with height, by
@@ -147,6 +199,12 @@ def _meets_at_corner(face: Plane, up: F64, walls: list[Box]) -> bool:
     return False
 
 
+def _corners_met(face: Plane, up: F64, walls: list[Box]) -> int:
+    """How many of the walls found a vertical face meets at a corner (_meets_at_corner, wall by wall): a container's
+    side spanning between two of its walls meets two."""
+    return sum(_meets_at_corner(face, up, [w]) for w in walls)
+
+
 def _curved_flank(height: F64, normal_up: F64) -> bool:
     """Whether a steep patch (its points' heights above the support, m, and their normals' vertical components) is
     the rounded flank of an object lying on its side, not a wall: its normals turn upward with height as a
@@ -174,6 +232,15 @@ def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0
     np.maximum.at(tops, cells, height)
     tops = tops[np.isfinite(tops)]
     return bool(len(tops) >= 3 and np.mean(np.abs(tops - np.median(tops)) <= tolerance) >= share)
+
+
+def _common_top(along: F64, height: F64, step: float = 0.02) -> float:
+    """The height (m above the support) where a vertical face's top lies along most of its length: the median of
+    its step-wide (m) slices' highest points."""
+    cells = np.floor((along - along.min()) / step).astype(np.int64)
+    tops = np.full(int(cells.max()) + 1, -np.inf)
+    np.maximum.at(tops, cells, height)
+    return float(np.median(tops[np.isfinite(tops)]))
 
 
 #: Rims sought per cloud: a four-walled container seen from above shows four, and each try spends the points of
