@@ -141,7 +141,7 @@ def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, 
     if strip.sum() >= 20:
         back = min(back, float(-np.percentile(behind[strip], 10.0)) + 0.003)
     front = params.plane_distance + 0.002
-    # a side with objects rising above it in front: its top is where most of its length ends
+    # a side with objects rising above it in front: its own top, not theirs
     top_h = _common_top(patch_along[in_run], h) if corner_side else float(np.percentile(h, 99.0))
     base, top = -0.02, top_h + 0.01
     centre = (along * (s0 + s1) / 2.0 + across * (face + (front - back) / 2.0)
@@ -235,12 +235,13 @@ def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0
 
 
 def _common_top(along: F64, height: F64, step: float = 0.02) -> float:
-    """The height (m above the support) where a vertical face's top lies along most of its length: the median of
-    its step-wide (m) slices' highest points."""
+    """The height (m above the support) of a vertical face's own top where objects in front rise above it along
+    much of its length: the first quartile of its step-wide (m) slices' highest points (where objects stand, a
+    slice's highest point is theirs)."""
     cells = np.floor((along - along.min()) / step).astype(np.int64)
     tops = np.full(int(cells.max()) + 1, -np.inf)
     np.maximum.at(tops, cells, height)
-    return float(np.median(tops[np.isfinite(tops)]))
+    return float(np.percentile(tops[np.isfinite(tops)], 25.0))
 
 
 #: Rims sought per cloud: a four-walled container seen from above shows four, and each try spends the points of
