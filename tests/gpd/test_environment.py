@@ -221,6 +221,27 @@ def test_a_tray_wall_whose_middle_an_object_hides_is_still_a_wall(wall_side: flo
     assert not np.any(wall.contains(det.grasps.samples, margin=0.004)), "no grasp is sampled on it"
 
 
+@pytest.mark.parametrize("wall_x", [0.185, -0.185])
+def test_a_tray_wall_that_objects_standing_against_it_rise_above_is_still_a_wall(wall_x: float) -> None:
+    """Three blocks 10 cm tall stand against the x = wall_x side of the 6 cm tray (TRAY_WALLS), seen by the
+    benchmark's passive cameras: their sides rise above the wall's top along a third of its length, so its top
+    is not level, yet it spans between the two side walls at their corners; its box keeps the wall's own top."""
+    sign = 1.0 if wall_x > 0 else -1.0
+    floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
+    blocks = [box_mesh((min(0.14 * sign, 0.18 * sign), max(0.14 * sign, 0.18 * sign), y, y + 0.03, 0.0, 0.10))
+              for y in (-0.11, -0.02, 0.07)]
+    cloud = render_scene([floor, *[box_mesh(w) for w in TRAY_WALLS], *blocks], sensing_cameras("passive"),
+                         DepthNoise.benchmark(), 0)
+    env = detect(cloud, max_grasps=10).environment
+    assert env is not None
+    wall = Box.from_bounds(next(w for w in TRAY_WALLS if (w[0] + w[1]) / 2.0 * sign > 0.1))
+    found = [s.box for s in env.surfaces if s.kind == "wall" and s.box is not None]
+    side = [b for b in found if wall.contains(b.centre[None], margin=0.02)[0]]
+    assert side, "the side the blocks stand against is a wall"
+    top = side[0].centre[2] + side[0].half_extents[2]
+    assert 0.06 <= top <= 0.08, f"its box ends a little above the wall's 6 cm top, not at the blocks' 10 cm: {top}"
+
+
 def test_object_faces_in_a_line_with_gaps_are_no_wall() -> None:
     """Three blocks in a row on a table, their faces in one plane with 5 cm gaps, are objects: no wall meets them."""
     floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
