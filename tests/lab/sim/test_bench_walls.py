@@ -1,0 +1,33 @@
+"""bench/walls.py matches each wall box found to the container side it stands on (in the container's frame, turned
+by its yaw) and counts the sides missed and the walls that are no side."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from graspd_lab.sim.containers import ContainerSpec
+from repo_module import load_bench
+
+TRAY = ContainerSpec(style="tray", inner_x=0.30, inner_y=0.24, wall_height=0.05, wall_thickness=0.01,
+                     floor_height=0.0, yaw=np.pi / 2, walls=("-x", "+x", "-y", "+y"), ceiling_height=0.0)
+
+
+def test_a_wall_box_on_a_side_is_that_side_and_one_inside_is_none() -> None:
+    bench = load_bench("walls")
+    # turned a quarter: the container's +x side (x = 0.155 in its frame) lies at world y = 0.155
+    assert bench.side_of(TRAY, TRAY.to_world(np.array([[0.155, 0.02, 0.03]]))[0]) == "+x"
+    assert bench.side_of(TRAY, TRAY.to_world(np.array([[-0.01, -0.125, 0.03]]))[0]) == "-y"
+    assert bench.side_of(TRAY, TRAY.to_world(np.array([[0.09, 0.0, 0.03]]))[0]) is None  # objects' faces inside
+    assert bench.side_of(TRAY, TRAY.to_world(np.array([[0.155, 0.30, 0.03]]))[0]) is None  # beyond the side's end
+
+
+def test_the_report_counts_missed_sides_and_walls_that_are_no_side() -> None:
+    bench = load_bench("walls")
+    rows = [{"seed": 0, "style": "tray", "sides": ["-x", "+x", "-y", "+y"], "found": ["-x", "+x", "-y"],
+             "not_sides": [[0.09, 0.0, 0.03]]},
+            {"seed": 1, "style": "tray", "sides": ["-x", "+x", "-y", "+y"], "found": ["-x", "+x", "-y", "+y"],
+             "not_sides": []}]
+    md = bench.report(rows, {"command": "c", "commit": "x", "styles": ["tray"], "split": "training",
+                             "object_set": "household-training", "seeds": "0-1"})
+    assert "| tray | 2 | 8 | 7 | 1 | 1 | 1 | 1 |" in md
+    assert "| tray | 0 | +y | [[0.09, 0.0, 0.03]] |" in md and "| tray | 1 |" not in md
