@@ -242,6 +242,35 @@ def test_a_tray_wall_that_objects_standing_against_it_rise_above_is_still_a_wall
     assert 0.06 <= top <= 0.08, f"its box ends a little above the wall's 6 cm top, not at the blocks' 10 cm: {top}"
 
 
+def test_objects_tops_side_by_side_at_one_height_are_no_board() -> None:
+    """Four 5 cm blocks in a tray, 2 cm apart: their tops make one surface at one height wider than a level must
+    be, with the blocks' sides seen beneath it between them; that is no board (a shelf's ceiling), and the blocks
+    keep their grasps."""
+    floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
+    blocks = [box_mesh((x, x + 0.07, y, y + 0.07, 0.0, 0.05)) for x in (-0.08, 0.01) for y in (-0.08, 0.01)]
+    cloud = render_scene([floor, *[box_mesh(w) for w in TRAY_WALLS], *blocks], sensing_cameras("passive"),
+                         DepthNoise.benchmark(), 0)
+    det = detect(cloud, max_grasps=1000)
+    assert det.environment is not None
+    assert "board" not in [s.kind for s in det.environment.surfaces]
+    assert len(det.grasps) >= 50
+
+
+def test_a_shelf_ceiling_with_room_seen_beneath_is_a_board() -> None:
+    """A shelf open toward the cameras, its ceiling 25 cm up over a block: room is seen under the ceiling itself,
+    so it is a board, and the block beneath keeps its grasps."""
+    floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
+    shelf = [box_mesh((-0.15, 0.15, -0.16, -0.145, 0.0, 0.27)), box_mesh((-0.15, 0.15, 0.145, 0.16, 0.0, 0.27)),
+             box_mesh((0.145, 0.16, -0.16, 0.16, 0.0, 0.27)), box_mesh((-0.15, 0.16, -0.16, 0.16, 0.25, 0.27))]
+    block = box_mesh((-0.05, 0.01, -0.03, 0.03, 0.0, 0.08))
+    cloud = render_scene([floor, *shelf, block], sensing_cameras("passive"), DepthNoise.benchmark(), 0)
+    det = detect(cloud, max_grasps=1000)
+    assert det.environment is not None
+    boards = [s for s in det.environment.surfaces if s.kind == "board"]
+    assert len(boards) == 1 and boards[0].box is not None and boards[0].box.centre[2] > 0.15
+    assert len(det.grasps) >= 20
+
+
 def test_object_faces_in_a_line_with_gaps_are_no_wall() -> None:
     """Three blocks in a row on a table, their faces in one plane with 5 cm gaps, are objects: no wall meets them."""
     floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))

@@ -135,6 +135,25 @@ def in_footprint(points: F64, level: Level, up: F64, grow: float) -> NDArray[np.
     return np.asarray(np.all(np.abs(local) <= level.half + grow, axis=1))
 
 
+def beneath_surface(points: F64, normals: F64, level: Level, up: F64, beneath: NDArray[np.bool_], band: float,
+                    cell: float = 0.01) -> int:
+    """How many of the points beneath (a mask) lie under the level's own surface, not in its gaps: under the cell
+    (m) grid its up-facing points within band (m) of its plane occupy, less a cell at every edge (an object's
+    side lies under its top's edge).  Room seen under a board (a shelf's ceiling) lies there; objects' tops at
+    one height, the floor seen between them, have none (under a top is its object's unseen body)."""
+    a2 = in_plane_axes(up)
+    local = (points @ a2.T - level.centre) @ level.axes.T
+    ij = np.floor((local + level.half) / cell).astype(np.int64)
+    shape = tuple(int(v) for v in np.ceil(2.0 * level.half / cell).astype(np.int64) + 1)
+    inside = np.all((ij >= 0) & (ij < np.array(shape)), axis=1)
+    top = inside & (np.abs(level.plane.distance(points)) <= band) & ((normals @ up) > np.cos(np.radians(25.0)))
+    grid = np.zeros(shape, bool)
+    grid[ij[top, 0], ij[top, 1]] = True
+    core = ndimage.binary_erosion(grid, structure=np.ones((3, 3), bool))
+    under = beneath & inside
+    return int(core[ij[under, 0], ij[under, 1]].sum())
+
+
 def level_box(level: Level, up: F64, bottom: float, grow: float) -> Box:
     """The solid under a raised level: its footprint grown by grow (m), from height bottom up to just below the
     level's surface (fingers may touch a floor, as they touch the table)."""

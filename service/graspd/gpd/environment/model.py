@@ -12,7 +12,15 @@ from graspd.core.cloud import ViewpointCloud
 from graspd.core.hand import HandGeometry
 from graspd.core.types import F64
 from graspd.core.warning import DetectionWarning
-from graspd.gpd.environment.levels import Level, find_inner_floor, find_levels, in_footprint, level_box, lined_edges
+from graspd.gpd.environment.levels import (
+    Level,
+    beneath_surface,
+    find_inner_floor,
+    find_levels,
+    in_footprint,
+    level_box,
+    lined_edges,
+)
 from graspd.gpd.environment.planes import find_support, plane_spans, ratio_confidence
 from graspd.gpd.environment.types import Box, Environment, EnvironmentParams, Label, Plane, Surface
 from graspd.gpd.environment.walls import find_rims, find_walls, freestanding_sheet
@@ -62,7 +70,7 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
             base_height = levels[0].height if levels else -support.offset
             for lv in levels[1:]:
                 assert up is not None
-                lv_h = _apply_level(lv, up, base_height, pts, labels, walls, surfaces, p, min_extent)
+                lv_h = _apply_level(lv, up, base_height, pts, normals, labels, walls, surfaces, p, min_extent)
                 if lv_h is not None:
                     level_heights.append(lv_h)
             min_length = p.wall_min_length if p.wall_min_length is not None else 1.5 * hand.hand_outer_diameter
@@ -86,7 +94,8 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
                 # up-facing surface inside the walls
                 inner = find_inner_floor(pts, normals, up, support, [f[0] for f in found], labels, p, min_extent)
                 if inner is not None:
-                    lv_h = _apply_level(inner, up, base_height, pts, labels, walls, surfaces, p, 0.6 * min_extent)
+                    lv_h = _apply_level(inner, up, base_height, pts, normals, labels, walls, surfaces, p,
+                                        0.6 * min_extent)
                     if lv_h is not None:
                         level_heights.append(lv_h)
             rim_length = p.rim_min_length if p.rim_min_length is not None else min_length
@@ -134,17 +143,20 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
                        warnings=tuple(warnings), support_distance=p.support_distance)
 
 
-def _apply_level(lv: Level, up: F64, base_height: float, pts: F64, labels: NDArray[np.int8], walls: list[Box],
-                 surfaces: list[Surface], p: EnvironmentParams, min_extent: float) -> float | None:
+def _apply_level(lv: Level, up: F64, base_height: float, pts: F64, normals: F64, labels: NDArray[np.int8],
+                 walls: list[Box], surfaces: list[Surface], p: EnvironmentParams, min_extent: float) -> float | None:
     """Label a raised level's points and sides as support and add its solid (a slab down to the support, or a
     thin board when seen room lies beneath it) to walls and its surface to surfaces.  Returns its height above
-    the support (m) when objects can stand on it (a floor or platform), None for a board."""
+    the support (m) when objects can stand on it (a floor or platform), None for a board, or for objects' tops
+    at one height that only looked like a level (nothing added)."""
     lv_h = lv.height - base_height  # above the lowest support (m)
     dl = lv.plane.distance(pts)
     # seen points well under the level, inside its footprint: it is a board with room beneath (a shelf's
     # ceiling), not a solid down to the table
     beneath = in_footprint(pts, lv, up, -0.02) & (dl < -0.02) & (labels == Label.OBJECT)
     board = int(beneath.sum()) >= 30
+    if board and beneath_surface(pts, normals, lv, up, beneath, p.plane_distance) < 30:
+        return None  # the room beneath shows only between its parts: objects' tops side by side, no board
     depth = min(lv_h, max(0.02, -float(np.max(dl[beneath])) - 0.005)) if board else lv_h
     slab = level_box(lv, up, lv.height - depth - (0.0 if board else 0.01), 0.005)
     # the level's own points and its sides: over its footprint, from its surface down the slab
