@@ -18,6 +18,8 @@ from graspd.gpd.candidates import SamplingParams, search_hands
 from graspd.gpd.classifier import load_model
 from graspd.gpd.detector import Detection, DetectionParams, GraspDetector
 from graspd.gpd.environment import Box, EnvironmentParams, Label, hand_hits_environment, model_environment
+from graspd.gpd.environment.types import Plane
+from graspd.gpd.environment.walls import _spans_between_walls
 from graspd.gpd.preprocess import PreprocessParams, preprocess
 from graspd.gpd.scene import Scene
 from graspd.io.cloud_files import read_cloud
@@ -269,6 +271,21 @@ def test_a_shelf_ceiling_with_room_seen_beneath_is_a_board() -> None:
     boards = [s for s in det.environment.surfaces if s.kind == "board"]
     assert len(boards) == 1 and boards[0].box is not None and boards[0].box.centre[2] > 0.15
     assert len(det.grasps) >= 20
+
+
+def _side_wall(y: float) -> Box:
+    """A wall box along x at y (length on its second axis, as find_walls makes them), its ends at x = +-0.15."""
+    rotation = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    return Box(np.array([0.0, y, 0.03]), rotation, np.array([0.007, 0.15, 0.03]))
+
+
+def test_a_face_spans_between_walls_only_when_it_meets_them_at_its_two_ends() -> None:
+    """A face square to two side walls, 1 cm from their ends, spans between them (a container's fourth side);
+    one that meets a wall found twice at one end does not (objects' faces before a shelf's open front)."""
+    face = Plane(np.array([1.0, 0.0, 0.0]), 0.14)  # x = -0.14
+    up = np.array([0.0, 0.0, 1.0])
+    assert _spans_between_walls(face, up, [_side_wall(-0.15), _side_wall(0.15)], min_length=0.15)
+    assert not _spans_between_walls(face, up, [_side_wall(-0.15), _side_wall(-0.14)], min_length=0.15)
 
 
 def test_object_faces_in_a_line_with_gaps_are_no_wall() -> None:

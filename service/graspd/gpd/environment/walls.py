@@ -70,7 +70,7 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     for plane, patch, patch_up, patch_h in uneven:
         if len(walls) >= params.max_walls:
             break
-        if _corners_met(plane, up, [w[0] for w in walls]) >= 2:
+        if _spans_between_walls(plane, up, [w[0] for w in walls], min_length):
             wall = _wall(scene, plane, patch, patch_up, patch_h, walls, corner_side=True)
             if isinstance(wall, tuple):
                 walls.append(wall)
@@ -199,10 +199,13 @@ def _meets_at_corner(face: Plane, up: F64, walls: list[Box]) -> bool:
     return False
 
 
-def _corners_met(face: Plane, up: F64, walls: list[Box]) -> int:
-    """How many of the walls found a vertical face meets at a corner (_meets_at_corner, wall by wall): a container's
-    side spanning between two of its walls meets two."""
-    return sum(_meets_at_corner(face, up, [w]) for w in walls)
+def _spans_between_walls(face: Plane, up: F64, walls: list[Box], min_length: float) -> bool:
+    """Whether a vertical face meets two of the walls found at corners (_meets_at_corner, wall by wall) at least
+    min_length (m) apart along it: a container's side spanning between two of its opposite walls, not a face
+    that ends at one wall (objects' faces before a shelf's open front meet its side wall there)."""
+    along = np.cross(up, face.normal)
+    met = [float(w.centre @ along) for w in walls if _meets_at_corner(face, up, [w])]
+    return len(met) >= 2 and max(met) - min(met) >= min_length
 
 
 def _curved_flank(height: F64, normal_up: F64) -> bool:
