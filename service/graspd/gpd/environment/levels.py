@@ -13,6 +13,9 @@ from graspd.core.types import F64
 from graspd.gpd.environment.planes import in_plane_axes, min_area_rectangle, robust_span
 from graspd.gpd.environment.types import Box, EnvironmentParams, Label, Plane
 
+#: A point faces up when its normal lies within 25 degrees of up: the points a level is made of.
+UP_FACING_COS = float(np.cos(np.radians(25.0)))
+
 
 @dataclass(frozen=True)
 class Level:
@@ -34,7 +37,7 @@ def find_levels(points: F64, normals: F64, up: F64, params: EnvironmentParams, m
     """Support levels, lowest first: up-facing planes (normal within 15 degrees of up) whose points span
     min_extent in both in-plane directions.  Candidate heights are the peaks of a histogram of up-facing
     points' heights; each peak is refined by a least-squares plane, so a level may tilt a little from up."""
-    upf_all = (normals @ up) > np.cos(np.radians(25.0))
+    upf_all = (normals @ up) > UP_FACING_COS
     if upf_all.sum() < params.level_min_points:
         return []
     # only up-facing points can be a level: everything below runs on them (a third of a tabletop cloud), thinned
@@ -129,10 +132,14 @@ def _largest_island(xy: F64, cell: float = 0.01) -> tuple[NDArray[np.bool_], int
     return cell_part == largest, int((grid & (parts == largest)).sum())
 
 
+def footprint_coordinates(points: F64, level: Level, up: F64) -> F64:
+    """Each point (N,3) in the level's footprint frame (N,2; m from its centre along its rectangle's axes)."""
+    return np.asarray((points @ in_plane_axes(up).T - level.centre) @ level.axes.T)
+
+
 def in_footprint(points: F64, level: Level, up: F64, grow: float) -> NDArray[np.bool_]:
     """Whether each point (N,3) lies over the level's footprint grown by grow (m), at any height."""
-    local = (points @ in_plane_axes(up).T - level.centre) @ level.axes.T
-    return np.asarray(np.all(np.abs(local) <= level.half + grow, axis=1))
+    return np.asarray(np.all(np.abs(footprint_coordinates(points, level, up)) <= level.half + grow, axis=1))
 
 
 def beneath_surface(points: F64, normals: F64, level: Level, up: F64, beneath: NDArray[np.bool_], band: float,
@@ -141,12 +148,10 @@ def beneath_surface(points: F64, normals: F64, level: Level, up: F64, beneath: N
     (m) grid its up-facing points within band (m) of its plane occupy, less a cell at every edge (an object's
     side lies under its top's edge).  Room seen under a board (a shelf's ceiling) lies there; objects' tops at
     one height, the floor seen between them, have none (under a top is its object's unseen body)."""
-    a2 = in_plane_axes(up)
-    local = (points @ a2.T - level.centre) @ level.axes.T
-    ij = np.floor((local + level.half) / cell).astype(np.int64)
+    ij = np.floor((footprint_coordinates(points, level, up) + level.half) / cell).astype(np.int64)
     shape = tuple(int(v) for v in np.ceil(2.0 * level.half / cell).astype(np.int64) + 1)
     inside = np.all((ij >= 0) & (ij < np.array(shape)), axis=1)
-    top = inside & (np.abs(level.plane.distance(points)) <= band) & ((normals @ up) > np.cos(np.radians(25.0)))
+    top = inside & (np.abs(level.plane.distance(points)) <= band) & ((normals @ up) > UP_FACING_COS)
     grid = np.zeros(shape, bool)
     grid[ij[top, 0], ij[top, 1]] = True
     core = ndimage.binary_erosion(grid, structure=np.ones((3, 3), bool))
@@ -179,7 +184,7 @@ def find_inner_floor(points: F64, normals: F64, up: F64, support: Plane, wall_bo
     centre, axes, half = min_area_rectangle(corners)
     local = (points @ a2.T - centre) @ axes.T
     h = support.distance(points)
-    cand = ((labels == Label.OBJECT) & ((normals @ up) > np.cos(np.radians(25.0)))
+    cand = ((labels == Label.OBJECT) & ((normals @ up) > UP_FACING_COS)
             & np.all(np.abs(local) <= half - 0.01, axis=1) & (h > params.support_distance) & (h < 0.06))
     if cand.sum() < 3 * params.level_min_points:
         return None
@@ -209,7 +214,7 @@ def lined_edges(points: F64, labels: NDArray[np.int8], level: Level, up: F64, ri
     above the level in at least share of the step-wide (m) slices, within 2 cm of the side: a wall kept as
     objects (a platform's edge has nothing standing along all of it)."""
     obj = labels == Label.OBJECT
-    local = (points[obj] @ in_plane_axes(up).T - level.centre) @ level.axes.T
+    local = footprint_coordinates(points[obj], level, up)
     high = (points[obj] @ up) > level.height + rise
     out = []
     for axis in (0, 1):

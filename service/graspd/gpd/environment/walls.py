@@ -108,11 +108,14 @@ def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, 
     along = np.cross(up, across)
     patch_along = patch @ along
     runs = gap_free_runs(patch_along, gap=0.04, min_count=10)
-    points_along, points_across = scene.points @ along, scene.points @ across
-    if len(runs) > 1 and _meets_at_corner(plane, up, [w[0] for w in walls]):
+    # the whole cloud on the face's axes: for the hidden-gap test and the far-face strip, projected once and only
+    # for a patch that gets that far
+    projected: tuple[F64, F64] | None = None
+    if len(runs) > 1 and _corner_walls(plane, [w[0] for w in walls]):
         # a container's side that meets a wall found at a corner: an object standing in front hides part of
         # it, so its gaps there are no ends
-        runs = _bridge_hidden_gaps(runs, points_along, points_across - float(np.median(patch @ across)),
+        projected = scene.points @ along, scene.points @ across
+        runs = _bridge_hidden_gaps(runs, projected[0], projected[1] - float(np.median(patch @ across)),
                                    scene.height, float(np.percentile(patch_h, 1.0)))
     if not runs or max(b - a for a, b in runs) < scene.min_length:
         return None
@@ -132,6 +135,8 @@ def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, 
     stands = any(abs(foot - lv) <= params.wall_base_gap or foot <= lv + params.wall_base_gap
                  for lv in scene.level_heights)
     face = float(np.median(run @ across))
+    points_along, points_across = projected if projected is not None else (scene.points @ along,
+                                                                           scene.points @ across)
     # the wall's other face: steep points just behind this one, facing the other way (a wall seen from both
     # sides, or a thin sheet): the box ends there instead of wall_thickness behind
     behind = points_across - face
@@ -186,25 +191,26 @@ CORNER_ANGLE_DEG = 10.0
 CORNER_REACH = 0.03
 
 
-def _meets_at_corner(face: Plane, up: F64, walls: list[Box]) -> bool:
-    """Whether a vertical face is square to one of the walls found and passes within CORNER_REACH of one of its
-    ends (the wall boxes' ends along their length, at mid-height): a container's next side."""
+def _corner_walls(face: Plane, walls: list[Box]) -> list[Box]:
+    """The walls found that a vertical face meets at a corner: square to it (within CORNER_ANGLE_DEG), with one
+    of their ends (along their length, at mid-height) within CORNER_REACH of it; a container's next sides."""
+    met = []
     for w in walls:
         along = w.rotation[:, 1]
         if abs(float(face.normal @ along)) < np.cos(np.radians(CORNER_ANGLE_DEG)):
             continue
         ends = w.centre + np.outer([-1.0, 1.0], along) * w.half_extents[1]
         if np.min(np.abs(face.distance(ends))) <= CORNER_REACH:
-            return True
-    return False
+            met.append(w)
+    return met
 
 
 def _spans_between_walls(face: Plane, up: F64, walls: list[Box], min_length: float) -> bool:
-    """Whether a vertical face meets two of the walls found at corners (_meets_at_corner, wall by wall) at least
-    min_length (m) apart along it: a container's side spanning between two of its opposite walls, not a face
-    that ends at one wall (objects' faces before a shelf's open front meet its side wall there)."""
+    """Whether a vertical face meets two of the walls found at corners at least min_length (m) apart along it: a
+    container's side spanning between two of its opposite walls, not a face that ends at one wall (objects'
+    faces before a shelf's open front meet its side wall there)."""
     along = np.cross(up, face.normal)
-    met = [float(w.centre @ along) for w in walls if _meets_at_corner(face, up, [w])]
+    met = [float(w.centre @ along) for w in _corner_walls(face, walls)]
     return len(met) >= 2 and max(met) - min(met) >= min_length
 
 
@@ -227,13 +233,18 @@ def freestanding_sheet(box: Box, length: float, min_length: float, p: Environmen
     return bool(length < 2.5 * min_length)
 
 
-def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0.015, share: float = 0.7) -> bool:
-    """Whether a vertical patch has a straight, level top as a wall has: in step-wide (m) slices along it, the
-    highest point lies within tolerance (m) of the median top in at least share of the slices."""
+def _slice_tops(along: F64, height: F64, step: float) -> F64:
+    """The highest point's height (m) in each step-wide (m) slice along a vertical face that holds points."""
     cells = np.floor((along - along.min()) / step).astype(np.int64)
     tops = np.full(int(cells.max()) + 1, -np.inf)
     np.maximum.at(tops, cells, height)
-    tops = tops[np.isfinite(tops)]
+    return tops[np.isfinite(tops)]
+
+
+def _level_top(along: F64, height: F64, step: float = 0.02, tolerance: float = 0.015, share: float = 0.7) -> bool:
+    """Whether a vertical patch has a straight, level top as a wall has: in step-wide (m) slices along it, the
+    highest point lies within tolerance (m) of the median top in at least share of the slices."""
+    tops = _slice_tops(along, height, step)
     return bool(len(tops) >= 3 and np.mean(np.abs(tops - np.median(tops)) <= tolerance) >= share)
 
 
@@ -241,10 +252,7 @@ def _common_top(along: F64, height: F64, step: float = 0.02) -> float:
     """The height (m above the support) of a vertical face's own top where objects in front rise above it along
     much of its length: the first quartile of its step-wide (m) slices' highest points (where objects stand, a
     slice's highest point is theirs)."""
-    cells = np.floor((along - along.min()) / step).astype(np.int64)
-    tops = np.full(int(cells.max()) + 1, -np.inf)
-    np.maximum.at(tops, cells, height)
-    return float(np.percentile(tops[np.isfinite(tops)], 25.0))
+    return float(np.percentile(_slice_tops(along, height, step), 25.0))
 
 
 #: Rims sought per cloud: a four-walled container seen from above shows four, and each try spends the points of
