@@ -8,6 +8,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from scipy.spatial import ConvexHull, QhullError
+
 from graspd.core.types import F64
 from graspd.gpd.environment.planes import fit_plane, gap_free_runs, in_plane_axes
 from graspd.gpd.environment.types import Box, EnvironmentParams, Plane
@@ -74,7 +76,7 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
             wall = _wall(scene, plane, patch, patch_up, patch_h, walls, corner_side=True)
             if isinstance(wall, tuple):
                 walls.append(wall)
-    return walls
+    return _without_inner_faces(walls, up)
 
 
 @dataclass(frozen=True)
@@ -212,6 +214,51 @@ def _spans_between_walls(face: Plane, up: F64, walls: list[Box], min_length: flo
     along = np.cross(up, face.normal)
     met = [float(w.centre @ along) for w in _corner_walls(face, walls)]
     return len(met) >= 2 and max(met) - min(met) >= min_length
+
+
+#: A wall whose middle lies this far (m, horizontally) inside the outline of the other walls found stands inside the
+#: container they make: a true side lies on that outline, within its thickness.
+INNER_DEPTH = 0.03
+#: A divider inside a container is seen as one gap-free face over at least this share of its length; objects'
+#: faces in a line show gaps.
+DIVIDER_SHARE = 0.75
+
+
+def _without_inner_faces(walls: list[Wall], up: F64) -> list[Wall]:
+    """The walls found less those standing inside the container the others make (INNER_DEPTH inside their
+    outline): objects' faces in a line, unless the face runs gap-free (DIVIDER_SHARE) between walls it meets at
+    both its ends, as a divider does."""
+    if len(walls) < 3:
+        return walls
+    axes = in_plane_axes(up)
+    keep = []
+    for i, wall in enumerate(walls):
+        others = [w[0] for j, w in enumerate(walls) if j != i]
+        box, length = wall[0], wall[2]
+        if _inside_depth(box.centre, others, axes) < INNER_DEPTH or (
+                length >= DIVIDER_SHARE * 2.0 * (box.half_extents[1] - 0.01) and _meets_at_both_ends(box, others)):
+            keep.append(wall)
+    return keep
+
+
+def _inside_depth(point: F64, boxes: list[Box], axes: F64) -> float:
+    """How far (m, horizontally) a point lies inside the convex outline of the boxes' footprints (axes (2, 3): the
+    horizontal plane's); negative outside, and -inf when they outline no area."""
+    corners = np.concatenate([b.corners() for b in boxes]) @ axes.T
+    try:
+        hull = ConvexHull(corners)
+    except QhullError:
+        return -np.inf
+    return float(-np.max(hull.equations[:, :2] @ (axes @ point) + hull.equations[:, 2]))
+
+
+def _meets_at_both_ends(box: Box, walls: list[Box]) -> bool:
+    """Whether each end of a wall box (along its length, at mid-height) lies within CORNER_REACH of a wall square
+    to it (within CORNER_ANGLE_DEG): it runs from wall to wall."""
+    along = box.rotation[:, 1]
+    ends = box.centre + np.outer([-1.0, 1.0], along) * box.half_extents[1]
+    square = [w for w in walls if abs(float(w.rotation[:, 0] @ along)) >= np.cos(np.radians(CORNER_ANGLE_DEG))]
+    return all(any(bool(w.contains(end[None], margin=CORNER_REACH)[0]) for w in square) for end in ends)
 
 
 def _curved_flank(height: F64, normal_up: F64) -> bool:
