@@ -7,7 +7,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
-
 from scipy.spatial import ConvexHull, QhullError
 
 from graspd.core.types import F64
@@ -23,7 +22,7 @@ UNEVEN_TOP = "uneven top"
 
 def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: EnvironmentParams,
                min_length: float, rng: np.random.Generator, candidates: NDArray[np.bool_] | None = None,
-               level_heights: tuple[float, ...] = (0.0,)) -> list[Wall]:
+               level_heights: tuple[float, ...] = (0.0,), levels: tuple[Box, ...] = ()) -> list[Wall]:
     """Walls: near-vertical planar patches at least min_length long, among the candidate points.
 
     Each box spans the patch's longest gap-free run along the support, from below the support to a little
@@ -31,7 +30,9 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     side is seen (its parallel, opposite-facing points), else wall_thickness behind it.  Returns (box, plane,
     length, points, top height, stands) per wall: stands is whether its foot is within wall_base_gap of a
     support level (level_heights: heights above the support, m); a patch that does not stand is still a
-    solid larger than anything graspable, and lowers the stage's confidence."""
+    solid larger than anything graspable, and lowers the stage's confidence.  A face standing inside the outline
+    of the other walls and the raised levels' solids (levels) is dropped unless it is a divider
+    (_without_inner_faces)."""
     up = support.normal
     height = support.distance(points)
     # only points on steep surfaces can belong to a wall: RANSAC then never wastes rounds on object tops
@@ -76,7 +77,7 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
             wall = _wall(scene, plane, patch, patch_up, patch_h, walls, corner_side=True)
             if isinstance(wall, tuple):
                 walls.append(wall)
-    return _without_inner_faces(walls, up)
+    return _without_inner_faces(walls, list(levels), up)
 
 
 @dataclass(frozen=True)
@@ -224,19 +225,19 @@ INNER_DEPTH = 0.03
 DIVIDER_SHARE = 0.75
 
 
-def _without_inner_faces(walls: list[Wall], up: F64) -> list[Wall]:
-    """The walls found less those standing inside the container the others make (INNER_DEPTH inside their
-    outline): objects' faces in a line, unless the face runs gap-free (DIVIDER_SHARE) between walls it meets at
-    both its ends, as a divider does."""
-    if len(walls) < 3:
-        return walls
+def _without_inner_faces(walls: list[Wall], levels: list[Box], up: F64) -> list[Wall]:
+    """The walls found less those standing inside the container that the others and the raised levels' solids
+    make (INNER_DEPTH inside their outline): objects' faces in a line, unless the face runs gap-free
+    (DIVIDER_SHARE) between walls it meets at both its ends, as a divider does."""
     axes = in_plane_axes(up)
     keep = []
     for i, wall in enumerate(walls):
-        others = [w[0] for j, w in enumerate(walls) if j != i]
         box, length = wall[0], wall[2]
-        if _inside_depth(box.centre, others, axes) < INNER_DEPTH or (
-                length >= DIVIDER_SHARE * 2.0 * (box.half_extents[1] - 0.01) and _meets_at_both_ends(box, others)):
+        met = [w[0] for j, w in enumerate(walls) if j != i]
+        inner = _inside_depth(box.centre, met + levels, axes) >= INNER_DEPTH
+        divider = (length >= DIVIDER_SHARE * 2.0 * (box.half_extents[1] - 0.01)
+                   and _meets_at_both_ends(box, met))
+        if divider or not inner:
             keep.append(wall)
     return keep
 
@@ -244,6 +245,8 @@ def _without_inner_faces(walls: list[Wall], up: F64) -> list[Wall]:
 def _inside_depth(point: F64, boxes: list[Box], axes: F64) -> float:
     """How far (m, horizontally) a point lies inside the convex outline of the boxes' footprints (axes (2, 3): the
     horizontal plane's); negative outside, and -inf when they outline no area."""
+    if not boxes:
+        return -np.inf
     corners = np.concatenate([b.corners() for b in boxes]) @ axes.T
     try:
         hull = ConvexHull(corners)
