@@ -296,3 +296,48 @@ def test_object_faces_in_a_line_with_gaps_are_no_wall() -> None:
     env = detect(cloud, max_grasps=10).environment
     assert env is not None
     assert [s.kind for s in env.surfaces] == ["support"]
+
+
+def _tray_walls_found(inside: list[tuple[float, float, float, float, float, float]]) -> tuple[list[Box], Detection]:
+    """The wall boxes found in the tray (TRAY_WALLS) with the given solids inside, seen by the benchmark's passive
+    cameras, and the detection."""
+    floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
+    cloud = render_scene([floor, *[box_mesh(w) for w in TRAY_WALLS], *[box_mesh(b) for b in inside]],
+                         sensing_cameras("passive"), DepthNoise.benchmark(), 0)
+    det = detect(cloud, max_grasps=1000)
+    assert det.environment is not None
+    return [s.box for s in det.environment.surfaces if s.kind == "wall" and s.box is not None], det
+
+
+def test_object_faces_in_a_line_inside_a_tray_are_no_wall() -> None:
+    """Three 7 cm blocks in a row across the tray, 1 cm apart, their faces in one plane with a level top: inside
+    the outline of the tray's four sides, they are objects, and keep their grasps."""
+    row = [(x, x + 0.06, 0.0, 0.05, 0.0, 0.07) for x in (-0.11, -0.04, 0.03)]
+    found, det = _tray_walls_found(row)
+    assert len(found) == 4, [np.round(b.centre, 3).tolist() for b in found]
+    assert all(any(Box.from_bounds(w).contains(b.centre[None], margin=0.02)[0] for w in TRAY_WALLS) for b in found)
+    blocks = Box.from_bounds((-0.11, 0.09, 0.0, 0.05, 0.0, 0.07))
+    assert np.count_nonzero(blocks.contains(det.grasps.positions, margin=0.05)) >= 10
+
+
+def test_a_divider_running_from_wall_to_wall_inside_a_tray_is_a_wall() -> None:
+    """A 1 cm board across the tray from side to side, as tall as its sides: it runs gap-free between the walls it
+    meets at both ends, so it stays a wall although it stands inside the tray."""
+    divider = (-0.18, 0.18, -0.005, 0.005, 0.0, 0.06)
+    found, _ = _tray_walls_found([divider])
+    assert any(Box.from_bounds(divider).contains(b.centre[None], margin=0.02)[0] for b in found)
+
+
+def test_object_faces_in_a_line_on_a_platform_are_no_wall() -> None:
+    """The same row of blocks standing on a 5 cm platform, no container around: inside the platform's outline,
+    their faces are objects, and keep their grasps."""
+    floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
+    platform = box_mesh((-0.15, 0.15, -0.12, 0.12, 0.0, 0.05))
+    row = [box_mesh((x, x + 0.06, 0.0, 0.05, 0.05, 0.12)) for x in (-0.11, -0.04, 0.03)]
+    cloud = render_scene([floor, platform, *row], sensing_cameras("passive"), DepthNoise.benchmark(), 0)
+    det = detect(cloud, max_grasps=1000)
+    assert det.environment is not None
+    kinds = [s.kind for s in det.environment.surfaces]
+    assert "platform" in kinds and "wall" not in kinds, kinds
+    blocks = Box.from_bounds((-0.11, 0.09, 0.0, 0.05, 0.05, 0.12))
+    assert np.count_nonzero(blocks.contains(det.grasps.positions, margin=0.05)) >= 10
