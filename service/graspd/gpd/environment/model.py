@@ -75,7 +75,7 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
                     level_heights.append(lv_h)
             min_length = p.wall_min_length if p.wall_min_length is not None else 1.5 * hand.hand_outer_diameter
             found = find_walls(pts, normals, cams, support, p, min_length, rng, labels == Label.OBJECT,
-                               tuple(level_heights), tuple(walls))
+                               tuple(level_heights), tuple(walls), cloud.camera_source)
             if len(found) == 1 and len(level_heights) == 1 and freestanding_sheet(found[0][0], found[0][2],
                                                                                   min_length, p):
                 found = []  # one short face standing alone on the table: a long object (a board, a box), not a wall

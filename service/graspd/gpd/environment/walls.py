@@ -22,7 +22,8 @@ UNEVEN_TOP = "uneven top"
 
 def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: EnvironmentParams,
                min_length: float, rng: np.random.Generator, candidates: NDArray[np.bool_] | None = None,
-               level_heights: tuple[float, ...] = (0.0,), levels: tuple[Box, ...] = ()) -> list[Wall]:
+               level_heights: tuple[float, ...] = (0.0,), levels: tuple[Box, ...] = (),
+               sources: NDArray[np.int32] | None = None) -> list[Wall]:
     """Walls: near-vertical planar patches at least min_length long, among the candidate points.
 
     Each box spans the patch's longest gap-free run along the support, from below the support to a little
@@ -32,7 +33,8 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     support level (level_heights: heights above the support, m); a patch that does not stand is still a
     solid larger than anything graspable, and lowers the stage's confidence.  A face standing inside the outline
     of the other walls and the raised levels' solids (levels) is dropped unless it is a divider
-    (_without_inner_faces)."""
+    (_without_inner_faces).  sources: each point's camera (an index into cameras, (K, 3)); with them, a face the
+    cameras see through is no wall (_seen_through)."""
     up = support.normal
     height = support.distance(points)
     # only points on steep surfaces can belong to a wall: RANSAC then never wastes rounds on object tops
@@ -51,7 +53,8 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     # a wall is among the largest planes left: fewer hypotheses on fewer points find it (half the cost)
     wall_ransac = replace(params, ransac_points=min(params.ransac_points, 3000),
                           ransac_iterations=min(params.ransac_iterations, 120))
-    scene = _Scene(points, normals, height, steep, cameras, up, support, params, min_length, level_heights)
+    scene = _Scene(points, normals, height, steep, cameras, sources, up, support, params, min_length,
+                   level_heights)
     for _ in range(params.wall_rounds):
         if len(remaining) < min_points or len(walls) >= params.max_walls:
             break
@@ -90,6 +93,7 @@ class _Scene:
     height: F64
     steep: NDArray[np.bool_]
     cameras: F64
+    sources: NDArray[np.int32] | None
     up: F64
     support: Plane
     params: EnvironmentParams
@@ -151,12 +155,42 @@ def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, 
     front = params.plane_distance + 0.002
     # a side with objects rising above it in front: its own top, not theirs
     top_h = _common_top(patch_along[in_run], h) if corner_side else float(np.percentile(h, 99.0))
+    if scene.sources is not None and _seen_through(scene, (along, across), points_along, points_across, face, back,
+                                                   (s0, s1), (foot, top_h)):
+        return None  # the open front of a shelf (its sides' edges in a line), or objects' faces with gaps between
     base, top = -0.02, top_h + 0.01
     centre = (along * (s0 + s1) / 2.0 + across * (face + (front - back) / 2.0)
               + up * ((base + top) / 2.0 - scene.support.offset))
     rotation = np.stack([across, along, up], axis=1)
     half = np.array([(front + back) / 2.0, (s1 - s0) / 2.0 + 0.01, (top - base) / 2.0])
     return Box(centre, rotation, half), Plane(across, -face), longest, len(run), top - 0.01, stands
+
+
+#: A wall hides what lies behind it: a face is seen through when SEEN_THROUGH_POINTS of the cloud's points lie
+#: behind it, on lines of sight that cross its area SEEN_THROUGH_MARGIN (m) or more inside its edges.
+SEEN_THROUGH_POINTS = 30
+SEEN_THROUGH_MARGIN = 0.02
+
+
+def _seen_through(scene: _Scene, axes: tuple[F64, F64], along: F64, across: F64, face: float, back: float,
+                  run: tuple[float, float], heights: tuple[float, float]) -> bool:
+    """Whether the cameras see through a vertical face (its position across, m; its box back deep behind it, m)
+    over its run along it and between its foot and top heights (m above the support): SEEN_THROUGH_POINTS points
+    behind the box whose line of sight from their camera crosses the face inside those bounds.  axes: the face's
+    (along, across) directions; along, across: every point's position on them."""
+    assert scene.sources is not None
+    behind = np.flatnonzero((across < face - back - 0.01) & (scene.height < heights[1]))
+    if len(behind) < SEEN_THROUGH_POINTS:
+        return False
+    eye = scene.cameras[scene.sources[behind]]
+    eye_along, eye_across, eye_h = eye @ axes[0], eye @ axes[1], scene.support.distance(eye)
+    t = (eye_across - face) / np.maximum(eye_across - across[behind], 1e-9)  # where each line crosses the face
+    cross_along = eye_along + t * (along[behind] - eye_along)
+    cross_h = eye_h + t * (scene.height[behind] - eye_h)
+    m = SEEN_THROUGH_MARGIN
+    inside = ((eye_across > face) & (cross_along > run[0] + m) & (cross_along < run[1] - m)
+              & (cross_h > heights[0] + m) & (cross_h < heights[1] - m))
+    return bool(np.count_nonzero(inside) >= SEEN_THROUGH_POINTS)
 
 
 #: A wall's face is flat up its height; a lying object's flank curves: its normals turn upward with height, by
