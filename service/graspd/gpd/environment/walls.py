@@ -80,7 +80,10 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
             wall = _wall(scene, plane, patch, patch_up, patch_h, walls, corner_side=True)
             if isinstance(wall, tuple):
                 walls.append(wall)
-    return _without_inner_faces(walls, list(levels), up)
+    # a face seen through stays among the walls a later face meets at its corners (a shelf's open front, where its
+    # sides end), but is no wall itself
+    solid = [w for w in walls if scene.sources is None or not _seen_through(scene, w)]
+    return _without_inner_faces(solid, list(levels), up)
 
 
 @dataclass(frozen=True)
@@ -155,9 +158,6 @@ def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, 
     front = params.plane_distance + 0.002
     # a side with objects rising above it in front: its own top, not theirs
     top_h = _common_top(patch_along[in_run], h) if corner_side else float(np.percentile(h, 99.0))
-    if scene.sources is not None and _seen_through(scene, (along, across), points_along, points_across, face, back,
-                                                   (s0, s1), (foot, top_h)):
-        return None  # the open front of a shelf (its sides' edges in a line), or objects' faces with gaps between
     base, top = -0.02, top_h + 0.01
     centre = (along * (s0 + s1) / 2.0 + across * (face + (front - back) / 2.0)
               + up * ((base + top) / 2.0 - scene.support.offset))
@@ -172,24 +172,28 @@ SEEN_THROUGH_POINTS = 30
 SEEN_THROUGH_MARGIN = 0.02
 
 
-def _seen_through(scene: _Scene, axes: tuple[F64, F64], along: F64, across: F64, face: float, back: float,
-                  run: tuple[float, float], heights: tuple[float, float]) -> bool:
-    """Whether the cameras see through a vertical face (its position across, m; its box back deep behind it, m)
-    over its run along it and between its foot and top heights (m above the support): SEEN_THROUGH_POINTS points
-    behind the box whose line of sight from their camera crosses the face inside those bounds.  axes: the face's
-    (along, across) directions; along, across: every point's position on them."""
+def _seen_through(scene: _Scene, wall: Wall) -> bool:
+    """Whether the cameras see through a wall found: SEEN_THROUGH_POINTS of the cloud's points behind its box whose
+    line of sight from their camera crosses its face SEEN_THROUGH_MARGIN inside its run and between the support and
+    its top (the open front of a shelf, where only its sides' edges and its floor's lie in one plane; objects' faces
+    with gaps between them)."""
     assert scene.sources is not None
-    behind = np.flatnonzero((across < face - back - 0.01) & (scene.height < heights[1]))
+    box, plane, top_h = wall[0], wall[1], wall[4]
+    across, along = box.rotation[:, 0], box.rotation[:, 1]  # the face's normal, toward the cameras, and its length
+    face = -plane.offset
+    back = face - (float(box.centre @ across) - float(box.half_extents[0]))  # how deep the box reaches behind it
+    middle, half = float(box.centre @ along), float(box.half_extents[1]) - 0.01
+    points_across = scene.points @ across
+    behind = np.flatnonzero((points_across < face - back - 0.01) & (scene.height < top_h))
     if len(behind) < SEEN_THROUGH_POINTS:
         return False
     eye = scene.cameras[scene.sources[behind]]
-    eye_along, eye_across, eye_h = eye @ axes[0], eye @ axes[1], scene.support.distance(eye)
-    t = (eye_across - face) / np.maximum(eye_across - across[behind], 1e-9)  # where each line crosses the face
-    cross_along = eye_along + t * (along[behind] - eye_along)
+    eye_along, eye_across, eye_h = eye @ along, eye @ across, scene.support.distance(eye)
+    t = (eye_across - face) / np.maximum(eye_across - points_across[behind], 1e-9)  # where each line crosses the face
+    cross_along = eye_along + t * (scene.points[behind] @ along - eye_along)
     cross_h = eye_h + t * (scene.height[behind] - eye_h)
     m = SEEN_THROUGH_MARGIN
-    inside = ((eye_across > face) & (cross_along > run[0] + m) & (cross_along < run[1] - m)
-              & (cross_h > heights[0] + m) & (cross_h < heights[1] - m))
+    inside = ((eye_across > face) & (np.abs(cross_along - middle) < half - m) & (cross_h > m) & (cross_h < top_h - m))
     return bool(np.count_nonzero(inside) >= SEEN_THROUGH_POINTS)
 
 
