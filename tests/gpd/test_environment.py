@@ -341,3 +341,4 @@ def test_object_faces_in_a_line_on_a_platform_are_no_wall() -> None:
     assert "platform" in kinds and "wall" not in kinds, kinds
     blocks = Box.from_bounds((-0.11, 0.09, 0.0, 0.05, 0.05, 0.12))
     assert np.count_nonzero(blocks.contains(det.grasps.positions, margin=0.05)) >= 10
+

@@ -31,3 +31,13 @@ def test_the_report_counts_missed_sides_and_walls_that_are_no_side() -> None:
                              "object_set": "household-training", "seeds": "0-1"})
     assert "| tray | 2 | 8 | 7 | 1 | 1 | 1 | 1 |" in md
     assert "| tray | 0 | +y | [[0.09, 0.0, 0.03]] |" in md and "| tray | 1 |" not in md
+
+
+def test_a_shelf_open_front_is_no_wall_and_its_three_sides_are() -> None:
+    """The training shelf of seed 16 (a floor slab, a ceiling 35 cm up), as its benchmark round first sees it: the
+    sides' front edges and the floor's lie in one plane across the open front, which the cameras see the shelf's
+    inside through; the front is no wall, and the back and both sides are found."""
+    bench = load_bench("walls")
+    scene = bench.scene_walls("shelf", "training", "household-training", 16)
+    assert scene["found"] == ["+x", "+y", "-y"]
+    assert scene["not_sides"] == []
