@@ -46,6 +46,7 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     remaining_up = normals[pool] @ up  # the vertical component of each remaining point's normal
     remaining_h = height[pool]
     walls: list[Wall] = []
+    seen_through: list[bool] = []  # per wall found: whether the cameras see through it (_seen_through)
     # faces refused only for an uneven top: a container's side that objects in front rise above, retried once the
     # walls it meets are known
     uneven: list[tuple[Plane, F64, F64, F64]] = []
@@ -70,7 +71,8 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
             continue  # not vertical: an object's top, or a second level
         wall = _wall(scene, plane, patch, patch_up, patch_h, walls, corner_side=False)
         if isinstance(wall, tuple):
-            walls.append(wall)
+            walls.append(wall[0])
+            seen_through.append(wall[1])
         elif wall == UNEVEN_TOP:
             uneven.append((plane, patch, patch_up, patch_h))
     for plane, patch, patch_up, patch_h in uneven:
@@ -79,10 +81,11 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
         if _spans_between_walls(plane, up, [w[0] for w in walls], min_length):
             wall = _wall(scene, plane, patch, patch_up, patch_h, walls, corner_side=True)
             if isinstance(wall, tuple):
-                walls.append(wall)
+                walls.append(wall[0])
+                seen_through.append(wall[1])
     # a face seen through stays among the walls a later face meets at its corners (a shelf's open front, where its
     # sides end), but is no wall itself
-    solid = [w for w in walls if scene.sources is None or not _seen_through(scene, w)]
+    solid = [w for w, through in zip(walls, seen_through, strict=True) if not through]
     return _without_inner_faces(solid, list(levels), up)
 
 
@@ -105,9 +108,10 @@ class _Scene:
 
 
 def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, walls: list[Wall],
-          corner_side: bool) -> Wall | str | None:
-    """The wall a vertical planar patch (its points, their normals' vertical components and heights) makes, or
-    None, or UNEVEN_TOP when only its top's levelness refused it.  corner_side: the face spans between two walls
+          corner_side: bool) -> tuple[Wall, bool] | str | None:
+    """The wall a vertical planar patch (its points, their normals' vertical components and heights) makes, with
+    whether the cameras see through it below its own top, or None, or UNEVEN_TOP when only its top's levelness
+    refused it.  corner_side: the face spans between two walls
     found, square to both at their ends (a container's side), so objects rising above its top in front of it do
     not refuse it."""
     up, params = scene.up, scene.params
@@ -163,7 +167,11 @@ def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, 
               + up * ((base + top) / 2.0 - scene.support.offset))
     rotation = np.stack([across, along, up], axis=1)
     half = np.array([(front + back) / 2.0, (s1 - s0) / 2.0 + 0.01, (top - base) / 2.0])
-    return Box(centre, rotation, half), Plane(across, -face), longest, len(run), top - 0.01, stands
+    box, face_plane = Box(centre, rotation, half), Plane(across, -face)
+    # seen through below its own top (where objects in front rise above it, the lines of sight pass over it)
+    through = scene.sources is not None and _seen_through(scene, box, face_plane,
+                                                         _common_top(patch_along[in_run], h))
+    return (box, face_plane, longest, len(run), top - 0.01, stands), through
 
 
 #: A wall hides what lies behind it: a face is seen through when SEEN_THROUGH_POINTS of the cloud's points lie
@@ -172,13 +180,12 @@ SEEN_THROUGH_POINTS = 30
 SEEN_THROUGH_MARGIN = 0.02
 
 
-def _seen_through(scene: _Scene, wall: Wall) -> bool:
-    """Whether the cameras see through a wall found: SEEN_THROUGH_POINTS of the cloud's points behind its box whose
-    line of sight from their camera crosses its face SEEN_THROUGH_MARGIN inside its run and between the support and
-    its top (the open front of a shelf, where only its sides' edges and its floor's lie in one plane; objects' faces
+def _seen_through(scene: _Scene, box: Box, plane: Plane, top_h: float) -> bool:
+    """Whether the cameras see through a wall's box (its visible face's plane, its top top_h m above the support):
+    SEEN_THROUGH_POINTS of the cloud's points behind the box whose line of sight from their camera crosses the face
+    SEEN_THROUGH_MARGIN inside its length and between the support and top_h (the open front of a shelf, where only its sides' edges and its floor's lie in one plane; objects' faces
     with gaps between them)."""
     assert scene.sources is not None
-    box, plane, top_h = wall[0], wall[1], wall[4]
     across, along = box.rotation[:, 0], box.rotation[:, 1]  # the face's normal, toward the cameras, and its length
     face = -plane.offset
     back = face - (float(box.centre @ across) - float(box.half_extents[0]))  # how deep the box reaches behind it
