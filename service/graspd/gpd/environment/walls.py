@@ -183,8 +183,8 @@ SEEN_THROUGH_MARGIN = 0.02
 def _seen_through(scene: _Scene, box: Box, plane: Plane, top_h: float) -> bool:
     """Whether the cameras see through a wall's box (its visible face's plane, its top top_h m above the support):
     SEEN_THROUGH_POINTS of the cloud's points behind the box whose line of sight from their camera crosses the face
-    SEEN_THROUGH_MARGIN inside its length and between the support and top_h (the open front of a shelf, where only its sides' edges and its floor's lie in one plane; objects' faces
-    with gaps between them)."""
+    SEEN_THROUGH_MARGIN inside its length and between the support and top_h (the open front of a shelf, where only
+    its sides' edges and its floor's lie in one plane; objects' faces with gaps between them)."""
     assert scene.sources is not None
     across, along = box.rotation[:, 0], box.rotation[:, 1]  # the face's normal, toward the cameras, and its length
     face = -plane.offset
