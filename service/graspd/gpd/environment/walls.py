@@ -111,9 +111,8 @@ def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, 
           corner_side: bool) -> tuple[Wall, bool] | str | None:
     """The wall a vertical planar patch (its points, their normals' vertical components and heights) makes, with
     whether the cameras see through it below its own top, or None, or UNEVEN_TOP when only its top's levelness
-    refused it.  corner_side: the face spans between two walls
-    found, square to both at their ends (a container's side), so objects rising above its top in front of it do
-    not refuse it."""
+    refused it.  corner_side: the face spans between two walls found, square to both at their ends (a container's
+    side), so objects rising above its top in front of it do not refuse it."""
     up, params = scene.up, scene.params
     across = plane.normal - (plane.normal @ up) * up  # the face's horizontal normal, toward the cameras
     across /= np.linalg.norm(across)
@@ -262,8 +261,9 @@ def _spans_between_walls(face: Plane, up: F64, walls: list[Box], min_length: flo
     return len(met) >= 2 and max(met) - min(met) >= min_length
 
 
-#: A wall whose middle lies this far (m, horizontally) inside the outline of the other walls found stands inside the
-#: container they make: a true side lies on that outline, within its thickness.
+#: A wall whose middle lies this far (m, horizontally) inside the outline of the other walls and the raised levels
+#: found stands inside the container (or on the platform) they make: a true side lies on that outline, within its
+#: thickness.
 INNER_DEPTH = 0.03
 #: A divider inside a container is seen as one gap-free face over at least this share of its length; objects'
 #: faces in a line show gaps.
