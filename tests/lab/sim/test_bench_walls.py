@@ -41,3 +41,13 @@ def test_a_shelf_open_front_is_no_wall_and_its_three_sides_are() -> None:
     scene = bench.scene_walls("shelf", "training", "household-training", 16)
     assert scene["found"] == ["+x", "+y", "-y"]
     assert scene["not_sides"] == []
+
+
+def test_a_tray_side_that_objects_rise_above_is_not_seen_through() -> None:
+    """The training tray of seed 102, as its benchmark round first sees it: objects standing against its +x side rise
+    above it, and the cameras see the table beyond over the side's own top; lines of sight there pass over the side,
+    not through it, so all four sides are walls and no object's face is."""
+    bench = load_bench("walls")
+    scene = bench.scene_walls("tray", "training", "household-training", 102)
+    assert scene["found"] == ["+x", "+y", "-x", "-y"]
+    assert scene["not_sides"] == []
