@@ -32,9 +32,9 @@ def find_walls(points: F64, normals: F64, cameras: F64, support: Plane, params: 
     length, points, top height, stands) per wall: stands is whether its foot is within wall_base_gap of a
     support level (level_heights: heights above the support, m); a patch that does not stand is still a
     solid larger than anything graspable, and lowers the stage's confidence.  A face standing inside the outline
-    of the other walls and the raised levels' solids (levels) is dropped unless it is a divider
-    (_without_inner_faces).  sources: each point's camera (an index into cameras, (K, 3)); with them, a face the
-    cameras see through is no wall (_seen_through)."""
+    of the other walls, or of the raised levels' solids (levels) with fewer than two others, is dropped unless it
+    is a divider (_without_inner_faces).  sources: each point's camera (an index into cameras, (K, 3)); with
+    them, a face the cameras see through is no wall (_seen_through)."""
     up = support.normal
     height = support.distance(points)
     # only points on steep surfaces can belong to a wall: RANSAC then never wastes rounds on object tops
@@ -261,7 +261,7 @@ def _spans_between_walls(face: Plane, up: F64, walls: list[Box], min_length: flo
     return len(met) >= 2 and max(met) - min(met) >= min_length
 
 
-#: A wall whose middle lies this far (m, horizontally) inside the outline of the other walls and the raised levels
+#: A wall whose middle lies this far (m, horizontally) inside the outline of the other walls (or of a platform)
 #: found stands inside the container (or on the platform) they make: a true side lies on that outline, within its
 #: thickness.
 INNER_DEPTH = 0.03
@@ -271,15 +271,17 @@ DIVIDER_SHARE = 0.75
 
 
 def _without_inner_faces(walls: list[Wall], levels: list[Box], up: F64) -> list[Wall]:
-    """The walls found less those standing inside the container that the others and the raised levels' solids
-    make (INNER_DEPTH inside their outline): objects' faces in a line, unless the face runs gap-free
-    (DIVIDER_SHARE) between walls it meets at both its ends, as a divider does."""
+    """The walls found less those standing inside the container that the others make, or, with fewer than two
+    others, the platform that the raised levels' solids make (INNER_DEPTH inside their outline): objects' faces
+    in a line, unless the face runs gap-free (DIVIDER_SHARE) between walls it meets at both its ends, as a
+    divider does.  A container's own walls are its outline: a level seen wider than they stand (a base board, a
+    floor measured with the table beside it) must not put them inside."""
     axes = in_plane_axes(up)
     keep = []
     for i, wall in enumerate(walls):
         box, length = wall[0], wall[2]
         met = [w[0] for j, w in enumerate(walls) if j != i]
-        inner = _inside_depth(box.centre, met + levels, axes) >= INNER_DEPTH
+        inner = _inside_depth(box.centre, met if len(met) >= 2 else met + levels, axes) >= INNER_DEPTH
         divider = (length >= DIVIDER_SHARE * 2.0 * (box.half_extents[1] - 0.01)
                    and _meets_at_both_ends(box, met))
         if divider or not inner:
