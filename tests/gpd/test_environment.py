@@ -342,3 +342,21 @@ def test_object_faces_in_a_line_on_a_platform_are_no_wall() -> None:
     blocks = Box.from_bounds((-0.11, 0.09, 0.0, 0.05, 0.05, 0.12))
     assert np.count_nonzero(blocks.contains(det.grasps.positions, margin=0.05)) >= 10
 
+
+
+def test_a_shelf_on_a_base_board_wider_than_it_keeps_its_sides() -> None:
+    """A shelf open toward the cameras stands on a 1.5 cm board 10 cm wider than it on every side: the board is a
+    raised level, but the shelf's own walls are its outline, so its sides standing well inside the board's are
+    still walls."""
+    floor = box_mesh((-0.3, 0.3, -0.3, 0.3, -0.02, 0.0))
+    board = box_mesh((-0.22, 0.24, -0.26, 0.26, 0.0, 0.015))
+    shelf = [(-0.12, 0.12, -0.165, -0.15, 0.015, 0.22), (-0.12, 0.12, 0.15, 0.165, 0.015, 0.22),
+             (0.12, 0.135, -0.165, 0.165, 0.015, 0.22)]
+    block = box_mesh((-0.04, 0.02, -0.03, 0.03, 0.015, 0.09))
+    cloud = render_scene([floor, board, *[box_mesh(w) for w in shelf], block], sensing_cameras("passive"),
+                         DepthNoise.benchmark(), 0)
+    det = detect(cloud, max_grasps=1000)
+    assert det.environment is not None
+    found = [s.box for s in det.environment.surfaces if s.kind == "wall" and s.box is not None]
+    for side in shelf:
+        assert any(Box.from_bounds(side).contains(b.centre[None], margin=0.02)[0] for b in found), side
