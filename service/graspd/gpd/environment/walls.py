@@ -160,7 +160,8 @@ def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, 
         back = min(back, float(-np.percentile(behind[strip], 10.0)) + 0.003)
     front = params.plane_distance + 0.002
     # a side with objects rising above it in front: its own top, not theirs
-    top_h = _common_top(patch_along[in_run], h) if corner_side else float(np.percentile(h, 99.0))
+    own_top = _common_top(patch_along[in_run], h)
+    top_h = own_top if corner_side else float(np.percentile(h, 99.0))
     base, top = -0.02, top_h + 0.01
     centre = (along * (s0 + s1) / 2.0 + across * (face + (front - back) / 2.0)
               + up * ((base + top) / 2.0 - scene.support.offset))
@@ -168,8 +169,8 @@ def _wall(scene: _Scene, plane: Plane, patch: F64, patch_up: F64, patch_h: F64, 
     half = np.array([(front + back) / 2.0, (s1 - s0) / 2.0 + 0.01, (top - base) / 2.0])
     box, face_plane = Box(centre, rotation, half), Plane(across, -face)
     # seen through below its own top (where objects in front rise above it, the lines of sight pass over it)
-    through = scene.sources is not None and _seen_through(scene, box, face_plane,
-                                                         _common_top(patch_along[in_run], h))
+    through = scene.sources is not None and _seen_through(scene, box, face_plane, own_top,
+                                                         (points_along, points_across))
     return (box, face_plane, longest, len(run), top - 0.01, stands), through
 
 
@@ -179,24 +180,25 @@ SEEN_THROUGH_POINTS = 30
 SEEN_THROUGH_MARGIN = 0.02
 
 
-def _seen_through(scene: _Scene, box: Box, plane: Plane, top_h: float) -> bool:
+def _seen_through(scene: _Scene, box: Box, plane: Plane, top_h: float, projected: tuple[F64, F64]) -> bool:
     """Whether the cameras see through a wall's box (its visible face's plane, its top top_h m above the support):
     SEEN_THROUGH_POINTS of the cloud's points behind the box whose line of sight from their camera crosses the face
     SEEN_THROUGH_MARGIN inside its length and between the support and top_h (the open front of a shelf, where only
-    its sides' edges and its floor's lie in one plane; objects' faces with gaps between them)."""
+    its sides' edges and its floor's lie in one plane; objects' faces with gaps between them).  projected: every
+    point's position along the face and across it (m), as _wall measured them."""
     assert scene.sources is not None
     across, along = box.rotation[:, 0], box.rotation[:, 1]  # the face's normal, toward the cameras, and its length
     face = -plane.offset
     back = face - (float(box.centre @ across) - float(box.half_extents[0]))  # how deep the box reaches behind it
     middle, half = float(box.centre @ along), float(box.half_extents[1]) - 0.01
-    points_across = scene.points @ across
+    points_along, points_across = projected
     behind = np.flatnonzero((points_across < face - back - 0.01) & (scene.height < top_h))
     if len(behind) < SEEN_THROUGH_POINTS:
         return False
     eye = scene.cameras[scene.sources[behind]]
     eye_along, eye_across, eye_h = eye @ along, eye @ across, scene.support.distance(eye)
     t = (eye_across - face) / np.maximum(eye_across - points_across[behind], 1e-9)  # where each line crosses the face
-    cross_along = eye_along + t * (scene.points[behind] @ along - eye_along)
+    cross_along = eye_along + t * (points_along[behind] - eye_along)
     cross_h = eye_h + t * (scene.height[behind] - eye_h)
     m = SEEN_THROUGH_MARGIN
     inside = ((eye_across > face) & (np.abs(cross_along - middle) < half - m) & (cross_h > m) & (cross_h < top_h - m))
