@@ -51,3 +51,13 @@ def test_a_tray_side_that_objects_rise_above_is_not_seen_through() -> None:
     scene = bench.scene_walls("tray", "training", "household-training", 102)
     assert scene["found"] == ["+x", "+y", "-x", "-y"]
     assert scene["not_sides"] == []
+
+
+def test_a_shelf_whose_back_wall_holds_more_points_than_the_table_stands_on_the_table() -> None:
+    """The training shelf of seed 3 with no gravity in the request: its back wall, seen head-on, holds more points
+    than the table around the shelf, but the table, the shelf's floor and the objects' tops face up; up is the
+    table's normal, and the back and both sides are the walls found."""
+    bench = load_bench("walls")
+    scene = bench.scene_walls("shelf", "training", "household-training", 3)
+    assert scene["found"] == ["+x", "+y", "-y"]
+    assert scene["not_sides"] == []

@@ -50,7 +50,8 @@ def model_environment(cloud: ViewpointCloud, hand: HandGeometry, params: Environ
     levels: list[Level] = []
     if p.mode == "auto" and n >= 3 and support is None:
         if up is None:  # no gravity: up is the dominant plane's normal, toward the cameras
-            dominant = find_support(pts, cams, p, min_extent, None, rng)
+            dominant = find_support(pts, cams, p, min_extent, None, rng,
+                                    normals=None if cloud.normals is None else normals)
             up = None if dominant is None else dominant.normal
         levels = [] if up is None else find_levels(pts, normals, up, p, min_extent)
         if levels:

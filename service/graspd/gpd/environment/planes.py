@@ -11,6 +11,9 @@ from graspd.core.points import best_plane
 from graspd.core.types import F64
 from graspd.gpd.environment.types import EnvironmentParams, Plane
 
+FACING_COS = float(np.cos(np.radians(15.0)))  # a point faces a plane's way when its normal is this close to it
+UP_SWITCH = 1.25  # how many times more facing points a plane at an angle to the largest needs to be up instead
+
 
 def fit_plane(points: F64, params: EnvironmentParams, rng: np.random.Generator,
               vertical_to: F64 | None = None) -> Plane | None:
@@ -54,20 +57,24 @@ def gap_free_runs(values: F64, gap: float, min_count: int) -> list[tuple[float, 
 
 
 def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_extent: float,
-                 gravity: F64 | None, rng: np.random.Generator, tries: int = 3) -> Plane | None:
+                 gravity: F64 | None, rng: np.random.Generator, tries: int = 3,
+                 normals: F64 | None = None) -> Plane | None:
     """The dominant plane the objects stand on, its normal toward the cameras (or against gravity).
 
     A plane qualifies when its points span min_extent in both in-plane directions and, with gravity given,
-    its normal lies within 30 degrees of up; the largest qualifying plane of a few RANSAC rounds wins."""
+    its normal lies within 30 degrees of up; the largest qualifying plane of a few RANSAC rounds wins.  Without
+    gravity (normals given) every round runs and the largest stands unless a plane at an angle to it faces more
+    of the scene (most_faced): a shelf's back wall seen head-on can hold more points than the table around it."""
     remaining = points
+    found: list[Plane] = []
     for _ in range(tries):
         plane = fit_plane(remaining, params, rng)
         if plane is None:
-            return None
+            break
         d = plane.distance(remaining)
         inliers = np.abs(d) <= params.plane_distance
         if inliers.sum() < max(50, 0.05 * len(points)):
-            return None
+            break
         toward = cameras.mean(axis=0) @ plane.normal + plane.offset
         if gravity is not None:
             toward = -float(gravity @ plane.normal)
@@ -77,9 +84,33 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
         local = remaining[inliers] @ axes.T
         upright = gravity is None or float(-gravity @ plane.normal) >= np.cos(np.radians(30.0))
         if upright and min(robust_span(local[:, 0]), robust_span(local[:, 1])) >= min_extent:
-            return plane
+            if gravity is not None or normals is None or (not found and _uncontested(plane, normals)):
+                return plane
+            found.append(plane)
         remaining = remaining[~inliers]
-    return None
+    if not found or normals is None:
+        return None
+    return most_faced(found, normals)
+
+
+def _uncontested(plane: Plane, normals: F64) -> bool:
+    """Whether too few points face away from plane's way for any plane at an angle to it to face more
+    (most_faced): a point faces one of two normals more than 30 degrees apart, not both."""
+    facing = int(((normals @ plane.normal) > FACING_COS).sum())
+    return len(normals) - facing < UP_SWITCH * facing
+
+
+def most_faced(planes: list[Plane], normals: F64) -> Plane:
+    """Of candidate supports, largest first: the first, unless one more than 30 degrees from it has
+    UP_SWITCH times as many points whose normals face its way (within 15 degrees).  Gravity makes the table,
+    a container's floor, a shelf's board and the objects' tops all face up, while a wall faces one side only."""
+    facing = [int(((normals @ pl.normal) > FACING_COS).sum()) for pl in planes]
+    best = 0
+    for i, pl in enumerate(planes[1:], start=1):
+        at_angle = abs(float(pl.normal @ planes[0].normal)) < np.cos(np.radians(30.0))
+        if at_angle and facing[i] >= UP_SWITCH * facing[0] and facing[i] > facing[best]:
+            best = i
+    return planes[best]
 
 
 def min_area_rectangle(xy: F64) -> tuple[F64, F64, F64]:
