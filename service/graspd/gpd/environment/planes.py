@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
@@ -67,8 +69,9 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
     of the scene (most_faced): a shelf's back wall seen head-on can hold more points than the table around it."""
     remaining = points
     found: list[Plane] = []
+    draw = rng
     for _ in range(tries):
-        plane = fit_plane(remaining, params, rng)
+        plane = fit_plane(remaining, params, draw)
         if plane is None:
             break
         d = plane.distance(remaining)
@@ -86,6 +89,10 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
         if upright and min(robust_span(local[:, 0]), robust_span(local[:, 1])) >= min_extent:
             if gravity is not None or normals is None or (not found and _uncontested(plane, normals)):
                 return plane
+            if not found:
+                # the rounds after the largest plane draw from a copy: the stages after this one see the same
+                # draws of rng whether or not a rival is sought
+                draw = copy.deepcopy(rng)
             found.append(plane)
         remaining = remaining[~inliers]
     if not found or normals is None:
