@@ -61,3 +61,13 @@ def test_a_shelf_whose_back_wall_holds_more_points_than_the_table_stands_on_the_
     scene = bench.scene_walls("shelf", "training", "household-training", 3)
     assert scene["found"] == ["+x", "+y", "-y"]
     assert scene["not_sides"] == []
+
+
+def test_a_deep_bin_whose_walls_face_the_cameras_more_than_its_floor_stands_on_the_table() -> None:
+    """The training deep bin of seed 118 with no gravity in the request: the near wall's outside and the far wall's
+    inside both face the cameras, more points than the floor and the table around the bin, but they span far less;
+    up stays the table's normal and all four sides are found."""
+    bench = load_bench("walls")
+    scene = bench.scene_walls("deep_bin", "training", "household-training", 118)
+    assert scene["found"] == ["+x", "+y", "-x", "-y"]
+    assert scene["not_sides"] == []

@@ -15,6 +15,7 @@ from graspd.gpd.environment.types import EnvironmentParams, Plane
 
 FACING_COS = float(np.cos(np.radians(15.0)))  # a point faces a plane's way when its normal is this close to it
 UP_SWITCH = 1.25  # how many times more facing points a plane at an angle to the largest needs to be up instead
+UP_SWITCH_AREA = 1.5  # and how many times the largest plane's spanned area (the product of its robust spans)
 
 
 def fit_plane(points: F64, params: EnvironmentParams, rng: np.random.Generator,
@@ -66,9 +67,11 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
     A plane qualifies when its points span min_extent in both in-plane directions and, with gravity given,
     its normal lies within 30 degrees of up; the largest qualifying plane of a few RANSAC rounds wins.  Without
     gravity (normals given) every round runs and the largest stands unless a plane at an angle to it faces more
-    of the scene (most_faced): a shelf's back wall seen head-on can hold more points than the table around it."""
+    of the scene and spans more of it (most_faced): a shelf's back wall seen head-on can hold more points than
+    the table around it."""
     remaining = points
     found: list[Plane] = []
+    areas: list[float] = []
     draw = rng
     for _ in range(tries):
         plane = fit_plane(remaining, params, draw)
@@ -86,7 +89,8 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
         axes = in_plane_axes(plane.normal)
         local = remaining[inliers] @ axes.T
         upright = gravity is None or float(-gravity @ plane.normal) >= np.cos(np.radians(30.0))
-        if upright and min(robust_span(local[:, 0]), robust_span(local[:, 1])) >= min_extent:
+        spans = (robust_span(local[:, 0]), robust_span(local[:, 1]))
+        if upright and min(spans) >= min_extent:
             if gravity is not None or normals is None or (not found and _uncontested(plane, normals)):
                 return plane
             if not found:
@@ -94,10 +98,11 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
                 # draws of rng whether or not a rival is sought
                 draw = copy.deepcopy(rng)
             found.append(plane)
+            areas.append(spans[0] * spans[1])
         remaining = remaining[~inliers]
     if not found or normals is None:
         return None
-    return most_faced(found, normals)
+    return most_faced(found, areas, normals)
 
 
 def _uncontested(plane: Plane, normals: F64) -> bool:
@@ -107,15 +112,19 @@ def _uncontested(plane: Plane, normals: F64) -> bool:
     return len(normals) - facing < UP_SWITCH * facing
 
 
-def most_faced(planes: list[Plane], normals: F64) -> Plane:
-    """Of candidate supports, largest first: the first, unless one more than 30 degrees from it has
-    UP_SWITCH times as many points whose normals face its way (within 15 degrees).  Gravity makes the table,
-    a container's floor, a shelf's board and the objects' tops all face up, while a wall faces one side only."""
+def most_faced(planes: list[Plane], areas: list[float], normals: F64) -> Plane:
+    """Of candidate supports, most inliers first, with their spanned areas (m^2): the first, unless one more
+    than 30 degrees from it has UP_SWITCH times as many points whose normals face its way (within 15 degrees)
+    and spans UP_SWITCH_AREA times its area.  Gravity makes the table, a container's floor, a shelf's board and
+    the objects' tops all face up, and the table spreads under the whole scene; a wall faces one side only and
+    ends at its container's height.  Facing alone fails: a deep bin's two walls facing the cameras (the near
+    one's outside, the far one's inside) can face more points than its floor and the table around it."""
     facing = [int(((normals @ pl.normal) > FACING_COS).sum()) for pl in planes]
     best = 0
     for i, pl in enumerate(planes[1:], start=1):
         at_angle = abs(float(pl.normal @ planes[0].normal)) < np.cos(np.radians(30.0))
-        if at_angle and facing[i] >= UP_SWITCH * facing[0] and facing[i] > facing[best]:
+        wider = areas[i] >= UP_SWITCH_AREA * areas[0]
+        if at_angle and wider and facing[i] >= UP_SWITCH * facing[0] and facing[i] > facing[best]:
             best = i
     return planes[best]
 
