@@ -72,6 +72,7 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
     remaining = points
     found: list[Plane] = []
     areas: list[float] = []
+    facing: list[int] = []
     draw = rng
     for _ in range(tries):
         plane = fit_plane(remaining, params, draw)
@@ -91,35 +92,34 @@ def find_support(points: F64, cameras: F64, params: EnvironmentParams, min_exten
         upright = gravity is None or float(-gravity @ plane.normal) >= np.cos(np.radians(30.0))
         spans = (robust_span(local[:, 0]), robust_span(local[:, 1]))
         if upright and min(spans) >= min_extent:
-            if gravity is not None or normals is None or (not found and _uncontested(plane, normals)):
+            if gravity is not None or normals is None:
                 return plane
+            faced = int(((normals @ plane.normal) > FACING_COS).sum())
             if not found:
+                if len(normals) - faced < UP_SWITCH * faced:
+                    # too few points face elsewhere for a plane at an angle to face more (a point faces one of
+                    # two normals more than 30 degrees apart, not both): the largest stands
+                    return plane
                 # the rounds after the largest plane draw from a copy: the stages after this one see the same
                 # draws of rng whether or not a rival is sought
                 draw = copy.deepcopy(rng)
             found.append(plane)
             areas.append(spans[0] * spans[1])
+            facing.append(faced)
         remaining = remaining[~inliers]
-    if not found or normals is None:
+    if not found:
         return None
-    return most_faced(found, areas, normals)
+    return most_faced(found, areas, facing)
 
 
-def _uncontested(plane: Plane, normals: F64) -> bool:
-    """Whether too few points face away from plane's way for any plane at an angle to it to face more
-    (most_faced): a point faces one of two normals more than 30 degrees apart, not both."""
-    facing = int(((normals @ plane.normal) > FACING_COS).sum())
-    return len(normals) - facing < UP_SWITCH * facing
-
-
-def most_faced(planes: list[Plane], areas: list[float], normals: F64) -> Plane:
-    """Of candidate supports, most inliers first, with their spanned areas (m^2): the first, unless one more
-    than 30 degrees from it has UP_SWITCH times as many points whose normals face its way (within 15 degrees)
-    and spans UP_SWITCH_AREA times its area.  Gravity makes the table, a container's floor, a shelf's board and
-    the objects' tops all face up, and the table spreads under the whole scene; a wall faces one side only and
-    ends at its container's height.  Facing alone fails: a deep bin's two walls facing the cameras (the near
-    one's outside, the far one's inside) can face more points than its floor and the table around it."""
-    facing = [int(((normals @ pl.normal) > FACING_COS).sum()) for pl in planes]
+def most_faced(planes: list[Plane], areas: list[float], facing: list[int]) -> Plane:
+    """Of candidate supports, most inliers first, with their spanned areas (m^2) and how many points face each
+    one's way (normals within 15 degrees): the first, unless one more than 30 degrees from it has UP_SWITCH
+    times as many facing points and spans UP_SWITCH_AREA times its area.  Gravity makes the table, a
+    container's floor, a shelf's board and the objects' tops all face up, and the table spreads under the whole
+    scene; a wall faces one side only and ends at its container's height.  Facing alone fails: a deep bin's two
+    walls facing the cameras (the near one's outside, the far one's inside) can face more points than its floor
+    and the table around it."""
     best = 0
     for i, pl in enumerate(planes[1:], start=1):
         at_angle = abs(float(pl.normal @ planes[0].normal)) < np.cos(np.radians(30.0))
