@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from graspd.core.camera import Camera, sensing_cameras
 from graspd.core.cloud import ViewpointCloud
@@ -42,6 +43,10 @@ STOP_RULES = tuple(STOP_RULE_TEXT)
 #: Called before each executed grasp with the world, the cloud the detector saw, its grasps and the index picked
 #: (diagnostics: bench/approach.py); it must leave the world as it found it.
 Probe = Callable[[SimWorld, ViewpointCloud, GraspSet, int], None]
+#: Picks the grasp to execute from the world as it is, the detector's grasps and the indices of the feasible ones
+#: in their ranked order (diagnostics: bench/oracle.py tries grasps in physics first); it must leave the world as
+#: it found it.
+Chooser = Callable[[SimWorld, GraspSet, NDArray[np.int64]], int]
 
 
 @dataclass(frozen=True)
@@ -159,9 +164,10 @@ def setting_scene(setting: Setting, seed: int) -> SimWorld:
 
 
 def run_round(detector: SimDetector, setting: Setting, seed: int,
-              execution: ExecutionParams | None = None, probe: Probe | None = None) -> RoundResult:
+              execution: ExecutionParams | None = None, probe: Probe | None = None,
+              choose: Chooser | None = None) -> RoundResult:
     """One round of the protocol with scene, noise and choices all drawn from seed; probe (if any) looks at
-    each executed grasp first."""
+    each executed grasp first; choose (if any) picks it instead of the setting's choice."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed + 1_000_003)
     world = setting_scene(setting, seed)
@@ -189,7 +195,10 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
             if len(ok) == 0:
                 attempt = Attempt(Outcome.NO_GRASP, None)
             else:
-                pick = int(ok[0] if setting.choice == "best" else rng.choice(ok))
+                if choose is not None:
+                    pick = int(choose(world, grasps, ok))
+                else:
+                    pick = int(ok[0] if setting.choice == "best" else rng.choice(ok))
                 if probe is not None:
                     probe(world, cloud, grasps, pick)
                 attempt = gripper.execute(grasps, pick)

@@ -1,0 +1,156 @@
+"""How far a better ranking of the same grasps could go: the clutter protocol's rounds twice, as the service ranks
+them and with each executed grasp chosen by trying the service's top --top feasible grasps in physics first.
+
+The rounds are bench/clutter.py's (same seeds and scenes, plain POST /detect with the service's defaults).  In the
+"ranked" rounds the robot executes the first feasible grasp, as bench/clutter.py does.  In the "oracle" rounds each
+of the first --top feasible grasps is first executed on the world as it is and the world put back
+(graspd_lab.sim.lift.lift_labels with the benchmark's own motion: a slip is a drop); the first that held is then
+executed for real, or the first grasp when none held.  The gap between the two rows is what a ranking of the
+grasps the service already returns could gain; what the oracle still misses is for candidates, reach and physics
+to win (objects no returned grasp holds).  Each detection's record says how many of the top grasps held and the
+rank of the first that did.  A diagnosis: it reads the true world, which no detector may.
+
+  PYTHONPATH=service:client:lab .venv/bin/python bench/oracle.py --object-set household-training --seed 100 \\
+      --rounds 30 --top 5 --tag household-training-pile
+  ... --container tray --split training ...      (bench/containers.py's rounds of one style)
+writes bench/results/oracle-<tag>.md and .json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from collections import Counter
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+for sub in ("service", "client", "lab", "bench"):
+    if str(REPO / sub) not in sys.path:
+        sys.path.insert(0, str(REPO / sub))
+
+import numpy as np  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+
+import clutter  # noqa: E402
+from containers import add_scene_arguments, looked_setting  # noqa: E402
+from graspd.core.grasp import GraspSet  # noqa: E402
+from graspd.core.hand import HandGeometry  # noqa: E402
+from graspd_lab.sim.gripper import ExecutionParams  # noqa: E402
+from graspd_lab.sim.lift import lift_labels  # noqa: E402
+from graspd_lab.sim.protocol import Chooser, RoundResult, run_round, summarize  # noqa: E402
+from graspd_lab.sim.world import SimWorld  # noqa: E402
+
+#: Each detection's feasible grasps tried in physics before one is executed, by default.
+DEFAULT_TOP = 5
+
+
+def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]]) -> Chooser:
+    """A protocol Chooser: try the first `top` feasible grasps in physics with hand (the world restored after
+    each), pick the first that held (else the first), and append the detection's record to records."""
+
+    def choose(world: SimWorld, grasps: GraspSet, ok: NDArray[np.int64]) -> int:
+        tried = ok[:top]
+        lifted = lift_labels(world, grasps[tried], hand, params=ExecutionParams())
+        held = np.flatnonzero(lifted.held)
+        first = int(held[0]) if len(held) else None
+        records.append({"feasible": len(ok), "tried": len(tried), "held": int(len(held)),
+                        "first_held_rank": None if first is None else first + 1,
+                        "trial_outcomes": list(lifted.outcomes),
+                        "predicted": "success" if first is not None else lifted.outcomes[0]})
+        return int(tried[0] if first is None else tried[first])
+
+    return choose
+
+
+def totals(results: list[RoundResult]) -> dict[str, Any]:
+    """Success and cleared with their bootstrap intervals, and the failures by kind."""
+    s = summarize(results)
+    return {"rounds": s.rounds, "objects": s.objects, "attempts": s.attempts, "successes": s.successes,
+            "cleared": s.cleared, "success_rate": s.success_rate, "success_ci": list(s.success_ci),
+            "cleared_rate": s.cleared_rate, "cleared_ci": list(s.cleared_ci), "failures": s.failures}
+
+
+def pct(x: float) -> str:
+    return f"{100 * x:.0f}%"
+
+
+def report(data: dict[str, Any]) -> str:
+    """Markdown: the two rows, and how many of each detection's top grasps held in physics."""
+    meta, rows, dets = data["meta"], data["rows"], data["detections"]
+    lines = ["# How far a better ranking could go: the service's choice against a physics oracle over its top grasps",
+             "", f"- command: `{meta['command']}`", f"- commit: `{meta['commit']}`, date {meta['date']}, model "
+             f"{meta['model']}", f"- scenes: {meta['scenes']}",
+             f"- oracle: each detection's first {meta['top']} feasible grasps executed in physics from the world as it "
+             "is (restored after each), the first that held executed for real (the first grasp when none held)", "",
+             "| choice | rounds | objects | attempts | success [95% CI] | cleared [95% CI] | failures |",
+             "|---|---|---|---|---|---|---|"]
+    for name, t in rows.items():
+        lo, hi = t["success_ci"]
+        clo, chi = t["cleared_ci"]
+        fails = ", ".join(f"{k} {v}" for k, v in sorted(t["failures"].items()))
+        lines.append(f"| {name} | {t['rounds']} | {t['objects']} | {t['attempts']} | {pct(t['success_rate'])} "
+                     f"[{100 * lo:.0f}, {100 * hi:.0f}] | {pct(t['cleared_rate'])} [{100 * clo:.0f}, {100 * chi:.0f}] "
+                     f"| {fails} |")
+    n = len(dets)
+    if n:
+        first = Counter(d["first_held_rank"] for d in dets)
+        none = first.pop(None, 0)
+        agree = sum(d["predicted"] == d["outcome"] for d in dets)
+        lines += ["", f"## The oracle's detections ({n})", "",
+                  f"- the service's first grasp held in the trial: {first.get(1, 0)} of {n}; a later one of the top "
+                  f"{meta['top']} was the first to hold: {n - none - first.get(1, 0)}; none of them held: {none}",
+                  "- rank of the first grasp that held: "
+                  + ", ".join(f"{k}: {v}" for k, v in sorted(first.items())),
+                  f"- executed outcome as the trial predicted: {agree} of {n} (a replay of the same grasp on the same "
+                  "world by another hand body: contact order can differ)"]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_scene_arguments(ap)
+    clutter.add_look_arguments(ap)
+    ap.add_argument("--top", type=int, default=DEFAULT_TOP, help="feasible grasps tried in physics per detection")
+    args = ap.parse_args(argv)
+    if args.top < 1:
+        ap.error("--top must be at least 1")
+    setting = looked_setting(args.object_set, args.scene, args.container, args.split)
+    seeds = range(args.seed, args.seed + args.rounds)
+    ranked: list[RoundResult] = []
+    oracle: list[RoundResult] = []
+    detections: list[dict[str, Any]] = []
+    with clutter.serving(args.service) as service:
+        served = clutter.reported_model("gpd", args.model, service, setting.hand)
+        for seed in seeds:
+            detector = clutter.make_detector("gpd", args.model, service)
+            ranked.append(run_round(detector, setting, seed))
+            first = len(detections)
+            result = run_round(detector, setting, seed, choose=oracle_chooser(args.top, setting.hand, detections))
+            executed = [o for o in result.outcomes if o != "no_grasp"]
+            for row, outcome in zip(detections[first:], executed, strict=True):
+                row.update(seed=seed, outcome=outcome)
+            oracle.append(result)
+            print(f"seed {seed}: ranked {ranked[-1].outcomes} oracle {result.outcomes}", flush=True)
+    meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/oracle.py "
+            + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
+            "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": served, "top": args.top,
+            "scenes": (f"{args.container} ({args.split} ranges)" if args.container else args.scene)
+            + f", {args.object_set} objects, seeds {seeds.start}-{seeds.stop - 1}"}
+    data = {"meta": meta, "rows": {"ranked (the service's first grasp)": totals(ranked),
+                                   f"oracle over the top {args.top}": totals(oracle)},
+            "detections": detections,
+            "rounds": {"ranked": [r.to_dict() for r in ranked], "oracle": [r.to_dict() for r in oracle]}}
+    args.out.mkdir(parents=True, exist_ok=True)
+    md = report(data)
+    (args.out / f"oracle-{args.tag}.md").write_text(md)
+    (args.out / f"oracle-{args.tag}.json").write_text(json.dumps(data, indent=1))
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

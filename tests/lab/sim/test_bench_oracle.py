@@ -1,0 +1,54 @@
+"""bench/oracle.py tries a detection's top grasps in physics, executes the first that holds, and leaves the world as
+it found it; the protocol's round takes a chooser's pick without changing anything else."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+from graspd.core.grasp import GraspSet
+from graspd_lab.sim.detectors import TopDownBaseline
+from graspd_lab.sim.object_sets import PANDA_LIKE
+from graspd_lab.sim.protocol import Setting, run_round
+from graspd_lab.sim.world import SimWorld
+from repo_module import load_bench
+
+
+def test_the_oracle_picks_the_first_of_its_top_grasps_that_holds_and_puts_the_world_back() -> None:
+    bench = load_bench("oracle")
+    hand = PANDA_LIKE
+    world = SimWorld.create(has_tray=False)
+    with world:
+        body = world._box([0.04, 0.02, 0.03], [0.05, 0.0, 0.03], mass=0.3)  # 8 x 4 x 6 cm, centre 3 cm up
+        world.objects[body] = 7
+        world.settle()
+        before = pb.getBasePositionAndOrientation(body, physicsClientId=world.client)
+        rot = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # approach -z, closing along y
+        on_box = [0.05, 0.0, 0.03 + hand.hand_depth]  # fingertips 3 cm up, half the box's height
+        beside = [0.05, 0.15, 0.03 + hand.hand_depth]  # 15 cm to the side: closes on nothing
+        grasps = GraspSet(positions=np.array([beside, on_box]), rotations=np.stack([rot, rot]),
+                          widths=np.array([0.04, 0.04]), scores=np.array([0.9, 0.8]), samples=np.zeros((2, 3)))
+        records: list[dict] = []
+        choose = bench.oracle_chooser(5, hand, records)
+        assert choose(world, grasps, np.array([0, 1])) == 1
+        assert records == [{"feasible": 2, "tried": 2, "held": 1, "first_held_rank": 2,
+                            "trial_outcomes": ["empty_close", "success"], "predicted": "success"}]
+        assert choose(world, grasps, np.array([0])) == 0  # none of the top held: the service's first
+        assert records[-1]["first_held_rank"] is None and records[-1]["predicted"] == "empty_close"
+        after = pb.getBasePositionAndOrientation(body, physicsClientId=world.client)
+        assert list(world.objects) == [body]
+        assert np.allclose(before[0], after[0], atol=1e-6) and np.allclose(before[1], after[1], atol=1e-6)
+
+
+def test_a_round_executes_the_choosers_pick_and_draws_the_same_scene_and_noise() -> None:
+    setting = Setting(scene="pour", num_objects=3, sensing="passive")
+    plain = run_round(TopDownBaseline(), setting, seed=0)
+    seen: list[list[int]] = []
+
+    def first(world: SimWorld, grasps: GraspSet, ok: np.ndarray) -> int:
+        seen.append(ok.tolist())
+        return int(ok[0])
+
+    chosen = run_round(TopDownBaseline(), setting, seed=0, choose=first)
+    assert len(seen) == chosen.attempts >= 1
+    assert chosen.outcomes == plain.outcomes and chosen.cleared == plain.cleared
