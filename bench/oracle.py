@@ -60,6 +60,10 @@ def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]]) 
         records.append({"feasible": len(ok), "tried": len(tried), "held": int(len(held)),
                         "first_held_rank": None if first is None else first + 1,
                         "trial_outcomes": list(lifted.outcomes),
+                        "trial_scores": [round(float(v), 4) for v in grasps.scores[tried]],
+                        "trial_widths": [round(float(v), 4) for v in grasps.widths[tried]],
+                        "trial_from_down": [round(float(np.degrees(np.arccos(np.clip(-a[2], -1.0, 1.0)))), 1)
+                                            for a in grasps.approach[tried]],
                         "predicted": "success" if first is not None else lifted.outcomes[0]})
         return int(tried[0] if first is None else tried[first])
 

@@ -32,7 +32,8 @@ def test_the_oracle_picks_the_first_of_its_top_grasps_that_holds_and_puts_the_wo
         choose = bench.oracle_chooser(5, hand, records)
         assert choose(world, grasps, np.array([0, 1])) == 1
         assert records == [{"feasible": 2, "tried": 2, "held": 1, "first_held_rank": 2,
-                            "trial_outcomes": ["empty_close", "success"], "predicted": "success"}]
+                            "trial_outcomes": ["empty_close", "success"], "trial_scores": [0.9, 0.8],
+                            "trial_widths": [0.04, 0.04], "trial_from_down": [0.0, 0.0], "predicted": "success"}]
         assert choose(world, grasps, np.array([0])) == 0  # none of the top held: the service's first
         assert records[-1]["first_held_rank"] is None and records[-1]["predicted"] == "empty_close"
         after = pb.getBasePositionAndOrientation(body, physicsClientId=world.client)
