@@ -70,18 +70,6 @@ def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]]) 
     return choose
 
 
-def totals(results: list[RoundResult]) -> dict[str, Any]:
-    """Success and cleared with their bootstrap intervals, and the failures by kind."""
-    s = summarize(results)
-    return {"rounds": s.rounds, "objects": s.objects, "attempts": s.attempts, "successes": s.successes,
-            "cleared": s.cleared, "success_rate": s.success_rate, "success_ci": list(s.success_ci),
-            "cleared_rate": s.cleared_rate, "cleared_ci": list(s.cleared_ci), "failures": s.failures}
-
-
-def pct(x: float) -> str:
-    return f"{100 * x:.0f}%"
-
-
 def report(data: dict[str, Any]) -> str:
     """Markdown: the two rows, and how many of each detection's top grasps held in physics."""
     meta, rows, dets = data["meta"], data["rows"], data["detections"]
@@ -93,11 +81,9 @@ def report(data: dict[str, Any]) -> str:
              "| choice | rounds | objects | attempts | success [95% CI] | cleared [95% CI] | failures |",
              "|---|---|---|---|---|---|---|"]
     for name, t in rows.items():
-        lo, hi = t["success_ci"]
-        clo, chi = t["cleared_ci"]
         fails = ", ".join(f"{k} {v}" for k, v in sorted(t["failures"].items()))
-        lines.append(f"| {name} | {t['rounds']} | {t['objects']} | {t['attempts']} | {pct(t['success_rate'])} "
-                     f"[{100 * lo:.0f}, {100 * hi:.0f}] | {pct(t['cleared_rate'])} [{100 * clo:.0f}, {100 * chi:.0f}] "
+        lines.append(f"| {name} | {t['rounds']} | {t['objects']} | {t['attempts']} | {clutter.pct(t['success_rate'])}"
+                     f"{clutter.ci(t['success_ci'])} | {clutter.pct(t['cleared_rate'])}{clutter.ci(t['cleared_ci'])} "
                      f"| {fails} |")
     n = len(dets)
     if n:
@@ -144,8 +130,8 @@ def main(argv: list[str] | None = None) -> int:
             "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": served, "top": args.top,
             "scenes": (f"{args.container} ({args.split} ranges)" if args.container else args.scene)
             + f", {args.object_set} objects, seeds {seeds.start}-{seeds.stop - 1}"}
-    data = {"meta": meta, "rows": {"ranked (the service's first grasp)": totals(ranked),
-                                   f"oracle over the top {args.top}": totals(oracle)},
+    data = {"meta": meta, "rows": {"ranked (the service's first grasp)": summarize(ranked).to_dict(),
+                                   f"oracle over the top {args.top}": summarize(oracle).to_dict()},
             "detections": detections,
             "rounds": {"ranked": [r.to_dict() for r in ranked], "oracle": [r.to_dict() for r in oracle]}}
     args.out.mkdir(parents=True, exist_ok=True)
