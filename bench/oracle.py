@@ -33,12 +33,15 @@ for sub in ("service", "client", "lab", "bench"):
         sys.path.insert(0, str(REPO / sub))
 
 import numpy as np  # noqa: E402
+import pybullet as pb  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 import clutter  # noqa: E402
 from containers import add_scene_arguments, looked_setting  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd.core.hand import HandGeometry  # noqa: E402
+from graspd_client import Grasps  # noqa: E402
+from graspd_lab.sim.detectors import SimDetector  # noqa: E402
 from graspd_lab.sim.gripper import ExecutionParams  # noqa: E402
 from graspd_lab.sim.lift import lift_labels  # noqa: E402
 from graspd_lab.sim.protocol import Chooser, RoundResult, run_round, summarize  # noqa: E402
@@ -48,7 +51,48 @@ from graspd_lab.sim.world import SimWorld  # noqa: E402
 DEFAULT_TOP = 5
 
 
-def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]]) -> Chooser:
+def truth(world: SimWorld, grasps: GraspSet, bodies: NDArray[np.int64], hand: HandGeometry) -> list[dict[str, Any]]:
+    """Per tried grasp, what the true world says about it (a diagnosis no detector may read): the mass (kg) of the
+    object the hand went for and its centre of mass in the hand's frame (m): along the approach from the
+    fingertips (positive: beyond them), along the binormal (the closing direction) and along the hand axis."""
+    rows: list[dict[str, Any]] = []
+    for i, body in enumerate(bodies):
+        if body < 0:
+            rows.append({"mass": None})
+            continue
+        com = np.asarray(pb.getBasePositionAndOrientation(int(body), physicsClientId=world.client)[0])
+        d = com - (grasps.positions[i] + hand.hand_depth * grasps.approach[i])
+        rows.append({"mass": round(float(pb.getDynamicsInfo(int(body), -1, physicsClientId=world.client)[0]), 4),
+                     "com_approach": round(float(d @ grasps.approach[i]), 4),
+                     "com_binormal": round(float(d @ grasps.binormal[i]), 4),
+                     "com_axis": round(float(d @ grasps.axis[i]), 4)})
+    return rows
+
+
+def seen(answer: Grasps | None, grasps: GraspSet, tried: NDArray[np.int64], hand: HandGeometry
+         ) -> list[dict[str, Any]]:
+    """Per tried grasp, what the answer said about it: its ranking terms and the segmented object it closes on (its
+    centre in the hand's frame from the fingertips as in truth(), its extent sorted, m; its point count)."""
+    if answer is None:
+        return [{} for _ in tried]
+    raw = answer.raw.get("grasps") or []
+    objects = {int(o["id"]): o for o in answer.scene_objects if "id" in o}
+    rows: list[dict[str, Any]] = []
+    for i in tried:
+        row: dict[str, Any] = {"ranking": raw[i].get("ranking") if i < len(raw) else None}
+        obj = objects.get(int(answer.object_ids[i])) if i < len(answer.object_ids) else None
+        if obj is not None:
+            d = np.asarray(obj["centre"], np.float64) - (grasps.positions[i] + hand.hand_depth * grasps.approach[i])
+            row.update(centre_approach=round(float(d @ grasps.approach[i]), 4),
+                       centre_binormal=round(float(d @ grasps.binormal[i]), 4),
+                       centre_axis=round(float(d @ grasps.axis[i]), 4),
+                       extent=sorted(round(float(v), 4) for v in obj["extent"]), points=int(obj["num_points"]))
+        rows.append(row)
+    return rows
+
+
+def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
+                   detector: SimDetector | None = None) -> Chooser:
     """A protocol Chooser: try the first `top` feasible grasps in physics with hand (the world restored after
     each), pick the first that held (else the first), and append the detection's record to records."""
 
@@ -64,7 +108,9 @@ def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]]) 
                         "trial_widths": [round(float(v), 4) for v in grasps.widths[tried]],
                         "trial_from_down": [round(float(np.degrees(np.arccos(np.clip(-a[2], -1.0, 1.0)))), 1)
                                             for a in grasps.approach[tried]],
-                        "predicted": "success" if first is not None else lifted.outcomes[0]})
+                        "predicted": "success" if first is not None else lifted.outcomes[0],
+                        "trial_seen": seen(getattr(detector, "last", None), grasps, tried, hand),
+                        "trial_truth": truth(world, grasps[tried], lifted.bodies, hand)})
         return int(tried[0] if first is None else tried[first])
 
     return choose
@@ -119,7 +165,8 @@ def main(argv: list[str] | None = None) -> int:
             detector = clutter.make_detector("gpd", args.model, service)
             ranked.append(run_round(detector, setting, seed))
             first = len(detections)
-            result = run_round(detector, setting, seed, choose=oracle_chooser(args.top, setting.hand, detections))
+            result = run_round(detector, setting, seed,
+                               choose=oracle_chooser(args.top, setting.hand, detections, detector))
             executed = [o for o in result.outcomes if o != "no_grasp"]
             for row, outcome in zip(detections[first:], executed, strict=True):
                 row.update(seed=seed, outcome=outcome)

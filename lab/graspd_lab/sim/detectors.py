@@ -20,7 +20,7 @@ from graspd.core.hand import HandGeometry
 from graspd.core.points import voxel_downsample
 from graspd.core.types import F64
 from graspd.gpd.detector import DetectionParams, GraspDetector
-from graspd_client import GraspClient
+from graspd_client import GraspClient, Grasps
 
 Workspace = tuple[float, float, float, float, float, float]
 
@@ -163,10 +163,12 @@ class ServiceGPD:
     name: str = "gpd-service"
     model: str | None = None
     options: dict[str, Any] = field(default_factory=dict)
+    #: The last answer as the client parsed it (its scene_objects and each grasp's ranking: bench/oracle.py's records).
+    last: Grasps | None = field(default=None, init=False, repr=False)
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         with GraspClient(self.url, timeout=120.0) as client:
-            g = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source, workspace=workspace,
+            g = self.last = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source, workspace=workspace,
                               hand=hand.to_dict(), model=self.model, seed=seed % (2**32), **self.options)
         return GraspSet(positions=g.positions, rotations=g.rotations, widths=g.widths, scores=g.scores,
                         samples=g.samples)

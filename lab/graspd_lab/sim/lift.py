@@ -38,12 +38,13 @@ LIFT_PARAMS = ExecutionParams(max_turn_deg=MAX_TURN_DEG)
 class LiftResult:
     """Per grasp (M,): held (the physics label), outcome name (graspd_lab.sim.gripper.Outcome values), the
     most any lifted object turned in the hand (deg; NaN where nothing was lifted: a drop, empty close or
-    collision) and the object id (world.objects' values) the hand went for (-1: none near)."""
+    collision), the object id (world.objects' values) the hand went for and its body (-1: none near)."""
 
     held: NDArray[np.bool_]
     outcomes: tuple[str, ...]
     turn_deg: F64
     objects: NDArray[np.int64]
+    bodies: NDArray[np.int64]
 
     def counts(self) -> dict[str, int]:
         """How many grasps ended how: the outcome names, a slip split into "dropped" and "turned"."""
@@ -62,8 +63,9 @@ def lift_labels(world: SimWorld, grasps: GraspSet, hand: HandGeometry,
     outcomes: list[str] = []
     turns = np.full(m, np.nan)
     objects = np.full(m, -1, np.int64)
+    bodies = np.full(m, -1, np.int64)
     if m == 0:
-        return LiftResult(np.zeros(0, bool), (), turns, objects)
+        return LiftResult(np.zeros(0, bool), (), turns, objects, bodies)
     gripper = Gripper(world, hand, params)
     state = pb.saveState(physicsClientId=c)
     try:
@@ -73,12 +75,13 @@ def lift_labels(world: SimWorld, grasps: GraspSet, hand: HandGeometry,
             turns[i] = attempt.turn_deg
             if attempt.target is not None:
                 objects[i] = world.objects[attempt.target]
+                bodies[i] = attempt.target
             pb.restoreState(stateId=state, physicsClientId=c)
     finally:
         pb.removeState(state, physicsClientId=c)
         gripper.remove()
     held = np.array([o == Outcome.SUCCESS.value for o in outcomes], bool)
-    return LiftResult(held, tuple(outcomes), turns, objects)
+    return LiftResult(held, tuple(outcomes), turns, objects, bodies)
 
 
 __all__ = ["LIFT_PARAMS", "MAX_TURN_DEG", "LiftResult", "lift_labels"]
