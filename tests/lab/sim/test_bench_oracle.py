@@ -31,9 +31,15 @@ def test_the_oracle_picks_the_first_of_its_top_grasps_that_holds_and_puts_the_wo
         records: list[dict] = []
         choose = bench.oracle_chooser(5, hand, records)
         assert choose(world, grasps, np.array([0, 1])) == 1
+        truth = records[0].pop("trial_truth")
         assert records == [{"feasible": 2, "tried": 2, "held": 1, "first_held_rank": 2,
                             "trial_outcomes": ["empty_close", "success"], "trial_scores": [0.9, 0.8],
-                            "trial_widths": [0.04, 0.04], "trial_from_down": [0.0, 0.0], "predicted": "success"}]
+                            "trial_widths": [0.04, 0.04], "trial_from_down": [0.0, 0.0], "predicted": "success",
+                            "trial_seen": [{}, {}]}]  # no answer to read: a chooser made without its detector
+        # nothing near the hand beside the box; the box's 0.3 kg centre of mass lies between the fingertips
+        assert truth[0] == {"mass": None}
+        assert truth[1]["mass"] == 0.3
+        assert all(abs(truth[1][k]) < 0.002 for k in ("com_approach", "com_binormal", "com_axis"))
         assert choose(world, grasps, np.array([0])) == 0  # none of the top held: the service's first
         assert records[-1]["first_held_rank"] is None and records[-1]["predicted"] == "empty_close"
         after = pb.getBasePositionAndOrientation(body, physicsClientId=world.client)
