@@ -133,6 +133,28 @@ def read(paths: list[Path]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]
     return detections, metas
 
 
+#: Two tried grasps are twins when they went for the same object (equal mass) with its centre of mass within this
+#: (m, on each hand axis) of the same place in each hand's frame: nearly the same grasp on the same object.
+TWIN_TOLERANCE = 0.005
+
+
+def twins(detections: list[dict[str, Any]]) -> dict[str, int]:
+    """Pairs of twin grasps within each detection: how many, how many of them both held, one held, neither."""
+    counts = {"pairs": 0, "both_held": 0, "one_held": 0, "neither": 0}
+    for d in detections:
+        truth, ok = d["trial_truth"], held(d)
+        for i in range(len(truth)):
+            for j in range(i + 1, len(truth)):
+                a, b = truth[i], truth[j]
+                if a.get("mass") is None or a["mass"] != b.get("mass"):
+                    continue
+                if max(abs(a[f"com_{k}"] - b[f"com_{k}"]) for k in ("approach", "binormal", "axis")) > TWIN_TOLERANCE:
+                    continue
+                counts["pairs"] += 1
+                counts[("neither", "one_held", "both_held")[int(ok[i] + ok[j])]] += 1
+    return counts
+
+
 def row(name: str, detections: list[dict[str, Any]], chosen: dict[str, int]) -> dict[str, Any]:
     n = len(detections)
     first = sum(int(held(d)[0]) for d in detections)
@@ -155,6 +177,15 @@ def report(data: dict[str, Any]) -> str:
         cells = [f"{100 * r['picked'][k] / n:.1f}%" for k in FEATURE_SETS]
         lines.append(f"| {r['evaluation']} | {n} | {100 * r['first'] / n:.1f}% | " + " | ".join(cells)
                      + f" | {100 * r['any'] / n:.1f}% |")
+    t = data["twins"]
+    if t["pairs"]:
+        failed = t["one_held"] + 2 * t["neither"]
+        lines += ["", f"Twins (two tried grasps of one detection on the same object, its centre of mass within "
+                  f"{1000 * TWIN_TOLERANCE:.0f} mm of the same place in both hands' frames): {t['pairs']} pairs, "
+                  f"{t['both_held']} both held, {t['one_held']} one of the two, {t['neither']} neither; a twin of a "
+                  f"grasp that failed held in {t['one_held']} of {failed} "
+                  f"({100 * t['one_held'] / max(failed, 1):.0f}%)."
+                  " What no feature of the grasp or its object can tell apart is physics the ranking cannot foresee."]
     return "\n".join(lines) + "\n"
 
 
@@ -176,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
             chosen[which] += picks(fit_on, pick_in, which)
     rows = [row(f"{FOLDS} folds by round over the records", detections, chosen)]
     test_metas: list[dict[str, Any]] = []
+    test: list[dict[str, Any]] = []
     if args.test:
         test, test_metas = read(args.test)
         rows.append(row("fitted on the records, picking in the test records", test,
@@ -183,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/foresight.py "
             + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
             "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "records": metas + test_metas}
-    data = {"meta": meta, "rows": rows}
+    data = {"meta": meta, "rows": rows, "twins": twins(detections + (test if args.test else []))}
     args.out.mkdir(parents=True, exist_ok=True)
     md = report(data)
     (args.out / f"foresight-{args.tag}.md").write_text(md)
