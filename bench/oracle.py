@@ -35,6 +35,7 @@ for sub in ("service", "client", "lab", "bench"):
 import numpy as np  # noqa: E402
 import pybullet as pb  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
 
 import clutter  # noqa: E402
 from containers import add_scene_arguments, looked_setting  # noqa: E402
@@ -91,14 +92,37 @@ def seen(answer: Grasps | None, grasps: GraspSet, tried: NDArray[np.int64], hand
     return rows
 
 
+#: How far a perturbed copy of a tried grasp is moved (--perturb): a normal offset of this standard deviation (m) on
+#: each axis, and a turn of this many degrees about a random axis: a robot's and a camera's error.
+PERTURB_SHIFT = 0.002
+PERTURB_TURN_DEG = 3.0
+
+
+def perturbed(grasps: GraspSet, copies: int, rng: np.random.Generator) -> GraspSet:
+    """copies perturbed copies of each grasp (grasp-major: grasp 0's copies first)."""
+    g = grasps[np.repeat(np.arange(len(grasps)), copies)]
+    axes = rng.normal(size=(len(g), 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    turns = Rotation.from_rotvec(axes * np.radians(PERTURB_TURN_DEG)).as_matrix()
+    return GraspSet(positions=g.positions + rng.normal(scale=PERTURB_SHIFT, size=(len(g), 3)),
+                    rotations=turns @ g.rotations, widths=g.widths, scores=g.scores, samples=g.samples)
+
+
 def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
-                   detector: SimDetector | None = None) -> Chooser:
+                   detector: SimDetector | None = None, perturb: int = 0) -> Chooser:
     """A protocol Chooser: try the first `top` feasible grasps in physics with hand (the world restored after
-    each), pick the first that held (else the first), and append the detection's record to records."""
+    each), pick the first that held (else the first), and append the detection's record to records.  With perturb,
+    each tried grasp is also lifted that many times perturbed (perturbed()) and the share that held is recorded; the
+    choice does not change."""
 
     def choose(world: SimWorld, grasps: GraspSet, ok: NDArray[np.int64]) -> int:
         tried = ok[:top]
         lifted = lift_labels(world, grasps[tried], hand, params=ExecutionParams())
+        robust: list[float] | None = None
+        if perturb > 0:
+            copies = perturbed(grasps[tried], perturb, np.random.default_rng(len(records)))
+            shaken = lift_labels(world, copies, hand, params=ExecutionParams())
+            robust = [round(float(v), 3) for v in shaken.held.reshape(len(tried), perturb).mean(axis=1)]
         held = np.flatnonzero(lifted.held)
         first = int(held[0]) if len(held) else None
         records.append({"feasible": len(ok), "tried": len(tried), "held": int(len(held)),
@@ -110,7 +134,8 @@ def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
                                             for a in grasps.approach[tried]],
                         "predicted": "success" if first is not None else lifted.outcomes[0],
                         "trial_seen": seen(getattr(detector, "last", None), grasps, tried, hand),
-                        "trial_truth": truth(world, grasps[tried], lifted.bodies, hand)})
+                        "trial_truth": truth(world, grasps[tried], lifted.bodies, hand),
+                        **({} if robust is None else {"trial_robust": robust})})
         return int(tried[0] if first is None else tried[first])
 
     return choose
@@ -143,6 +168,20 @@ def report(data: dict[str, Any]) -> str:
                   + ", ".join(f"{k}: {v}" for k, v in sorted(first.items())),
                   f"- executed outcome as the trial predicted: {agree} of {n} (a replay of the same grasp on the same "
                   "world by another hand body: contact order can differ)"]
+        shaken = [d for d in dets if "trial_robust" in d]
+        if shaken:
+            held_ok = [r for d in shaken for r, o in zip(d["trial_robust"], d["trial_outcomes"], strict=True)
+                       if o == "success"]
+            held_no = [r for d in shaken for r, o in zip(d["trial_robust"], d["trial_outcomes"], strict=True)
+                       if o != "success"]
+            lines += [f"- each tried grasp also lifted {meta['perturb']} times, moved {1000 * PERTURB_SHIFT:.0f} mm "
+                      f"(standard deviation on each axis) and turned {PERTURB_TURN_DEG:.0f} degrees: the share of "
+                      "copies that held, on average, for the first grasp "
+                      f"{np.mean([d['trial_robust'][0] for d in shaken]):.2f}, "
+                      f"for the grasp with the highest share among the tried "
+                      f"{np.mean([max(d['trial_robust']) for d in shaken]):.2f}; for grasps whose own trial held "
+                      f"{np.mean(held_ok) if held_ok else float('nan'):.2f} ({len(held_ok)}), whose trial failed "
+                      f"{np.mean(held_no) if held_no else float('nan'):.2f} ({len(held_no)})"]
     return "\n".join(lines) + "\n"
 
 
@@ -151,6 +190,7 @@ def main(argv: list[str] | None = None) -> int:
     add_scene_arguments(ap)
     clutter.add_look_arguments(ap)
     ap.add_argument("--top", type=int, default=DEFAULT_TOP, help="feasible grasps tried in physics per detection")
+    ap.add_argument("--perturb", type=int, default=0, help="perturbed copies of each tried grasp lifted too")
     args = ap.parse_args(argv)
     if args.top < 1:
         ap.error("--top must be at least 1")
@@ -166,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
             ranked.append(run_round(detector, setting, seed))
             first = len(detections)
             result = run_round(detector, setting, seed,
-                               choose=oracle_chooser(args.top, setting.hand, detections, detector))
+                               choose=oracle_chooser(args.top, setting.hand, detections, detector, args.perturb))
             executed = [o for o in result.outcomes if o != "no_grasp"]
             for row, outcome in zip(detections[first:], executed, strict=True):
                 row.update(seed=seed, outcome=outcome)
@@ -175,6 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/oracle.py "
             + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
             "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": served, "top": args.top,
+            "perturb": args.perturb,
             "scenes": (f"{args.container} ({args.split} ranges)" if args.container else args.scene)
             + f", {args.object_set} objects, seeds {seeds.start}-{seeds.stop - 1}"}
     data = {"meta": meta, "rows": {"ranked (the service's first grasp)": summarize(ranked).to_dict(),
