@@ -101,19 +101,19 @@ def held(detection: dict[str, Any]) -> F64:
     return np.array([o == "success" for o in detection["trial_outcomes"]], np.float64)
 
 
-def picks(fit_on: list[dict[str, Any]], pick_in: list[dict[str, Any]], which: str) -> int:
-    """How many of pick_in's detections the grasp with the highest estimate (a model fitted on fit_on's tried
-    grasps) held; a grasp without features is estimated by its score."""
+def choices(fit_on: list[dict[str, Any]], pick_in: list[dict[str, Any]], which: str) -> list[int]:
+    """The index of the tried grasp with the highest estimate (a model fitted on fit_on's tried grasps) in each of
+    pick_in's detections; a grasp without features is estimated by its score."""
     x = np.concatenate([features(d, which) for d in fit_on])
     y = np.concatenate([held(d) for d in fit_on])
     ok = np.isfinite(x).all(axis=1)
     model = fit_logistic(x[ok], y[ok])
-    count = 0
+    chosen = []
     for d in pick_in:
         p = predict(model, features(d, which))
         p = np.where(np.isfinite(p), p, np.asarray(d["trial_scores"], np.float64))
-        count += int(held(d)[int(np.argmax(p))])
-    return count
+        chosen.append(int(np.argmax(p)))
+    return chosen
 
 
 def read(paths: list[Path]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
@@ -155,11 +155,19 @@ def twins(detections: list[dict[str, Any]]) -> dict[str, int]:
     return counts
 
 
-def row(name: str, detections: list[dict[str, Any]], chosen: dict[str, int]) -> dict[str, Any]:
-    n = len(detections)
-    first = sum(int(held(d)[0]) for d in detections)
-    anyone = sum(int(held(d).any()) for d in detections)
-    return {"evaluation": name, "detections": n, "first": first, "picked": chosen, "any": anyone}
+def row(name: str, detections: list[dict[str, Any]], chosen: dict[str, list[int]]) -> dict[str, Any]:
+    """Held counts of the first, each feature set's and any grasp; with every detection's perturbed copies
+    (bench/oracle.py --perturb), also the mean share of copies that held for the first, each pick and the best."""
+    out: dict[str, Any] = {
+        "evaluation": name, "detections": len(detections), "first": sum(int(held(d)[0]) for d in detections),
+        "picked": {k: sum(int(held(d)[i]) for d, i in zip(detections, v, strict=True)) for k, v in chosen.items()},
+        "any": sum(int(held(d).any()) for d in detections)}
+    if detections and all("trial_robust" in d for d in detections):
+        out["robust"] = {"first": float(np.mean([d["trial_robust"][0] for d in detections])),
+                         **{k: float(np.mean([d["trial_robust"][i] for d, i in zip(detections, v, strict=True)]))
+                            for k, v in chosen.items()},
+                         "best": float(np.mean([max(d["trial_robust"]) for d in detections]))}
+    return out
 
 
 def report(data: dict[str, Any]) -> str:
@@ -177,6 +185,17 @@ def report(data: dict[str, Any]) -> str:
         cells = [f"{100 * r['picked'][k] / n:.1f}%" for k in FEATURE_SETS]
         lines.append(f"| {r['evaluation']} | {n} | {100 * r['first'] / n:.1f}% | " + " | ".join(cells)
                      + f" | {100 * r['any'] / n:.1f}% |")
+    robust = [r for r in data["rows"] if "robust" in r]
+    if robust:
+        lines += ["", "Each tried grasp also lifted in perturbed copies (`bench/oracle.py --perturb`): the mean share "
+                  "of its copies that held, for the grasp each choice picks (a less noisy measure than one lift), and "
+                  "for the most robust of the tried grasps:", "",
+                  "| evaluation | as ranked | " + " | ".join(FEATURE_SETS) + " | most robust |",
+                  "|---|---|" + "---|" * len(FEATURE_SETS) + "---|"]
+        for r in robust:
+            b = r["robust"]
+            lines.append(f"| {r['evaluation']} | {100 * b['first']:.1f}% | "
+                         + " | ".join(f"{100 * b[k]:.1f}%" for k in FEATURE_SETS) + f" | {100 * b['best']:.1f}% |")
     t = data["twins"]
     if t["pairs"]:
         failed = t["one_held"] + 2 * t["neither"]
@@ -198,20 +217,24 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     detections, metas = read(args.records)
     rounds = sorted({d["round"] for d in detections})
+    if len(rounds) < FOLDS:
+        raise SystemExit(f"the records hold {len(rounds)} rounds with tried grasps; {FOLDS} folds need {FOLDS}")
     fold_of = {r: k % FOLDS for k, r in enumerate(rounds)}
-    chosen = dict.fromkeys(FEATURE_SETS, 0)
+    chosen: dict[str, list[int]] = {k: [0] * len(detections) for k in FEATURE_SETS}
+    where = {id(d): n for n, d in enumerate(detections)}
     for f in range(FOLDS):
         fit_on = [d for d in detections if fold_of[d["round"]] != f]
         pick_in = [d for d in detections if fold_of[d["round"]] == f]
         for which in FEATURE_SETS:
-            chosen[which] += picks(fit_on, pick_in, which)
+            for d, i in zip(pick_in, choices(fit_on, pick_in, which), strict=True):
+                chosen[which][where[id(d)]] = i
     rows = [row(f"{FOLDS} folds by round over the records", detections, chosen)]
     test_metas: list[dict[str, Any]] = []
     test: list[dict[str, Any]] = []
     if args.test:
         test, test_metas = read(args.test)
         rows.append(row("fitted on the records, picking in the test records", test,
-                        {which: picks(detections, test, which) for which in FEATURE_SETS}))
+                        {which: choices(detections, test, which) for which in FEATURE_SETS}))
     meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/foresight.py "
             + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
             "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "records": metas + test_metas}
