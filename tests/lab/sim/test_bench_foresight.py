@@ -1,6 +1,6 @@
 """bench/foresight.py fits a hold estimate on some rounds' tried grasps and picks with it in others: where what the
-answer said of a grasp decides whether it held, the pick holds every time; records of held-out objects are
-refused."""
+answer said of a grasp decides whether it held, the pick holds every time (and its perturbed copies too); records of
+held-out objects are refused."""
 
 from __future__ import annotations
 
@@ -20,11 +20,11 @@ def detection(seed: int, short_first: bool) -> dict[str, Any]:
     short = {**reach, "centre_approach": -0.04}
     truth = [{"mass": 0.4, "com_approach": t["centre_approach"], "com_binormal": 0.0, "com_axis": 0.0}
              for t in (short, reach)]
-    seen, outcomes = [short, reach], ["slipped", "success"]
+    seen, outcomes, robust = [short, reach], ["slipped", "success"], [0.25, 1.0]
     if not short_first:
-        seen, outcomes, truth = seen[::-1], outcomes[::-1], truth[::-1]
+        seen, outcomes, truth, robust = seen[::-1], outcomes[::-1], truth[::-1], robust[::-1]
     return {"tried": 2, "seed": seed, "trial_scores": [0.9, 0.9], "trial_outcomes": outcomes, "trial_seen": seen,
-            "trial_truth": truth}
+            "trial_truth": truth, "trial_robust": robust}
 
 
 def write(path: Path, scenes: str, detections: list[dict[str, Any]]) -> Path:
@@ -42,6 +42,9 @@ def test_a_hold_estimate_that_sees_the_cause_picks_the_grasp_that_holds(tmp_path
     assert row["detections"] == 40 and row["first"] == 20 and row["any"] == 40
     assert row["picked"]["seen"] == 40 and row["picked"]["truth"] == 40
     assert row["picked"]["score"] == 20  # equal scores: the first, as ranked
+    # the perturbed copies: a quarter of the short grasp's held, all of the other's
+    assert row["robust"]["first"] == row["robust"]["score"] == 0.625
+    assert row["robust"]["seen"] == row["robust"]["best"] == 1.0
     assert "| 5 folds by round over the records | 40 | 50.0% |" in (tmp_path / "foresight-t.md").read_text()
 
 
