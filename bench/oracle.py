@@ -141,6 +141,18 @@ def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
     return choose
 
 
+def choice_table(rows: dict[str, dict[str, Any]]) -> list[str]:
+    """Markdown rows of a table of the same rounds played by different choices ({choice: Summary.to_dict()})."""
+    lines = ["| choice | rounds | objects | attempts | success [95% CI] | cleared [95% CI] | failures |",
+             "|---|---|---|---|---|---|---|"]
+    for name, t in rows.items():
+        fails = ", ".join(f"{k} {v}" for k, v in sorted(t["failures"].items()))
+        lines.append(f"| {name} | {t['rounds']} | {t['objects']} | {t['attempts']} | {clutter.pct(t['success_rate'])}"
+                     f"{clutter.ci(t['success_ci'])} | {clutter.pct(t['cleared_rate'])}{clutter.ci(t['cleared_ci'])} "
+                     f"| {fails} |")
+    return lines
+
+
 def report(data: dict[str, Any]) -> str:
     """Markdown: the two rows, and how many of each detection's top grasps held in physics."""
     meta, rows, dets = data["meta"], data["rows"], data["detections"]
@@ -149,13 +161,7 @@ def report(data: dict[str, Any]) -> str:
              f"{meta['model']}", f"- scenes: {meta['scenes']}",
              f"- oracle: each detection's first {meta['top']} feasible grasps executed in physics from the world as it "
              "is (restored after each), the first that held executed for real (the first grasp when none held)", "",
-             "| choice | rounds | objects | attempts | success [95% CI] | cleared [95% CI] | failures |",
-             "|---|---|---|---|---|---|---|"]
-    for name, t in rows.items():
-        fails = ", ".join(f"{k} {v}" for k, v in sorted(t["failures"].items()))
-        lines.append(f"| {name} | {t['rounds']} | {t['objects']} | {t['attempts']} | {clutter.pct(t['success_rate'])}"
-                     f"{clutter.ci(t['success_ci'])} | {clutter.pct(t['cleared_rate'])}{clutter.ci(t['cleared_ci'])} "
-                     f"| {fails} |")
+             *choice_table(rows)]
     n = len(dets)
     if n:
         first = Counter(d["first_held_rank"] for d in dets)

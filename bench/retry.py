@@ -38,6 +38,7 @@ from containers import add_scene_arguments, looked_setting  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd_lab.sim.protocol import Chooser, RoundResult, run_round, summarize  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
+from oracle import choice_table  # noqa: E402
 
 #: How far (m) from a failed grasp's position the next grasp must be, by default: a hand's length, so the next
 #: grasp is on another object or another part of a long one.
@@ -71,13 +72,7 @@ def report(data: dict[str, Any]) -> str:
              f"{meta['date']}, model {meta['model']}", f"- scenes: {meta['scenes']}",
              f"- rule: after a failed attempt, the first feasible grasp more than {1000 * meta['radius']:.0f} mm from "
              "the failed grasp's position (the first when none is); otherwise the first", "",
-             "| choice | rounds | objects | attempts | success [95% CI] | cleared [95% CI] | failures |",
-             "|---|---|---|---|---|---|---|"]
-    for name, t in rows.items():
-        fails = ", ".join(f"{k} {v}" for k, v in sorted(t["failures"].items()))
-        lines.append(f"| {name} | {t['rounds']} | {t['objects']} | {t['attempts']} | {clutter.pct(t['success_rate'])}"
-                     f"{clutter.ci(t['success_ci'])} | {clutter.pct(t['cleared_rate'])}{clutter.ci(t['cleared_ci'])} "
-                     f"| {fails} |")
+             *choice_table(rows)]
     after = [p for p in picks if p["after_failure"]]
     lines += ["", f"Picks after a failure: {len(after)}; the rule moved {sum(p['moved'] for p in after)} of them "
               "off the first grasp."]
