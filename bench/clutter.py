@@ -6,8 +6,7 @@ chart and a JSON file (with the git commit) into bench/results/.  A setting is D
   detectors: baseline (top-down, no learning), gpd-noclass (GPD, no classification), gpd (GPD with the
              --model classifier, default: graspd's default model), gpd-noselect (same, random order instead
              of selection), gpd-cluster (same, GPD's cluster-sum ranking instead of the default), gpd-flat
-             (same, with the request option flat_objects: objects lying flat grasped by their edges), gpd-robust
-             (same, with robust_top: the 10 best grasps ranked by how well their score survives small moves),
+             (same, with the request option flat_objects: objects lying flat grasped by their edges),
              gpd-rep15 / gpd-rep12 / gpd-rep3 (the first model in models/ of that representation)
   scenes:    pour-passive, pour-active (10 objects poured into a tray), pile-side, packed-side (5 objects)
   objects:   --object-set scaled (default: random_urdfs 900-999 scaled to the hand, graspd's default hand) or
@@ -88,10 +87,8 @@ from graspd_lab.world.noise import DepthNoise  # noqa: E402
 
 #: Detectors that score no grasp with a model.
 UNSCORED = ("baseline", "gpd-noclass")
-DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-cluster", "gpd-flat", "gpd-robust", "gpd-rep15",
-             "gpd-rep12", "gpd-rep3")
-#: The request option gpd-robust sets: how many of the best grasps are re-scored with the hand moved a little.
-ROBUST_TOP = 10
+DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-cluster", "gpd-flat", "gpd-rep15", "gpd-rep12",
+             "gpd-rep3")
 SCENES: dict[str, Setting] = {
     "pour-passive": Setting(scene="pour", num_objects=10, sensing="passive"),
     "pour-active": Setting(scene="pour", num_objects=10, sensing="active"),
@@ -171,13 +168,10 @@ def make_detector(detector: str, model: str | None, service: str | None) -> SimD
         options["use_clustering"] = True
     if detector == "gpd-flat":
         options["flat_objects"] = True
-    if detector == "gpd-robust":
-        options["robust_top"] = ROBUST_TOP
     if service is not None:
         # named ablations only; everything else is the service's default
         options = {"gpd-noselect": {"selection": False}, "gpd-noclass": {"use_classifier": False},
-                   "gpd-cluster": {"clustering": True}, "gpd-flat": {"flat_objects": True},
-                   "gpd-robust": {"robust_top": ROBUST_TOP}}.get(detector, {})
+                   "gpd-cluster": {"clustering": True}, "gpd-flat": {"flat_objects": True}}.get(detector, {})
         return ServiceGPD(url=service, name=detector, model=model, options=options)
     classifier = None
     if model is not None:

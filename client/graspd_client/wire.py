@@ -113,7 +113,6 @@ def build_detect_request(
     target: Mapping[str, Any] | None = None,
     max_per_object: int | None = None,
     flat_objects: bool | None = None,
-    robust_top: int | None = None,
 ) -> dict[str, Any]:
     """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
 
@@ -151,7 +150,7 @@ def build_detect_request(
                "selection": selection, "seed": seed, "clustering": clustering, "use_classifier": use_classifier,
                "exclude_support_plane": exclude_support_plane, "min_aperture": min_aperture,
                "max_aperture": max_aperture, "approach_distance": approach_distance, "unknown_space": unknown_space,
-               "max_per_object": max_per_object, "flat_objects": flat_objects, "robust_top": robust_top}
+               "max_per_object": max_per_object, "flat_objects": flat_objects}
     body.update({k: v for k, v in options.items() if v is not None})
     if environment is not None:
         body["environment"] = environment if isinstance(environment, str) else dict(environment)

@@ -45,21 +45,14 @@ class Ranking:
     width: F64
     unknown: F64
     key: F64
-    robust: F64 | None = None
-
-    def __post_init__(self) -> None:
-        if self.robust is None:
-            object.__setattr__(self, "robust", np.ones(len(self.key)))
 
     def __getitem__(self, index: Any) -> Ranking:
-        return Ranking(*(getattr(self, f)[index] for f in ("classifier", "utility", "width", "unknown", "key",
-                                                             "robust")))
+        return Ranking(*(getattr(self, f)[index] for f in ("classifier", "utility", "width", "unknown", "key")))
 
     def to_dicts(self) -> list[dict[str, float]]:
-        assert self.robust is not None
-        cols = (self.classifier, self.utility, self.width, self.unknown, self.robust, self.key)
+        cols = (self.classifier, self.utility, self.width, self.unknown, self.key)
         return [{"classifier": float(c), "utility": float(u), "width": float(w), "unknown": float(k),
-                 "robust": float(r), "key": float(y)} for c, u, w, k, r, y in zip(*cols, strict=True)]
+                 "key": float(y)} for c, u, w, k, y in zip(*cols, strict=True)]
 
 
 @dataclass(frozen=True)

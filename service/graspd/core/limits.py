@@ -8,8 +8,6 @@ from __future__ import annotations
 MAX_POINTS = 5_000_000
 #: Most points sampled for grasp candidates in one request.
 MAX_NUM_SAMPLES = 20_000
-#: Most grasps one request may have checked for robustness (DetectionParams.robust_top; 12 more images each).
-MAX_ROBUST_TOP = 100
 #: Most grasps returned by one request.
 MAX_GRASPS = 1_000
 #: Most camera positions (viewpoints or camera poses) of one JSON request.

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
-from graspd.core.limits import MAX_NUM_SAMPLES, MAX_ROBUST_TOP
+from graspd.core.limits import MAX_NUM_SAMPLES
 from graspd.core.parallel import THREADS
 from graspd.core.warning import DetectionWarning
 from graspd.gpd.candidates import SUPPORT_BITE, SamplingParams, search_hands
@@ -36,7 +36,6 @@ from graspd.gpd.occlusion import (
     unknown_share,
 )
 from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW, PreprocessParams, Workspace, preprocess, support_plane_mask
-from graspd.gpd.robustness import robust_scores
 from graspd.gpd.scene import ClosingRegionPoints, Scene
 from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT, SelectionParams, Vec3, feasible_mask, select
 from graspd.gpd.target import MIN_TARGET_POINTS, Target, TargetError, target_mask
@@ -86,9 +85,7 @@ class DetectionParams:
     them; candidates.SamplingParams.clearance; 0 places it flush against them, as GPD does).  flat_objects (off by
     default): an object lying flat, thinner than the hand's init_bite above the support's clearance (a packet 1 cm
     thick), gets hands whose fingertips stop above the support and hold its edges, candidates.SUPPORT_BITE deep;
-    such grasps hold less often than deeper ones.  robust_top (0 = off): the best robust_top grasps by key are
-    scored again at 12 small moves of the hand (graspd.gpd.robustness) and the key is multiplied by their mean
-    score: a grasp whose score falls when the hand lands 2 mm or 3 degrees off ranks lower."""
+    such grasps hold less often than deeper ones."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -128,11 +125,8 @@ class DetectionParams:
     max_per_object: int = DEFAULT_MAX_PER_OBJECT
     clearance: float = HAND_CLEARANCE
     flat_objects: bool = False
-    robust_top: int = 0
 
     def __post_init__(self) -> None:
-        if not 0 <= self.robust_top <= MAX_ROBUST_TOP:
-            raise ValueError(f"robust_top must be in [0, {MAX_ROBUST_TOP}], got {self.robust_top}")
         if self.max_per_object < 0:
             raise ValueError(f"max_per_object must be >= 0 (0 = off), got {self.max_per_object}")
         if not 1 <= self.num_samples <= MAX_NUM_SAMPLES:
@@ -185,7 +179,6 @@ class DetectionParams:
             reference_position=self.reference_position,
             max_grasps=self.max_grasps,
             max_per_object=self.max_per_object,
-            robust_top=self.robust_top,
         )
 
 
@@ -302,11 +295,7 @@ class GraspDetector:
             candidates = candidates_for(sampling, replace(p, max_unknown=p.unknown_fallback))
         t = time.perf_counter()
         rng = np.random.default_rng(p.seed)
-        robust = None
-        if scorer is not None and p.robust_top > 0:
-            def robust(top: GraspSet) -> NDArray[np.float64]:
-                return robust_scores(scene, top, h, scorer.representation, lambda im: score_parallel(scorer, im))
-        grasps = select(candidates, sel, use_selection=p.use_selection, rng=rng, robust=robust)
+        grasps = select(candidates, sel, use_selection=p.use_selection, rng=rng)
         warnings = list(env.warnings)
         if p.unknown_space == "allow" and len(grasps):
             top = grasps[:10]

@@ -13,7 +13,6 @@ max_per_object grasps before every other object with a grasp has one.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -54,7 +53,6 @@ class SelectionParams:
     table_height: float | None = None
     width_margin: float | None = None
     max_per_object: int = 0
-    robust_top: int = 0
 
 
 def feasible_mask(grasps: GraspSet, params: SelectionParams) -> NDArray[np.bool_]:
@@ -158,12 +156,9 @@ def cover_order(objects: NDArray[np.int64], cap: int) -> NDArray[np.int64]:
 
 
 def select(grasps: GraspSet, params: SelectionParams, use_selection: bool = True,
-           rng: np.random.Generator | None = None,
-           robust: Callable[[GraspSet], NDArray[np.float64]] | None = None) -> GraspSet:
+           rng: np.random.Generator | None = None) -> GraspSet:
     """The final ranked list.  With use_selection off (the paper's ablation), the feasible, positively
-    scored grasps come back in random order instead of by score and utility.  robust (with params.robust_top):
-    scores how well each of the robust_top best grasps keeps its score when moved a little
-    (graspd.gpd.robustness); the key is multiplied by it, and the grasps below them by the least of those."""
+    scored grasps come back in random order instead of by score and utility."""
     g = grasps[feasible_mask(grasps, params)]
     if params.min_score is not None:
         g = g[~(g.scores < params.min_score)]  # NaN (unscored) survives
@@ -178,14 +173,7 @@ def select(grasps: GraspSet, params: SelectionParams, use_selection: bool = True
     util, width = utility(g, params, params.table_height), width_preference(g, params)
     seen = 1.0 - np.clip(np.nan_to_num(g.unknown_share, nan=0.0), 0.0, 1.0)
     key = rank * util * width * seen
-    sure = np.ones(len(g))
-    if robust is not None and params.robust_top > 0 and len(g):
-        top = np.argsort(-np.nan_to_num(key, nan=-np.inf), kind="stable")[: params.robust_top]
-        checked = np.asarray(robust(g[top]), np.float64)
-        sure[:] = float(checked.min())
-        sure[top] = checked
-        key = key * sure
     ranked = replace(g, ranking=Ranking(classifier=np.asarray(rank, np.float64), utility=util, width=width,
-                                        unknown=seen, key=key, robust=sure))
+                                        unknown=seen, key=key))
     ranked = ranked[np.argsort(-np.nan_to_num(key, nan=-np.inf), kind="stable")]
     return ranked[cover_order(ranked.object_ids, params.max_per_object)][: params.max_grasps]

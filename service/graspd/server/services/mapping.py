@@ -164,7 +164,6 @@ def detection_params(req: DetectRequest, target: Target | None = None) -> Detect
             seed=req.seed,
             target=target,
             max_per_object=req.max_per_object,
-            robust_top=req.robust_top,
         )
     except ValueError as exc:
         raise WireError("body", str(exc)) from None

@@ -34,7 +34,6 @@ from graspd.core.limits import (
     MAX_OBJECT_ID,
     MAX_PER_OBJECT,
     MAX_POINTS,
-    MAX_ROBUST_TOP,
     MAX_TARGET_INDICES,
     MAX_TARGET_POINTS,
     MAX_TARGET_RLE_CHARS,
@@ -478,9 +477,6 @@ class DetectRequest(BaseModel):
     clustering: bool = Field(False, description="GPD clustering of aligned hands: each cluster returns its "
                              "best-scoring member, ranked by the sum of its members' scores (off by default: "
                              "it favours large flat surfaces over the best grasp)")
-    robust_top: int = Field(0, ge=0, le=MAX_ROBUST_TOP, description="the best this many grasps are scored again "
-                            "with the hand moved 2 mm along and turned 3 degrees about each of its axes, and ranked "
-                            "by their score times the mean of those (the ranking's robust term); 0: off")
     use_classifier: bool = Field(True, description="false: the paper's no-classification ablation (no CNN runs; "
                                  "scores null, scored false)")
     gravity: list[Annotated[float, Field(allow_inf_nan=False)]] | None = Field(

@@ -43,9 +43,6 @@ class RankingOut(BaseModel):
     width: float | None = Field(description="width preference in [0.2, 1]: lower when the object fills the opening")
     unknown: float | None = Field(description="1 - the share of the hand and its approach path in space no camera "
                                   "saw (1: all seen)")
-    robust: float | None = Field(None, description="the mean classifier score of the grasp's copies moved 2 mm and "
-                                 "turned 3 degrees about each hand axis (1 when not checked: robust_top 0, "
-                                 "unscored; grasps below the checked top get the least of the checked ones')")
     key: float | None = Field(description="the product of the terms: grasps are sorted by it, best first")
 
 
