@@ -13,6 +13,8 @@ rank of the first that did.  A diagnosis: it reads the true world, which no dete
   PYTHONPATH=service:client:lab .venv/bin/python bench/oracle.py --object-set household-training --seed 100 \\
       --rounds 30 --top 5 --tag household-training-pile
   ... --container tray --split training ...      (bench/containers.py's rounds of one style)
+  ... --perturb 4 --images data/generated/tried.npz  (each tried grasp's 15-channel image as the service encodes it,
+                                                      with its trial and perturbed outcomes: bench/reranker.py)
 writes bench/results/oracle-<tag>.md and .json.
 """
 
@@ -23,6 +25,7 @@ import json
 import shlex
 import sys
 from collections import Counter
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -39,8 +42,12 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 
 import clutter  # noqa: E402
 from containers import add_scene_arguments, looked_setting  # noqa: E402
+from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
 from graspd.core.hand import HandGeometry  # noqa: E402
+from graspd.gpd.detector import DetectionParams, GraspDetector  # noqa: E402
+from graspd.gpd.images import encode_images  # noqa: E402
+from graspd.gpd.preprocess import Workspace  # noqa: E402
 from graspd_client import Grasps  # noqa: E402
 from graspd_lab.sim.detectors import SimDetector  # noqa: E402
 from graspd_lab.sim.gripper import ExecutionParams  # noqa: E402
@@ -92,6 +99,34 @@ def seen(answer: Grasps | None, grasps: GraspSet, tried: NDArray[np.int64], hand
     return rows
 
 
+@dataclass
+class Watched:
+    """A SimDetector that keeps the last cloud and workspace it was asked about (to encode the tried grasps' images
+    as the service did); last is the wrapped detector's last parsed answer, if it keeps one."""
+
+    inner: SimDetector
+    name: str = "gpd"
+    cloud: ViewpointCloud | None = field(default=None, repr=False)
+    workspace: Workspace | None = None
+
+    def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
+        self.cloud, self.workspace = cloud, workspace
+        return self.inner.detect(cloud, workspace, hand, seed)
+
+    @property
+    def last(self) -> Grasps | None:
+        return getattr(self.inner, "last", None)
+
+
+def tried_images(cloud: ViewpointCloud, workspace: Workspace, grasps: GraspSet, hand: HandGeometry
+                 ) -> NDArray[np.uint8]:
+    """The 15-channel images (M, 15, 60, 60) of grasps in the cloud, preprocessed as the service does with its
+    defaults and the request's workspace and hand."""
+    det = GraspDetector(None, hand)
+    scene = det.prepare(cloud, DetectionParams(workspace=workspace), hand).scene
+    return encode_images(scene, grasps, hand, "15")
+
+
 #: How far a perturbed copy of a tried grasp is moved (--perturb): a normal offset of this standard deviation (m) on
 #: each axis, and a turn of this many degrees about a random axis: a robot's and a camera's error.
 PERTURB_SHIFT = 0.002
@@ -109,11 +144,12 @@ def perturbed(grasps: GraspSet, copies: int, rng: np.random.Generator) -> GraspS
 
 
 def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
-                   detector: SimDetector | None = None, perturb: int = 0) -> Chooser:
+                   detector: SimDetector | None = None, perturb: int = 0,
+                   images: list[NDArray[np.uint8]] | None = None) -> Chooser:
     """A protocol Chooser: try the first `top` feasible grasps in physics with hand (the world restored after
     each), pick the first that held (else the first), and append the detection's record to records.  With perturb,
     each tried grasp is also lifted that many times perturbed (perturbed()) and the share that held is recorded; the
-    choice does not change."""
+    choice does not change.  images (with a Watched detector): each detection's tried grasps' images are appended."""
 
     def choose(world: SimWorld, grasps: GraspSet, ok: NDArray[np.int64]) -> int:
         tried = ok[:top]
@@ -125,6 +161,9 @@ def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
             robust = [round(float(v), 3) for v in shaken.held.reshape(len(tried), perturb).mean(axis=1)]
         held = np.flatnonzero(lifted.held)
         first = int(held[0]) if len(held) else None
+        if images is not None and isinstance(detector, Watched) and detector.cloud is not None:
+            assert detector.workspace is not None
+            images.append(tried_images(detector.cloud, detector.workspace, grasps[tried], hand))
         records.append({"feasible": len(ok), "tried": len(tried), "held": int(len(held)),
                         "first_held_rank": None if first is None else first + 1,
                         "trial_outcomes": list(lifted.outcomes),
@@ -139,6 +178,21 @@ def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
         return int(tried[0] if first is None else tried[first])
 
     return choose
+
+
+def save_images(path: Path, shots: list[NDArray[np.uint8]], detections: list[dict[str, Any]]) -> None:
+    """The tried grasps' images (N, 15, 60, 60) with, per image, its detection (index into detections), rank among
+    the tried (0 = the service's first), round seed, trial outcome held (0/1), share of perturbed copies that held
+    (NaN without --perturb) and classifier score."""
+    rows = [(i, r, d) for i, d in enumerate(detections[: len(shots)]) for r in range(d["tried"])]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path, images=np.concatenate(shots) if shots else np.zeros((0, 15, 60, 60), np.uint8),
+        detection=np.array([i for i, _, _ in rows], np.int32), rank=np.array([r for _, r, _ in rows], np.int32),
+        seed=np.array([d.get("seed", -1) for _, _, d in rows], np.int64),
+        held=np.array([d["trial_outcomes"][r] == "success" for _, r, d in rows], np.uint8),
+        robust=np.array([d["trial_robust"][r] if "trial_robust" in d else np.nan for _, r, d in rows]),
+        score=np.array([d["trial_scores"][r] for _, r, d in rows]))
 
 
 def choice_table(rows: dict[str, dict[str, Any]]) -> list[str]:
@@ -197,9 +251,12 @@ def main(argv: list[str] | None = None) -> int:
     clutter.add_look_arguments(ap)
     ap.add_argument("--top", type=int, default=DEFAULT_TOP, help="feasible grasps tried in physics per detection")
     ap.add_argument("--perturb", type=int, default=0, help="perturbed copies of each tried grasp lifted too")
+    ap.add_argument("--images", type=Path, default=None,
+                    help="write each tried grasp's image with its records here (.npz; generated data, never committed)")
     args = ap.parse_args(argv)
     if args.top < 1:
         ap.error("--top must be at least 1")
+    shots: list[NDArray[np.uint8]] | None = None if args.images is None else []
     setting = looked_setting(args.object_set, args.scene, args.container, args.split)
     seeds = range(args.seed, args.seed + args.rounds)
     ranked: list[RoundResult] = []
@@ -208,15 +265,17 @@ def main(argv: list[str] | None = None) -> int:
     with clutter.serving(args.service) as service:
         served = clutter.reported_model("gpd", args.model, service, setting.hand)
         for seed in seeds:
-            detector = clutter.make_detector("gpd", args.model, service)
+            detector = Watched(clutter.make_detector("gpd", args.model, service))
             ranked.append(run_round(detector, setting, seed))
             first = len(detections)
-            result = run_round(detector, setting, seed,
-                               choose=oracle_chooser(args.top, setting.hand, detections, detector, args.perturb))
+            result = run_round(detector, setting, seed, choose=oracle_chooser(args.top, setting.hand, detections,
+                                                                              detector, args.perturb, shots))
             executed = [o for o in result.outcomes if o != "no_grasp"]
             for row, outcome in zip(detections[first:], executed, strict=True):
                 row.update(seed=seed, outcome=outcome)
             oracle.append(result)
+            if shots is not None and args.images is not None:  # after every round: a stopped run keeps its rounds
+                save_images(args.images, shots, detections)
             print(f"seed {seed}: ranked {ranked[-1].outcomes} oracle {result.outcomes}", flush=True)
     meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/oracle.py "
             + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
