@@ -25,7 +25,6 @@ import json
 import shlex
 import sys
 from collections import Counter
-from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -99,15 +98,15 @@ def seen(answer: Grasps | None, grasps: GraspSet, tried: NDArray[np.int64], hand
     return rows
 
 
-@dataclass
 class Watched:
     """A SimDetector that keeps the last cloud and workspace it was asked about (to encode the tried grasps' images
     as the service did); last is the wrapped detector's last parsed answer, if it keeps one."""
 
-    inner: SimDetector
-    name: str = "gpd"
-    cloud: ViewpointCloud | None = field(default=None, repr=False)
-    workspace: Workspace | None = None
+    def __init__(self, inner: SimDetector) -> None:
+        self.inner = inner
+        self.name = inner.name
+        self.cloud: ViewpointCloud | None = None
+        self.workspace: Workspace | None = None
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         self.cloud, self.workspace = cloud, workspace

@@ -48,8 +48,10 @@ def test_a_hold_estimate_that_sees_the_cause_picks_the_grasp_that_holds(tmp_path
     assert "| 5 folds by round over the records | 40 | 50.0% |" in (tmp_path / "foresight-t.md").read_text()
 
 
-def test_records_of_held_out_objects_are_refused(tmp_path: Path) -> None:
+@pytest.mark.parametrize("scenes", ["pile-side, household objects, seeds 0-29",
+                                    "tray (training ranges), household objects, seeds 0-9"])
+def test_records_of_held_out_objects_are_refused(tmp_path: Path, scenes: str) -> None:
     bench = load_bench("foresight")
-    records = write(tmp_path / "h.json", "pile-side, household objects, seeds 0-29", [detection(0, True)])
+    records = write(tmp_path / "h.json", scenes, [detection(0, True)])
     with pytest.raises(SystemExit, match="only training objects"):
         bench.main(["--records", str(records), "--out", str(tmp_path)])

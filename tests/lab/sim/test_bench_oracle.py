@@ -3,10 +3,16 @@ it found it; the protocol's round takes a chooser's pick without changing anythi
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pybullet as pb
 
+from box_scene import pose_from, render_boxes, rot_z, table_box
 from graspd.core.grasp import GraspSet
+from graspd.core.hand import HandGeometry
+from graspd.gpd.classifier import load_model
+from graspd.gpd.detector import DetectionParams, GraspDetector
 from graspd_lab.sim.detectors import TopDownBaseline
 from graspd_lab.sim.object_sets import PANDA_LIKE
 from graspd_lab.sim.protocol import Setting, run_round
@@ -73,3 +79,37 @@ def test_perturbed_copies_are_the_same_grasps_moved_a_little_and_turned_three_de
     turn = np.einsum("mij,mij->m", copies.rotations, np.repeat(grasps.rotations, 4, axis=0))  # trace(R0^T R)
     assert np.allclose(np.degrees(np.arccos((turn - 1) / 2)), bench.PERTURB_TURN_DEG)
     assert np.allclose(copies.rotations @ copies.rotations.transpose(0, 2, 1), np.eye(3), atol=1e-9)
+
+
+def test_tried_images_are_the_images_the_detector_scored() -> None:
+    bench = load_bench("oracle")
+    hand = PANDA_LIKE
+    box = ((0.05, 0.04, 0.08), pose_from(rot_z(0.3), [0.0, 0.0, 0.04]))
+    cams = np.array([[0.5, -0.3, 0.5], [-0.4, -0.4, 0.5]])
+    cloud = render_boxes([table_box(), box], cams, look_at=[0.0, 0.0, 0.03], noise=0.0005)
+    workspace = (-0.2, 0.2, -0.2, 0.2, -0.02, 0.3)
+    model = load_model("household15", threads=1)
+    grasps = GraspDetector(model, hand).detect(cloud, DetectionParams(workspace=workspace, num_samples=100),
+                                               hand=hand).grasps[:6]
+    assert len(grasps) >= 3
+    images = bench.tried_images(cloud, workspace, grasps, hand)
+    assert images.shape == (len(grasps), 15, 60, 60) and images.dtype == np.uint8
+    # the same images up to points on the closing region's edges, which the search and a fresh lookup may count apart
+    assert np.allclose(model.score(images), grasps.scores, atol=0.01)
+    other = bench.tried_images(cloud, workspace, grasps, HandGeometry())  # another hand: other images
+    assert not np.allclose(model.score(other), grasps.scores, atol=0.01)
+
+
+def test_saved_images_line_up_with_their_detections_and_perturbed_shares(tmp_path: Path) -> None:
+    bench = load_bench("oracle")
+    shots = [np.full((2, 15, 60, 60), 1, np.uint8), np.full((1, 15, 60, 60), 2, np.uint8)]
+    detections = [{"tried": 2, "trial_outcomes": ["success", "slipped"], "trial_robust": [0.75, 0.0],
+                   "trial_scores": [0.9, 0.8], "seed": 100},
+                  {"tried": 1, "trial_outcomes": ["empty_close"], "trial_robust": [0.25], "trial_scores": [0.7],
+                   "seed": 101}]
+    bench.save_images(tmp_path / "t.npz", shots, detections)
+    d = np.load(tmp_path / "t.npz")
+    assert d["images"][:, 0, 0, 0].tolist() == [1, 1, 2]
+    assert d["detection"].tolist() == [0, 0, 1] and d["rank"].tolist() == [0, 1, 0]
+    assert d["seed"].tolist() == [100, 100, 101] and d["held"].tolist() == [1, 0, 0]
+    assert d["robust"].tolist() == [0.75, 0.0, 0.25] and d["score"].tolist() == [0.9, 0.8, 0.7]

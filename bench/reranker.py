@@ -1,0 +1,179 @@
+"""Can the classifier learn which of its top grasps hold?  A cross-validated fine-tune on the oracle's tried grasps.
+
+bench/oracle.py --perturb N --images FILE keeps, for every detection, the images of the service's top feasible
+grasps as the service encoded them, whether each held when lifted in physics, and the share of its N perturbed
+copies (2 mm, 3 degrees) that held.  Here the default model is fine-tuned on those images, the target being the
+share of all 1 + N lifts of a grasp that held, and asked to choose among each detection's tried grasps: the one
+with the highest fine-tuned score times the detection's other ranking terms (utility, width, unknown: the key
+divided by the old score).  Folds are by round seed: a round's detections are never in training and test at once.
+
+The table compares, per detection, the grasp the service ranks first, the old score's choice, the fine-tuned one
+and the most robust tried grasp (what no detector can know): how often the choice's own lift held and the mean
+share of its perturbed copies that held.  Training-object records only (bench/oracle.py --object-set
+household-training): the held-out objects are never trained or tuned on.
+
+  PYTHONPATH=service:client:lab .venv/bin/python bench/reranker.py \\
+      --images data/generated/tried-pile.npz data/generated/tried-packed.npz \\
+      --records bench/results/oracle-household-training-pile-images.json \\
+                bench/results/oracle-household-training-packed-images.json --tag household-training
+writes bench/results/reranker-<tag>.md and .json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+for sub in ("service", "client", "lab", "bench"):
+    if str(REPO / sub) not in sys.path:
+        sys.path.insert(0, str(REPO / sub))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+from torch import nn  # noqa: E402
+
+import clutter  # noqa: E402
+from foresight import training_objects  # noqa: E402
+from graspd_lab.training.export import torch_scores  # noqa: E402
+from graspd_lab.training.loop import load_weights, resolve_weights  # noqa: E402
+
+#: Fine-tuning: small steps on few images, batch norm statistics frozen (the images are the model's own kind).
+EPOCHS = 6
+LEARNING_RATE = 1e-4
+BATCH = 64
+
+
+def load_tried(images: list[Path], records: list[Path]) -> dict[str, NDArray[Any]]:
+    """The tried grasps of every run, concatenated: images, target (share of all lifts that held), held, robust,
+    seed, detection (unique across runs), rank, score, terms (key / score: the other ranking terms)."""
+    parts: list[dict[str, NDArray[Any]]] = []
+    offset = 0
+    for img_path, rec_path in zip(images, records, strict=True):
+        data = dict(np.load(img_path))
+        rec = json.loads(rec_path.read_text())
+        if not training_objects(rec["meta"]):
+            raise SystemExit(f"{rec_path}: records of {rec['meta']['scenes']!r}: only training objects are fitted on")
+        perturb = int(rec["meta"]["perturb"])
+        if perturb < 1:
+            raise SystemExit(f"{rec_path}: made without --perturb; the target needs the perturbed lifts")
+        dets = rec["detections"]
+        terms = np.array([(dets[d]["trial_seen"][r].get("ranking") or {}).get("key", np.nan) / max(s, 1e-9)
+                          for d, r, s in zip(data["detection"], data["rank"], data["score"], strict=True)])
+        data["terms"] = np.nan_to_num(terms, nan=1.0)
+        data["target"] = (data["held"] + perturb * data["robust"]) / (perturb + 1)
+        data["detection"] = data["detection"] + offset
+        offset = int(data["detection"].max()) + 1 if len(data["detection"]) else offset
+        parts.append(data)
+    keys = ("images", "target", "held", "robust", "seed", "detection", "rank", "score", "terms")
+    return {k: np.concatenate([p[k] for p in parts]) for k in keys}
+
+
+def fine_tune(net: nn.Module, images: NDArray[np.uint8], target: NDArray[np.float64], seed: int) -> nn.Module:
+    """net fine-tuned on images toward the soft targets (cross-entropy on the logit difference), batch norm frozen."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    opt = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE, weight_decay=1e-4)
+    loss_fn = nn.BCEWithLogitsLoss()
+    x_all = torch.from_numpy(images.astype(np.float32) / 255.0)
+    y_all = torch.from_numpy(target.astype(np.float32))
+    for _ in range(EPOCHS):
+        net.train()
+        for m in net.modules():
+            if isinstance(m, nn.BatchNorm2d):
+                m.eval()
+        order = rng.permutation(len(images))
+        for a in range(0, len(order), BATCH):
+            idx = torch.from_numpy(order[a : a + BATCH])
+            logits = net(x_all[idx])
+            loss = loss_fn(logits[:, 1] - logits[:, 0], y_all[idx])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+    return net.eval()
+
+
+def choices(data: dict[str, NDArray[Any]], score: NDArray[np.float64], rows: NDArray[np.int64]) -> NDArray[np.int64]:
+    """For each detection among rows, the row of its tried grasp with the highest score x terms (ties: lower rank)."""
+    out = []
+    det = data["detection"][rows]
+    for d in np.unique(det):
+        mine = rows[det == d]
+        mine = mine[np.argsort(data["rank"][mine], kind="stable")]
+        out.append(int(mine[np.argmax(score[mine] * data["terms"][mine])]))
+    return np.array(out, np.int64)
+
+
+def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int) -> tuple[dict[str, Any], NDArray[np.float64]]:
+    """Cross-validated fine-tuned scores of every tried grasp, and per choice rule the picks' hold rates."""
+    seeds = np.unique(data["seed"])
+    fold_of = {int(s): i % folds for i, s in enumerate(seeds)}
+    fold = np.array([fold_of[int(s)] for s in data["seed"]])
+    weights = resolve_weights(model)
+    tuned = np.full(len(fold), np.nan)
+    for k in range(folds):
+        train, test = fold != k, fold == k
+        net = fine_tune(load_weights(weights), data["images"][train], data["target"][train], seed=k)
+        tuned[test] = torch_scores(net, data["images"][test])
+    base = torch_scores(load_weights(weights), data["images"])
+    rows = np.arange(len(fold))
+    first = np.array([r for r in rows if data["rank"][r] == 0], np.int64)
+    by_rule = {"the service's first grasp": first,
+               "the model's score x the other terms (refitted here)": choices(data, base.astype(np.float64), rows),
+               "the fine-tuned score x the other terms": choices(data, tuned, rows),
+               "the most robust tried grasp (oracle)": choices(data, data["target"], rows)}
+    table = {name: {"detections": len(picks), "held": float(data["held"][picks].mean()),
+                     "robust": float(data["robust"][picks].mean()), "target": float(data["target"][picks].mean())}
+             for name, picks in by_rule.items()}
+    return table, tuned
+
+
+def report(meta: dict[str, Any], table: dict[str, Any]) -> str:
+    lines = ["# Can the classifier learn which of its top grasps hold: a cross-validated fine-tune", "",
+             f"- command: `{meta['command']}`", f"- commit: `{meta['commit']}`, date {meta['date']}",
+             f"- records: {', '.join(meta['records'])}", f"- {meta['images']} tried grasps in {meta['detections']} "
+             f"detections; {meta['folds']} folds by round seed; fine-tune of {meta['model']}: {EPOCHS} epochs, "
+             f"learning rate {LEARNING_RATE}, target the share of the grasp's 1 + N lifts that held", "",
+             "| choice among each detection's tried grasps | detections | its lift held | share of its perturbed "
+             "copies that held |", "|---|---|---|---|"]
+    for name, t in table.items():
+        lines.append(f"| {name} | {t['detections']} | {100 * t['held']:.1f}% | {100 * t['robust']:.1f}% |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--images", type=Path, nargs="+", required=True, help="bench/oracle.py --images files")
+    ap.add_argument("--records", type=Path, nargs="+", required=True,
+                    help="the same runs' bench/oracle.py JSON records, in the same order")
+    ap.add_argument("--model", default="household15", help="the model fine-tuned (models/NAME.pt)")
+    ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument("--tag", default="household-training")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
+    args = ap.parse_args(argv)
+    if len(args.images) != len(args.records):
+        ap.error("--images and --records must name the same runs, in the same order")
+    torch.set_num_threads(2)
+    data = load_tried(args.images, args.records)
+    table, _ = evaluate(data, args.model, args.folds)
+    meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/reranker.py "
+            + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
+            "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": args.model, "folds": args.folds,
+            "records": [str(p) for p in args.records], "images": int(len(data["target"])),
+            "detections": int(len(np.unique(data["detection"])))}
+    md = report(meta, table)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / f"reranker-{args.tag}.md").write_text(md)
+    (args.out / f"reranker-{args.tag}.json").write_text(json.dumps({"meta": meta, "table": table}, indent=1))
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

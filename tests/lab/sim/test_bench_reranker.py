@@ -1,0 +1,76 @@
+"""bench/reranker.py fine-tunes the default model on the oracle's tried grasps (their images and how many of their
+lifts held) with folds by round, and compares its choice among each detection's tried grasps with the service's."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from box_scene import pose_from, render_boxes, rot_z, table_box
+from graspd.gpd.classifier import load_model
+from graspd.gpd.detector import DetectionParams, GraspDetector
+from graspd_lab.sim.object_sets import PANDA_LIKE
+from graspd_lab.training.export import torch_scores
+from graspd_lab.training.loop import load_weights, resolve_weights
+from repo_module import load_bench
+
+
+def tried(tmp_path: Path, scenes: str) -> tuple[Path, Path]:
+    """A run's files as bench/oracle.py --perturb 4 --images writes them: 4 rounds of one detection with 3 tried
+    grasps each, real images of a box on a table; the second grasp of each detection is the one that holds."""
+    oracle = load_bench("oracle")
+    box = ((0.05, 0.04, 0.08), pose_from(rot_z(0.3), [0.0, 0.0, 0.04]))
+    cloud = render_boxes([table_box(), box], np.array([[0.5, -0.3, 0.5], [-0.4, -0.4, 0.5]]),
+                         look_at=[0.0, 0.0, 0.03], noise=0.0005)
+    workspace = (-0.2, 0.2, -0.2, 0.2, -0.02, 0.3)
+    grasps = GraspDetector(load_model("household15", threads=1), PANDA_LIKE).detect(
+        cloud, DetectionParams(workspace=workspace, num_samples=100), hand=PANDA_LIKE).grasps
+    detections: list[dict[str, Any]] = []
+    shots = []
+    for k in range(4):
+        g = grasps[3 * k : 3 * k + 3]
+        shots.append(oracle.tried_images(cloud, workspace, g, PANDA_LIKE))
+        detections.append({"tried": 3, "trial_outcomes": ["slipped", "success", "empty_close"],
+                           "trial_robust": [0.25, 1.0, 0.0], "trial_scores": [float(s) for s in g.scores],
+                           "trial_seen": [{"ranking": {"key": 0.5 * float(s)}} for s in g.scores], "seed": 100 + k})
+    oracle.save_images(tmp_path / "t.npz", shots, detections)
+    records = tmp_path / "t.json"
+    records.write_text(json.dumps({"meta": {"scenes": scenes, "perturb": 4}, "detections": detections}))
+    return tmp_path / "t.npz", records
+
+
+def test_the_table_compares_the_services_first_grasp_with_the_fine_tuned_choice(tmp_path: Path) -> None:
+    bench = load_bench("reranker")
+    images, records = tried(tmp_path, "pile-side, household-training objects, seeds 100-103")
+    data = bench.load_tried([images], [records])
+    assert np.allclose(data["target"], np.tile([0.2, 1.0, 0.0], 4))  # (held + 4 x robust) / 5
+    assert np.allclose(data["terms"], 0.5, atol=1e-3)  # the key over the score: the other ranking terms
+    table, tuned = bench.evaluate(data, "household15", folds=2)
+    assert list(table) == ["the service's first grasp", "the model's score x the other terms (refitted here)",
+                           "the fine-tuned score x the other terms", "the most robust tried grasp (oracle)"]
+    first, best = table["the service's first grasp"], table["the most robust tried grasp (oracle)"]
+    assert first == {"detections": 4, "held": 0.0, "robust": 0.25, "target": pytest.approx(0.2)}
+    assert best == {"detections": 4, "held": 1.0, "robust": 1.0, "target": 1.0}
+    assert np.isfinite(tuned).all() and ((tuned > 0) & (tuned < 1)).all()
+
+
+def test_fine_tuning_moves_the_scores_toward_the_targets(tmp_path: Path) -> None:
+    bench = load_bench("reranker")
+    data = bench.load_tried(*map(lambda p: [p], tried(tmp_path, "pile-side, household-training objects, seeds 0-3")))
+    weights = resolve_weights("household15")
+    before = torch_scores(load_weights(weights), data["images"])
+    after = torch_scores(bench.fine_tune(load_weights(weights), data["images"], np.zeros(12), seed=0), data["images"])
+    assert after.mean() < before.mean() - 0.05
+
+
+@pytest.mark.parametrize("scenes", ["pile-side, household objects, seeds 0-29",
+                                    "tray (training ranges), household objects, seeds 0-9"])
+def test_records_of_held_out_objects_are_refused(tmp_path: Path, scenes: str) -> None:
+    bench = load_bench("reranker")
+    images, records = tried(tmp_path, scenes)
+    with pytest.raises(SystemExit, match="only training objects"):
+        bench.load_tried([images], [records])
