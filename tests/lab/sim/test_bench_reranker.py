@@ -67,6 +67,20 @@ def test_fine_tuning_moves_the_scores_toward_the_targets(tmp_path: Path) -> None
     assert after.mean() < before.mean() - 0.05
 
 
+def test_an_exported_model_scores_as_its_fine_tuned_network_and_says_what_it_learned(tmp_path: Path) -> None:
+    bench = load_bench("reranker")
+    data = bench.load_tried(*map(lambda p: [p], tried(tmp_path, "pile-side, household-training objects, seeds 0-3")))
+    meta = {"records": ["t.json"], "images": 12, "detections": 4, "folds": 2, "command": "made by the test"}
+    card_path = bench.export(data, "household15", "tried-test", tmp_path, meta, {"rows": "table"})
+    card = json.loads(card_path.read_text())
+    assert card["name"] == "tried-test" and card["training"]["init_from"] == "household15"
+    assert card["metrics"]["cross_validated_choice"] == {"rows": "table"} and "calibration" not in card
+    model = load_model(tmp_path / "tried-test.onnx", threads=1)
+    tuned = torch_scores(load_weights(tmp_path / "tried-test.pt"), data["images"])
+    assert np.allclose(model.score(data["images"]), tuned, atol=1e-4)
+    assert not np.allclose(tuned, load_model("household15", threads=1).score(data["images"]), atol=1e-3)
+
+
 @pytest.mark.parametrize("scenes", ["pile-side, household objects, seeds 0-29",
                                     "tray (training ranges), household objects, seeds 0-9"])
 def test_records_of_held_out_objects_are_refused(tmp_path: Path, scenes: str) -> None:
