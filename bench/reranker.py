@@ -52,9 +52,10 @@ from graspd_lab.training.export import (  # noqa: E402
 )
 from graspd_lab.training.loop import load_weights, resolve_weights  # noqa: E402
 
-#: Fine-tuning: small steps on few images, batch norm statistics frozen (the images are the model's own kind).
-EPOCHS = 6
-LEARNING_RATE = 1e-4
+#: Fine-tuning: batch norm statistics frozen (the images are the model's own kind).  Epochs and learning rate picked
+#: on the packed records' folds alone (6-30 epochs, 1e-4 to 1e-3 all picked better than the first grasp).
+EPOCHS = 15
+LEARNING_RATE = 3e-4
 BATCH = 64
 
 
