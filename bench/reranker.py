@@ -134,7 +134,8 @@ def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int) -> tuple[dic
     rows = np.arange(len(fold))
     first = np.array([r for r in rows if data["rank"][r] == 0], np.int64)
     by_rule = {"the service's first grasp": first,
-               "the model's score x the other terms (refitted here)": choices(data, base.astype(np.float64), rows),
+               "the model's own score x the other terms (from the saved images)":
+                   choices(data, base.astype(np.float64), rows),
                "the fine-tuned score x the other terms": choices(data, tuned, rows),
                "the most robust tried grasp (oracle)": choices(data, data["target"], rows)}
     table = {name: {"detections": len(picks), "held": float(data["held"][picks].mean()),

@@ -50,7 +50,8 @@ def test_the_table_compares_the_services_first_grasp_with_the_fine_tuned_choice(
     assert np.allclose(data["target"], np.tile([0.2, 1.0, 0.0], 4))  # (held + 4 x robust) / 5
     assert np.allclose(data["terms"], 0.5, atol=1e-3)  # the key over the score: the other ranking terms
     table, tuned = bench.evaluate(data, "household15", folds=2)
-    assert list(table) == ["the service's first grasp", "the model's score x the other terms (refitted here)",
+    assert list(table) == ["the service's first grasp",
+                           "the model's own score x the other terms (from the saved images)",
                            "the fine-tuned score x the other terms", "the most robust tried grasp (oracle)"]
     first, best = table["the service's first grasp"], table["the most robust tried grasp (oracle)"]
     assert first == {"detections": 4, "held": 0.0, "robust": 0.25, "target": pytest.approx(0.2)}
