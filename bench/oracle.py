@@ -173,6 +173,7 @@ def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
                         "predicted": "success" if first is not None else lifted.outcomes[0],
                         "trial_seen": seen(getattr(detector, "last", None), grasps, tried, hand),
                         "trial_truth": truth(world, grasps[tried], lifted.bodies, hand),
+                        "trial_objects": [int(v) for v in lifted.objects],
                         **({} if robust is None else {"trial_robust": robust})})
         return int(tried[0] if first is None else tried[first])
 
@@ -182,7 +183,8 @@ def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
 def save_images(path: Path, shots: list[NDArray[np.uint8]], detections: list[dict[str, Any]]) -> None:
     """The tried grasps' images (N, 15, 60, 60) with, per image, its detection (index into detections), rank among
     the tried (0 = the service's first), round seed, trial outcome held (0/1), share of perturbed copies that held
-    (NaN without --perturb) and classifier score."""
+    (NaN without --perturb), classifier score and the object the hand went for (its id in the object set; -1: none
+    near), for folds by object."""
     rows = [(i, r, d) for i, d in enumerate(detections[: len(shots)]) for r in range(d["tried"])]
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(
@@ -191,7 +193,8 @@ def save_images(path: Path, shots: list[NDArray[np.uint8]], detections: list[dic
         seed=np.array([d.get("seed", -1) for _, _, d in rows], np.int64),
         held=np.array([d["trial_outcomes"][r] == "success" for _, r, d in rows], np.uint8),
         robust=np.array([d["trial_robust"][r] if "trial_robust" in d else np.nan for _, r, d in rows]),
-        score=np.array([d["trial_scores"][r] for _, r, d in rows]))
+        score=np.array([d["trial_scores"][r] for _, r, d in rows]),
+        object=np.array([d.get("trial_objects", [-1] * d["tried"])[r] for _, r, d in rows], np.int64))
 
 
 def choice_table(rows: dict[str, dict[str, Any]]) -> list[str]:

@@ -41,7 +41,8 @@ def test_the_oracle_picks_the_first_of_its_top_grasps_that_holds_and_puts_the_wo
         assert records == [{"feasible": 2, "tried": 2, "held": 1, "first_held_rank": 2,
                             "trial_outcomes": ["empty_close", "success"], "trial_scores": [0.9, 0.8],
                             "trial_widths": [0.04, 0.04], "trial_from_down": [0.0, 0.0], "predicted": "success",
-                            "trial_seen": [{}, {}]}]  # no answer to read: a chooser made without its detector
+                            "trial_seen": [{}, {}],  # no answer to read: a chooser made without its detector
+                            "trial_objects": [-1, 7]}]  # nothing near the first hand; the box's id
         # nothing near the hand beside the box; the box's 0.3 kg centre of mass lies between the fingertips
         assert truth[0] == {"mass": None}
         assert truth[1]["mass"] == 0.3
@@ -104,12 +105,13 @@ def test_saved_images_line_up_with_their_detections_and_perturbed_shares(tmp_pat
     bench = load_bench("oracle")
     shots = [np.full((2, 15, 60, 60), 1, np.uint8), np.full((1, 15, 60, 60), 2, np.uint8)]
     detections = [{"tried": 2, "trial_outcomes": ["success", "slipped"], "trial_robust": [0.75, 0.0],
-                   "trial_scores": [0.9, 0.8], "seed": 100},
+                   "trial_scores": [0.9, 0.8], "trial_objects": [4, 9], "seed": 100},
                   {"tried": 1, "trial_outcomes": ["empty_close"], "trial_robust": [0.25], "trial_scores": [0.7],
-                   "seed": 101}]
+                   "seed": 101}]  # a record made before objects were recorded
     bench.save_images(tmp_path / "t.npz", shots, detections)
     d = np.load(tmp_path / "t.npz")
     assert d["images"][:, 0, 0, 0].tolist() == [1, 1, 2]
     assert d["detection"].tolist() == [0, 0, 1] and d["rank"].tolist() == [0, 1, 0]
     assert d["seed"].tolist() == [100, 100, 101] and d["held"].tolist() == [1, 0, 0]
     assert d["robust"].tolist() == [0.75, 0.0, 0.25] and d["score"].tolist() == [0.9, 0.8, 0.7]
+    assert d["object"].tolist() == [4, 9, -1]
