@@ -5,7 +5,9 @@ grasps as the service encoded them, whether each held when lifted in physics, an
 copies (2 mm, 3 degrees) that held.  Here the default model is fine-tuned on those images, the target being the
 share of all 1 + N lifts of a grasp that held, and asked to choose among each detection's tried grasps: the one
 with the highest fine-tuned score times the detection's other ranking terms (utility, width, unknown: the key
-divided by the old score).  Folds are by round seed: a round's detections are never in training and test at once.
+divided by the old score).  Folds are by round seed (a round's detections are never in training and test at once)
+or, with --folds-by object, by the object each tried grasp went for: a grasp's fine-tuned score then comes from a
+model that never saw that object, which is what held-out objects ask of it.
 
 The table compares, per detection, the grasp the service ranks first, the old score's choice, the fine-tuned one
 and the most robust tried grasp (what no detector can know): how often the choice's own lift held and the mean
@@ -16,8 +18,9 @@ household-training): the held-out objects are never trained or tuned on.
       --images data/generated/tried-pile.npz data/generated/tried-packed.npz \\
       --records bench/results/oracle-household-training-pile-images.json \\
                 bench/results/oracle-household-training-packed-images.json --tag household-training
-writes bench/results/reranker-<tag>.md and .json.  --export NAME then fine-tunes on every record and writes
-models/NAME.onnx, .pt and its card (the cross-validated table in its metrics): an ablation model a request names.
+writes bench/results/reranker-<tag>.md and .json.  --dir DIR adds every chunk bench/tried_chunks.py wrote there.
+--export NAME then fine-tunes on every record and writes models/NAME.onnx, .pt and its card (the cross-validated
+table in its metrics): an ablation model a request names.
 """
 
 from __future__ import annotations
@@ -59,9 +62,25 @@ LEARNING_RATE = 3e-4
 BATCH = 64
 
 
+def chunk_files(folder: Path) -> tuple[list[Path], list[Path]]:
+    """The (images, records) pairs bench/tried_chunks.py wrote in folder: finished chunks only (their JSON exists)."""
+    records = sorted(folder.glob("oracle-*.json"))
+    images = [r.with_name("tried-" + r.name.removeprefix("oracle-")).with_suffix(".npz") for r in records]
+    missing = [str(i) for i in images if not i.exists()]
+    if missing:
+        raise SystemExit(f"{folder}: records without their images: {', '.join(missing)}")
+    return images, records
+
+
+def scene_kind(scenes: str) -> str:
+    """The scene kind or container style of a run's meta["scenes"] ("tray (training ranges), ..." -> "tray")."""
+    return scenes.split(",")[0].split(" (")[0].strip()
+
+
 def load_tried(images: list[Path], records: list[Path]) -> dict[str, NDArray[Any]]:
     """The tried grasps of every run, concatenated: images, target (share of all lifts that held), held, robust,
-    seed, detection (unique across runs), rank, score, terms (key / score: the other ranking terms)."""
+    seed, detection (unique across runs), rank, score, terms (key / score: the other ranking terms), object (the
+    object-set id the hand went for; -1: none near, or a run older than the column) and kind (scene kind)."""
     parts: list[dict[str, NDArray[Any]]] = []
     offset = 0
     for img_path, rec_path in zip(images, records, strict=True):
@@ -76,23 +95,26 @@ def load_tried(images: list[Path], records: list[Path]) -> dict[str, NDArray[Any
         terms = np.array([(dets[d]["trial_seen"][r].get("ranking") or {}).get("key", np.nan) / max(s, 1e-9)
                           for d, r, s in zip(data["detection"], data["rank"], data["score"], strict=True)])
         data["terms"] = np.nan_to_num(terms, nan=1.0)
+        data["object"] = data["object"] if "object" in data else np.full(len(data["rank"]), -1, np.int64)
+        data["kind"] = np.full(len(data["rank"]), scene_kind(rec["meta"]["scenes"]))
         data["target"] = (data["held"] + perturb * data["robust"]) / (perturb + 1)
         data["detection"] = data["detection"] + offset
         offset = int(data["detection"].max()) + 1 if len(data["detection"]) else offset
         parts.append(data)
-    keys = ("images", "target", "held", "robust", "seed", "detection", "rank", "score", "terms")
+    keys = ("images", "target", "held", "robust", "seed", "detection", "rank", "score", "terms", "object", "kind")
     return {k: np.concatenate([p[k] for p in parts]) for k in keys}
 
 
-def fine_tune(net: nn.Module, images: NDArray[np.uint8], target: NDArray[np.float64], seed: int) -> nn.Module:
+def fine_tune(net: nn.Module, images: NDArray[np.uint8], target: NDArray[np.float64], seed: int,
+              epochs: int = EPOCHS, lr: float = LEARNING_RATE) -> nn.Module:
     """net fine-tuned on images toward the soft targets (cross-entropy on the logit difference), batch norm frozen."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    opt = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE, weight_decay=1e-4)
+    opt = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=1e-4)
     loss_fn = nn.BCEWithLogitsLoss()
     x_all = torch.from_numpy(images.astype(np.float32) / 255.0)
     y_all = torch.from_numpy(target.astype(np.float32))
-    for _ in range(EPOCHS):
+    for _ in range(epochs):
         net.train()
         for m in net.modules():
             if isinstance(m, nn.BatchNorm2d):
@@ -119,36 +141,59 @@ def choices(data: dict[str, NDArray[Any]], score: NDArray[np.float64], rows: NDA
     return np.array(out, np.int64)
 
 
-def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int) -> tuple[dict[str, Any], NDArray[np.float64]]:
-    """Cross-validated fine-tuned scores of every tried grasp, and per choice rule the picks' hold rates."""
+def fold_of_rows(data: dict[str, NDArray[Any]], folds: int, by: str) -> NDArray[np.int64]:
+    """Each tried grasp's fold: by round seed, or by the object it went for (grasps near no object: by seed)."""
     seeds = np.unique(data["seed"])
-    fold_of = {int(s): i % folds for i, s in enumerate(seeds)}
-    fold = np.array([fold_of[int(s)] for s in data["seed"]])
+    fold_of_seed = {int(s): i % folds for i, s in enumerate(seeds)}
+    fold = np.array([fold_of_seed[int(s)] for s in data["seed"]], np.int64)
+    if by == "object":
+        objects = np.unique(data["object"][data["object"] >= 0])
+        order = np.random.default_rng(0).permutation(len(objects))
+        fold_of_object = {int(o): int(order[i]) % folds for i, o in enumerate(objects)}
+        fold = np.array([fold_of_object.get(int(o), int(f)) for o, f in zip(data["object"], fold, strict=True)],
+                        np.int64)
+    return fold
+
+
+def rule_table(data: dict[str, NDArray[Any]], base: NDArray[np.float64], tuned: NDArray[np.float64],
+               rows: NDArray[np.int64]) -> dict[str, Any]:
+    """Per choice rule among rows' detections: how many detections, and the share whose pick held."""
+    first = rows[data["rank"][rows] == 0]
+    by_rule = {"the service's first grasp": first,
+               "the model's own score x the other terms (from the saved images)": choices(data, base, rows),
+               "the fine-tuned score x the other terms": choices(data, tuned, rows),
+               "the most robust tried grasp (oracle)": choices(data, data["target"], rows)}
+    return {name: {"detections": len(picks), "held": float(data["held"][picks].mean()),
+                   "robust": float(data["robust"][picks].mean()), "target": float(data["target"][picks].mean())}
+            for name, picks in by_rule.items()}
+
+
+def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int, by: str = "seed", epochs: int = EPOCHS,
+             lr: float = LEARNING_RATE) -> tuple[dict[str, Any], dict[str, Any], NDArray[np.float64]]:
+    """Cross-validated fine-tuned scores of every tried grasp, and per choice rule the picks' hold rates: over all
+    detections and per scene kind."""
+    fold = fold_of_rows(data, folds, by)
     weights = resolve_weights(model)
     tuned = np.full(len(fold), np.nan)
     for k in range(folds):
         train, test = fold != k, fold == k
-        net = fine_tune(load_weights(weights), data["images"][train], data["target"][train], seed=k)
+        if not test.any():
+            continue
+        net = fine_tune(load_weights(weights), data["images"][train], data["target"][train], seed=k, epochs=epochs,
+                        lr=lr)
         tuned[test] = torch_scores(net, data["images"][test])
-    base = torch_scores(load_weights(weights), data["images"])
+    base = torch_scores(load_weights(weights), data["images"]).astype(np.float64)
     rows = np.arange(len(fold))
-    first = np.array([r for r in rows if data["rank"][r] == 0], np.int64)
-    by_rule = {"the service's first grasp": first,
-               "the model's own score x the other terms (from the saved images)":
-                   choices(data, base.astype(np.float64), rows),
-               "the fine-tuned score x the other terms": choices(data, tuned, rows),
-               "the most robust tried grasp (oracle)": choices(data, data["target"], rows)}
-    table = {name: {"detections": len(picks), "held": float(data["held"][picks].mean()),
-                     "robust": float(data["robust"][picks].mean()), "target": float(data["target"][picks].mean())}
-             for name, picks in by_rule.items()}
-    return table, tuned
+    kinds = {str(k): rule_table(data, base, tuned, rows[data["kind"] == k]) for k in np.unique(data["kind"])}
+    return rule_table(data, base, tuned, rows), kinds, tuned
 
 
 def export(data: dict[str, NDArray[Any]], model: str, name: str, models_dir: Path, meta: dict[str, Any],
            table: dict[str, Any]) -> Path:
     """model fine-tuned on every record, written as models_dir/NAME.onnx, .pt and .json (model's card with this
     training's data, recipe and the cross-validated table); the ONNX graph checked against torch."""
-    net = fine_tune(load_weights(resolve_weights(model)), data["images"], data["target"], seed=0)
+    net = fine_tune(load_weights(resolve_weights(model)), data["images"], data["target"], seed=0,
+                    epochs=meta["epochs"], lr=meta["learning_rate"])
     onnx_path = export_onnx(net, models_dir / f"{name}.onnx", channels=int(data["images"].shape[1]))
     save_weights(net, models_dir / f"{name}.pt", "fast", int(data["images"].shape[1]), 60, {})
     card = json.loads(resolve_weights(model).with_suffix(".json").read_text())
@@ -158,34 +203,45 @@ def export(data: dict[str, NDArray[Any]], model: str, name: str, models_dir: Pat
     card["output"]["meaning"] = ("share of the grasp's lifts in physics that hold when the hand lands 2 mm / 3 degrees "
                                  f"off (fine-tuned from {model} on bench/oracle.py --perturb records; not calibrated)")
     card["training"] = {"init_from": model, "records": meta["records"], "images": meta["images"],
-                        "detections": meta["detections"], "epochs": EPOCHS, "learning_rate": LEARNING_RATE,
+                        "detections": meta["detections"], "epochs": meta["epochs"],
+                        "learning_rate": meta["learning_rate"],
                         "batch_size": BATCH, "target": "(held + N x share of perturbed copies held) / (N + 1)"}
-    card["metrics"] = {"cross_validated_choice": table, "folds": meta["folds"]}
+    card["metrics"] = {"cross_validated_choice": table, "folds": meta["folds"], "folds_by": meta["folds_by"]}
     card["command"] = meta["command"]
     card["parity_max_abs_diff"] = check_parity(net, onnx_path, card, data["images"][:256], PARITY_TOLERANCE)
     return write_card(models_dir / f"{name}.json", card, REPO)
 
 
-def report(meta: dict[str, Any], table: dict[str, Any]) -> str:
+def report(meta: dict[str, Any], table: dict[str, Any], kinds: dict[str, Any]) -> str:
+    header = ("| choice among each detection's tried grasps | detections | its lift held | share of its perturbed "
+              "copies that held |")
     lines = ["# Can the classifier learn which of its top grasps hold: a cross-validated fine-tune", "",
              f"- command: `{meta['command']}`", f"- commit: `{meta['commit']}`, date {meta['date']}",
              f"- records: {', '.join(meta['records'])}", f"- {meta['images']} tried grasps in {meta['detections']} "
-             f"detections; {meta['folds']} folds by round seed; fine-tune of {meta['model']}: {EPOCHS} epochs, "
-             f"learning rate {LEARNING_RATE}, target the share of the grasp's 1 + N lifts that held", "",
-             "| choice among each detection's tried grasps | detections | its lift held | share of its perturbed "
-             "copies that held |", "|---|---|---|---|"]
+             f"detections; {meta['folds']} folds by {meta['folds_by']}; fine-tune of {meta['model']}: "
+             f"{meta['epochs']} epochs, learning rate {meta['learning_rate']}, target the share of the grasp's 1 + N "
+             "lifts that held", "", header, "|---|---|---|---|"]
     for name, t in table.items():
         lines.append(f"| {name} | {t['detections']} | {100 * t['held']:.1f}% | {100 * t['robust']:.1f}% |")
+    if len(kinds) > 1:
+        for kind, rows in kinds.items():
+            lines += ["", f"## {kind}", "", header, "|---|---|---|---|"]
+            lines += [f"| {name} | {t['detections']} | {100 * t['held']:.1f}% | {100 * t['robust']:.1f}% |"
+                      for name, t in rows.items()]
     return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--images", type=Path, nargs="+", required=True, help="bench/oracle.py --images files")
-    ap.add_argument("--records", type=Path, nargs="+", required=True,
+    ap.add_argument("--images", type=Path, nargs="*", default=[], help="bench/oracle.py --images files")
+    ap.add_argument("--records", type=Path, nargs="*", default=[],
                     help="the same runs' bench/oracle.py JSON records, in the same order")
+    ap.add_argument("--dir", type=Path, nargs="*", default=[], help="folders of bench/tried_chunks.py chunks")
     ap.add_argument("--model", default="household15", help="the model fine-tuned (models/NAME.pt)")
     ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument("--folds-by", choices=("seed", "object"), default="seed")
+    ap.add_argument("--epochs", type=int, default=EPOCHS)
+    ap.add_argument("--learning-rate", type=float, default=LEARNING_RATE)
     ap.add_argument("--tag", default="household-training")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--export", default=None, help="also fine-tune on every record and write models/NAME.*")
@@ -193,18 +249,26 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if len(args.images) != len(args.records):
         ap.error("--images and --records must name the same runs, in the same order")
+    for folder in args.dir:
+        images, records = chunk_files(folder)
+        args.images += images
+        args.records += records
+    if not args.records:
+        ap.error("no records: name --images and --records, or --dir")
     torch.set_num_threads(2)
     data = load_tried(args.images, args.records)
-    table, _ = evaluate(data, args.model, args.folds)
+    table, kinds, _ = evaluate(data, args.model, args.folds, args.folds_by, args.epochs, args.learning_rate)
     meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/reranker.py "
             + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
             "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": args.model, "folds": args.folds,
+            "folds_by": args.folds_by, "epochs": args.epochs, "learning_rate": args.learning_rate,
             "records": [str(p) for p in args.records], "images": int(len(data["target"])),
             "detections": int(len(np.unique(data["detection"])))}
-    md = report(meta, table)
+    md = report(meta, table, kinds)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / f"reranker-{args.tag}.md").write_text(md)
-    (args.out / f"reranker-{args.tag}.json").write_text(json.dumps({"meta": meta, "table": table}, indent=1))
+    result = {"meta": meta, "table": table, "kinds": kinds}
+    (args.out / f"reranker-{args.tag}.json").write_text(json.dumps(result, indent=1))
     print(md)
     if args.export:
         print(f"wrote {export(data, args.model, args.export, args.models_dir, meta, table)}")

@@ -34,7 +34,8 @@ def tried(tmp_path: Path, scenes: str) -> tuple[Path, Path]:
     for k in range(4):
         g = grasps[3 * k : 3 * k + 3]
         shots.append(oracle.tried_images(cloud, workspace, g, PANDA_LIKE))
-        detections.append({"tried": 3, "trial_outcomes": ["slipped", "success", "empty_close"],
+        detections.append({"tried": 3, "trial_objects": [k, k, 10 + k],
+                           "trial_outcomes": ["slipped", "success", "empty_close"],
                            "trial_robust": [0.25, 1.0, 0.0], "trial_scores": [float(s) for s in g.scores],
                            "trial_seen": [{"ranking": {"key": 0.5 * float(s)}} for s in g.scores], "seed": 100 + k})
     oracle.save_images(tmp_path / "t.npz", shots, detections)
@@ -49,7 +50,8 @@ def test_the_table_compares_the_services_first_grasp_with_the_fine_tuned_choice(
     data = bench.load_tried([images], [records])
     assert np.allclose(data["target"], np.tile([0.2, 1.0, 0.0], 4))  # (held + 4 x robust) / 5
     assert np.allclose(data["terms"], 0.5, atol=1e-3)  # the key over the score: the other ranking terms
-    table, tuned = bench.evaluate(data, "household15", folds=2)
+    table, kinds, tuned = bench.evaluate(data, "household15", folds=2)
+    assert list(kinds) == ["pile-side"] and kinds["pile-side"] == table
     assert list(table) == ["the service's first grasp",
                            "the model's own score x the other terms (from the saved images)",
                            "the fine-tuned score x the other terms", "the most robust tried grasp (oracle)"]
@@ -71,7 +73,8 @@ def test_fine_tuning_moves_the_scores_toward_the_targets(tmp_path: Path) -> None
 def test_an_exported_model_scores_as_its_fine_tuned_network_and_says_what_it_learned(tmp_path: Path) -> None:
     bench = load_bench("reranker")
     data = bench.load_tried(*map(lambda p: [p], tried(tmp_path, "pile-side, household-training objects, seeds 0-3")))
-    meta = {"records": ["t.json"], "images": 12, "detections": 4, "folds": 2, "command": "made by the test"}
+    meta = {"records": ["t.json"], "images": 12, "detections": 4, "folds": 2, "folds_by": "seed", "epochs": 15,
+            "learning_rate": 3e-4, "command": "made by the test"}
     card_path = bench.export(data, "household15", "tried-test", tmp_path, meta, {"rows": "table"})
     card = json.loads(card_path.read_text())
     assert card["name"] == "tried-test" and card["training"]["init_from"] == "household15"
@@ -89,3 +92,28 @@ def test_records_of_held_out_objects_are_refused(tmp_path: Path, scenes: str) ->
     images, records = tried(tmp_path, scenes)
     with pytest.raises(SystemExit, match="only training objects"):
         bench.load_tried([images], [records])
+
+
+def test_folds_by_object_keep_every_object_out_of_the_model_that_scores_it(tmp_path: Path) -> None:
+    bench = load_bench("reranker")
+    data = bench.load_tried(*map(lambda p: [p], tried(tmp_path, "pile-side, household-training objects, seeds 0-3")))
+    assert list(data["object"]) == [0, 0, 10, 1, 1, 11, 2, 2, 12, 3, 3, 13]
+    fold = bench.fold_of_rows(data, 3, "object")
+    for obj in np.unique(data["object"]):  # one object, one fold: never in training and test at once
+        assert len(set(fold[data["object"] == obj])) == 1
+    assert len(set(fold)) == 3
+    by_seed = bench.fold_of_rows(data, 2, "seed")
+    assert all(len(set(by_seed[data["seed"] == s])) == 1 for s in np.unique(data["seed"]))
+
+
+def test_a_chunk_folder_pairs_each_finished_chunks_records_with_its_images(tmp_path: Path) -> None:
+    bench = load_bench("reranker")
+    images, records = tried(tmp_path, "tray (training ranges), household-training objects, seeds 0-3")
+    folder = tmp_path / "chunks"
+    folder.mkdir()
+    images.rename(folder / "tried-tray-s0.npz")
+    records.rename(folder / "oracle-tray-s0.json")
+    (folder / "tried-tray-s10.npz").write_bytes(b"")  # a chunk still being collected: no records yet
+    found = bench.chunk_files(folder)
+    assert found == ([folder / "tried-tray-s0.npz"], [folder / "oracle-tray-s0.json"])
+    assert set(bench.load_tried(*found)["kind"]) == {"tray"}
