@@ -1,10 +1,10 @@
 """Collect the oracle's tried grasps in chunks of rounds: a long, stoppable and resumable bench/oracle.py job.
 
 Each chunk is one bench/oracle.py run (--perturb 4 --images) over a range of round seeds, written to DIR as
-oracle-<kind>-s<first seed>.json and tried-<kind>-s<first seed>.npz.  A chunk whose JSON exists is done and skipped,
-so the job is stopped with a kill and resumed by running the same command again (a killed chunk starts over).
-Several kinds (scenes or container styles) are collected in turn, one chunk of each, so a stopped job holds some of
-every kind.  Training objects only: bench/reranker.py --dir DIR fits on them.
+oracle-household-training-<kind>-s<first seed>.json and tried-household-training-<kind>-s<first seed>.npz.  A chunk
+whose JSON exists is done and skipped, so the job is stopped with a kill and resumed by running the same command
+again (a killed chunk starts over).  Several kinds (scenes or container styles) are collected in turn, one chunk
+of each, so a stopped job holds some of every kind.  Training objects only: bench/reranker.py --dir DIR fits on them.
 
   nohup env PYTHONPATH=service:client:lab .venv/bin/python bench/tried_chunks.py --kinds pile-side tray \\
       --first-seed 300 --chunks 10 --dir data/generated/tried > data/generated/tried.log 2>&1 &
@@ -30,10 +30,15 @@ PERTURB = 4
 TOP = 5
 
 
+def chunk_name(kind: str, first: int) -> str:
+    """A chunk's tag: its objects (always the training objects), kind and first seed."""
+    return f"household-training-{kind}-s{first}"
+
+
 def chunk_command(kind: str, first: int, size: int, folder: Path, model: str | None) -> list[str]:
     """The bench/oracle.py command line of one chunk: kind's scenes, seeds first .. first + size - 1."""
     place = ["--container", kind, "--split", "training"] if kind in STYLES else ["--scene", kind]
-    name = f"{kind}-s{first}"
+    name = chunk_name(kind, first)
     cmd = [sys.executable, str(REPO / "bench" / "oracle.py"), *place, "--object-set", "household-training",
            "--seed", str(first), "--rounds", str(size), "--top", str(TOP), "--perturb", str(PERTURB),
            "--images", str(folder / f"tried-{name}.npz"), "--out", str(folder), "--tag", name]
@@ -54,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     for c in range(args.chunks):
         first = args.first_seed + c * args.size
         for kind in args.kinds:
-            if (args.dir / f"oracle-{kind}-s{first}.json").exists():
+            if (args.dir / f"oracle-{chunk_name(kind, first)}.json").exists():
                 print(f"{kind} seeds {first}-{first + args.size - 1}: done", flush=True)
                 continue
             print(f"{kind} seeds {first}-{first + args.size - 1}: collecting", flush=True)

@@ -15,7 +15,8 @@ def test_a_chunk_is_one_oracle_run_on_training_objects_with_perturbed_lifts_and_
     assert cmd[1].endswith("bench/oracle.py")
     args = " ".join(cmd[2:])
     assert "--container tray --split training --object-set household-training --seed 310 --rounds 10" in args
-    assert f"--perturb 4 --images {tmp_path / 'tried-tray-s310.npz'} --out {tmp_path} --tag tray-s310" in args
+    images = tmp_path / "tried-household-training-tray-s310.npz"
+    assert f"--perturb 4 --images {images} --out {tmp_path} --tag household-training-tray-s310" in args
     assert "--scene pile-side" in " ".join(bench.chunk_command("pile-side", 0, 5, tmp_path, "household15"))
 
 
@@ -23,7 +24,7 @@ def test_finished_chunks_are_skipped_so_a_stopped_job_resumes(tmp_path: Path,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
     bench = load_bench("tried_chunks")
     for first in (300, 310):
-        (tmp_path / f"oracle-packed-side-s{first}.json").write_text("{}")
+        (tmp_path / f"oracle-household-training-packed-side-s{first}.json").write_text("{}")
     assert bench.main(["--kinds", "packed-side", "--first-seed", "300", "--chunks", "2", "--dir", str(tmp_path)]) == 0
     done = ["packed-side seeds 300-309: done", "packed-side seeds 310-319: done"]
     assert capsys.readouterr().out.splitlines() == done
