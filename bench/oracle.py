@@ -98,6 +98,14 @@ def seen(answer: Grasps | None, grasps: GraspSet, tried: NDArray[np.int64], hand
     return rows
 
 
+def other_terms(rankings: list[dict[str, Any] | None], scores: NDArray[np.floating[Any]] | list[float]
+                ) -> NDArray[np.float64]:
+    """The answer's ranking terms besides the classifier's score (utility, width, unknown): each grasp's ranking key
+    over its score, 1 where the answer gave no key; what a second score is multiplied by to rank the same grasps."""
+    keys = [(r or {}).get("key") for r in rankings]
+    return np.array([1.0 if k is None else float(k) / max(float(s), 1e-9) for k, s in zip(keys, scores, strict=True)])
+
+
 class Watched:
     """A SimDetector that keeps the last cloud and workspace it was asked about (to encode the tried grasps' images
     as the service did); last is the wrapped detector's last parsed answer, if it keeps one."""

@@ -54,6 +54,7 @@ from graspd_lab.training.export import (  # noqa: E402
     write_card,
 )
 from graspd_lab.training.loop import load_weights, resolve_weights  # noqa: E402
+from oracle import other_terms  # noqa: E402
 
 #: Fine-tuning: batch norm statistics frozen (the images are the model's own kind).  Epochs and learning rate picked
 #: on the packed records' folds alone (6-30 epochs, 1e-4 to 1e-3 all picked better than the first grasp).
@@ -92,9 +93,8 @@ def load_tried(images: list[Path], records: list[Path]) -> dict[str, NDArray[Any
         if perturb < 1:
             raise SystemExit(f"{rec_path}: made without --perturb; the target needs the perturbed lifts")
         dets = rec["detections"]
-        terms = np.array([(dets[d]["trial_seen"][r].get("ranking") or {}).get("key", np.nan) / max(s, 1e-9)
-                          for d, r, s in zip(data["detection"], data["rank"], data["score"], strict=True)])
-        data["terms"] = np.nan_to_num(terms, nan=1.0)
+        data["terms"] = other_terms([dets[d]["trial_seen"][r].get("ranking") for d, r in
+                                     zip(data["detection"], data["rank"], strict=True)], data["score"])
         data["object"] = data["object"] if "object" in data else np.full(len(data["rank"]), -1, np.int64)
         data["kind"] = np.full(len(data["rank"]), scene_kind(rec["meta"]["scenes"]))
         data["target"] = (data["held"] + perturb * data["robust"]) / (perturb + 1)

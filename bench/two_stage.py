@@ -36,7 +36,7 @@ from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.gpd.classifier import GraspClassifier, load_model  # noqa: E402
 from graspd_lab.sim.protocol import Chooser, RoundResult, run_round, summarize  # noqa: E402
 from graspd_lab.sim.world import SimWorld  # noqa: E402
-from oracle import Watched, choice_table, tried_images  # noqa: E402
+from oracle import Watched, choice_table, other_terms, tried_images  # noqa: E402
 
 #: Feasible grasps the second model re-orders, by default: the oracle's and the fine-tune's records' top.
 DEFAULT_TOP = 5
@@ -53,9 +53,7 @@ def second_stage(top: int, hand: HandGeometry, detector: Watched, model: GraspCl
         scores = model.score(tried_images(detector.cloud, detector.workspace, grasps[tried], hand))
         answer = detector.last
         raw = (answer.raw.get("grasps") or []) if answer is not None else []
-        keys = [(raw[i].get("ranking") or {}).get("key") if i < len(raw) else None for i in tried]
-        terms = np.array([1.0 if k is None else float(k) / max(float(grasps.scores[i]), 1e-9)
-                          for k, i in zip(keys, tried, strict=True)])
+        terms = other_terms([raw[i].get("ranking") if i < len(raw) else None for i in tried], grasps.scores[tried])
         return int(tried[int(np.argmax(np.asarray(scores, np.float64) * terms))])
 
     return choose
