@@ -61,6 +61,10 @@ from oracle import other_terms  # noqa: E402
 EPOCHS = 15
 LEARNING_RATE = 3e-4
 BATCH = 64
+#: Share of the fine-tuned weights in the exported network, the rest the starting model's (1: the fine-tune alone).
+#: Weight-space averaging keeps what the starting model knew about grasps the tried records never show (those
+#: outside every detection's top 5) while taking the fine-tune's ordering of the top ones.
+MIX = 1.0
 
 
 def chunk_files(folder: Path) -> tuple[list[Path], list[Path]]:
@@ -130,6 +134,17 @@ def fine_tune(net: nn.Module, images: NDArray[np.uint8], target: NDArray[np.floa
     return net.eval()
 
 
+def mix_weights(base: nn.Module, tuned: nn.Module, mix: float) -> nn.Module:
+    """tuned with every floating-point parameter and buffer set to (1 - mix) x base's + mix x tuned's (same net)."""
+    if mix == 1.0:
+        return tuned
+    start = base.state_dict()
+    mixed = {k: (1.0 - mix) * start[k] + mix * v if v.is_floating_point() else v
+             for k, v in tuned.state_dict().items()}
+    tuned.load_state_dict(mixed)
+    return tuned.eval()
+
+
 def choices(data: dict[str, NDArray[Any]], score: NDArray[np.float64], rows: NDArray[np.int64]) -> NDArray[np.int64]:
     """For each detection among rows, the row of its tried grasp with the highest score x terms (ties: lower rank)."""
     out = []
@@ -169,7 +184,7 @@ def rule_table(data: dict[str, NDArray[Any]], base: NDArray[np.float64], tuned: 
 
 
 def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int, by: str = "seed", epochs: int = EPOCHS,
-             lr: float = LEARNING_RATE) -> tuple[dict[str, Any], dict[str, Any], NDArray[np.float64]]:
+             lr: float = LEARNING_RATE, mix: float = MIX) -> tuple[dict[str, Any], dict[str, Any], NDArray[np.float64]]:
     """Cross-validated fine-tuned scores of every tried grasp, and per choice rule the picks' hold rates: over all
     detections and per scene kind."""
     fold = fold_of_rows(data, folds, by)
@@ -181,6 +196,7 @@ def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int, by: str = "s
             continue
         net = fine_tune(load_weights(weights), data["images"][train], data["target"][train], seed=k, epochs=epochs,
                         lr=lr)
+        net = mix_weights(load_weights(weights), net, mix)
         tuned[test] = torch_scores(net, data["images"][test])
     base = torch_scores(load_weights(weights), data["images"]).astype(np.float64)
     rows = np.arange(len(fold))
@@ -194,6 +210,7 @@ def export(data: dict[str, NDArray[Any]], model: str, name: str, models_dir: Pat
     training's data, recipe and the cross-validated table); the ONNX graph checked against torch."""
     net = fine_tune(load_weights(resolve_weights(model)), data["images"], data["target"], seed=0,
                     epochs=meta["epochs"], lr=meta["learning_rate"])
+    net = mix_weights(load_weights(resolve_weights(model)), net, meta["mix"])
     onnx_path = export_onnx(net, models_dir / f"{name}.onnx", channels=int(data["images"].shape[1]))
     save_weights(net, models_dir / f"{name}.pt", "fast", int(data["images"].shape[1]), 60, {})
     card = json.loads(resolve_weights(model).with_suffix(".json").read_text())
@@ -204,7 +221,7 @@ def export(data: dict[str, NDArray[Any]], model: str, name: str, models_dir: Pat
                                  f"off (fine-tuned from {model} on bench/oracle.py --perturb records; not calibrated)")
     card["training"] = {"init_from": model, "records": meta["records"], "images": meta["images"],
                         "detections": meta["detections"], "epochs": meta["epochs"],
-                        "learning_rate": meta["learning_rate"],
+                        "learning_rate": meta["learning_rate"], "mix": meta["mix"],
                         "batch_size": BATCH, "target": "(held + N x share of perturbed copies held) / (N + 1)"}
     card["metrics"] = {"cross_validated_choice": table, "folds": meta["folds"], "folds_by": meta["folds_by"]}
     card["command"] = meta["command"]
@@ -220,7 +237,8 @@ def report(meta: dict[str, Any], table: dict[str, Any], kinds: dict[str, Any]) -
              f"- records: {', '.join(meta['records'])}", f"- {meta['images']} tried grasps in {meta['detections']} "
              f"detections; {meta['folds']} folds by {meta['folds_by']}; fine-tune of {meta['model']}: "
              f"{meta['epochs']} epochs, learning rate {meta['learning_rate']}, target the share of the grasp's 1 + N "
-             "lifts that held", "", header, "|---|---|---|---|"]
+             f"lifts that held; weights {meta['mix']:g} x the fine-tune's + {1 - meta['mix']:g} x {meta['model']}'s",
+             "", header, "|---|---|---|---|"]
     for name, t in table.items():
         lines.append(f"| {name} | {t['detections']} | {100 * t['held']:.1f}% | {100 * t['robust']:.1f}% |")
     if len(kinds) > 1:
@@ -242,6 +260,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--folds-by", choices=("seed", "object"), default="seed")
     ap.add_argument("--epochs", type=int, default=EPOCHS)
     ap.add_argument("--learning-rate", type=float, default=LEARNING_RATE)
+    ap.add_argument("--mix", type=float, default=MIX,
+                    help="share of the fine-tuned weights in the result, the rest the starting model's (0 < MIX <= 1)")
     ap.add_argument("--tag", default="household-training")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--export", default=None, help="also fine-tune on every record and write models/NAME.*")
@@ -255,13 +275,15 @@ def main(argv: list[str] | None = None) -> int:
         args.records += records
     if not args.records:
         ap.error("no records: name --images and --records, or --dir")
+    if not 0.0 < args.mix <= 1.0:
+        ap.error(f"--mix {args.mix}: must be in (0, 1]")
     torch.set_num_threads(2)
     data = load_tried(args.images, args.records)
-    table, kinds, _ = evaluate(data, args.model, args.folds, args.folds_by, args.epochs, args.learning_rate)
+    table, kinds, _ = evaluate(data, args.model, args.folds, args.folds_by, args.epochs, args.learning_rate, args.mix)
     meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/reranker.py "
             + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
             "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": args.model, "folds": args.folds,
-            "folds_by": args.folds_by, "epochs": args.epochs, "learning_rate": args.learning_rate,
+            "folds_by": args.folds_by, "epochs": args.epochs, "learning_rate": args.learning_rate, "mix": args.mix,
             "records": [str(p) for p in args.records], "images": int(len(data["target"])),
             "detections": int(len(np.unique(data["detection"])))}
     md = report(meta, table, kinds)

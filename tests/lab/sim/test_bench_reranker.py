@@ -74,15 +74,32 @@ def test_an_exported_model_scores_as_its_fine_tuned_network_and_says_what_it_lea
     bench = load_bench("reranker")
     data = bench.load_tried(*map(lambda p: [p], tried(tmp_path, "pile-side, household-training objects, seeds 0-3")))
     meta = {"records": ["t.json"], "images": 12, "detections": 4, "folds": 2, "folds_by": "seed", "epochs": 15,
-            "learning_rate": 3e-4, "command": "made by the test"}
+            "learning_rate": 3e-4, "mix": 0.5, "command": "made by the test"}
     card_path = bench.export(data, "household15", "tried-test", tmp_path, meta, {"rows": "table"})
     card = json.loads(card_path.read_text())
     assert card["name"] == "tried-test" and card["training"]["init_from"] == "household15"
+    assert card["training"]["mix"] == 0.5
     assert card["metrics"]["cross_validated_choice"] == {"rows": "table"} and "calibration" not in card
     model = load_model(tmp_path / "tried-test.onnx", threads=1)
     tuned = torch_scores(load_weights(tmp_path / "tried-test.pt"), data["images"])
     assert np.allclose(model.score(data["images"]), tuned, atol=1e-4)
     assert not np.allclose(tuned, load_model("household15", threads=1).score(data["images"]), atol=1e-3)
+
+
+def test_a_mix_sets_every_weight_between_the_starting_models_and_the_fine_tunes(tmp_path: Path) -> None:
+    bench = load_bench("reranker")
+    data = bench.load_tried(*map(lambda p: [p], tried(tmp_path, "pile-side, household-training objects, seeds 0-3")))
+    weights = resolve_weights("household15")
+    start = load_weights(weights).state_dict()
+    tuned = bench.fine_tune(load_weights(weights), data["images"], np.zeros(12), seed=0)
+    full = {k: v.clone() for k, v in tuned.state_dict().items()}
+    half = bench.mix_weights(load_weights(weights), tuned, 0.5).state_dict()
+    moved = [k for k, v in full.items() if v.is_floating_point() and not np.allclose(v.numpy(), start[k].numpy())]
+    assert moved  # the fine-tune changed weights, and the mix puts each of them halfway
+    for k in moved:
+        assert np.allclose(half[k].numpy(), 0.5 * (start[k].numpy() + full[k].numpy()), atol=1e-6)
+    scores = [torch_scores(n, data["images"]).mean() for n in (load_weights(weights), tuned)]
+    assert scores[1] < scores[0]  # the half mix scores below the start, toward the fine-tune's zero targets
 
 
 @pytest.mark.parametrize("scenes", ["pile-side, household objects, seeds 0-29",
