@@ -20,7 +20,8 @@ household-training): the held-out objects are never trained or tuned on.
                 bench/results/oracle-household-training-packed-images.json --tag household-training
 writes bench/results/reranker-<tag>.md and .json.  --dir DIR adds every chunk bench/tried_chunks.py wrote there.
 --export NAME then fine-tunes on every record and writes models/NAME.onnx, .pt and its card (the cross-validated
-table in its metrics): an ablation model a request names.
+table in its metrics): an ablation model a request names.  --mix A makes both, the folds' scores and the export,
+from A x the fine-tuned weights + (1 - A) x the starting model's.
 """
 
 from __future__ import annotations
