@@ -21,7 +21,8 @@ household-training): the held-out objects are never trained or tuned on.
 writes bench/results/reranker-<tag>.md and .json.  --dir DIR adds every chunk bench/tried_chunks.py wrote there.
 --export NAME then fine-tunes on every record and writes models/NAME.onnx, .pt and its card (the cross-validated
 table in its metrics): an ablation model a request names.  --mix A makes both, the folds' scores and the export,
-from A x the fine-tuned weights + (1 - A) x the starting model's.
+from A x the fine-tuned weights + (1 - A) x the starting model's.  --replay DIR adds to every epoch as many rows of a
+scene_data grasp-image dataset (analytic labels, candidates of every rank) as there are tried grasps.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from torch import nn  # noqa: E402
 
 import clutter  # noqa: E402
 from foresight import training_objects  # noqa: E402
+from graspd_lab.training.dataset import iter_chunks  # noqa: E402
 from graspd_lab.training.export import (  # noqa: E402
     PARITY_TOLERANCE,
     check_parity,
@@ -110,25 +112,44 @@ def load_tried(images: list[Path], records: list[Path]) -> dict[str, NDArray[Any
     return {k: np.concatenate([p[k] for p in parts]) for k in keys}
 
 
+def load_replay(folders: list[Path]) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
+    """Every row of the grasp-image datasets in folders (graspd_lab.training.scene_data's format): images, labels."""
+    chunks = [c for f in folders for c in iter_chunks(f)]
+    if not chunks:
+        return np.zeros((0, 15, 60, 60), np.uint8), np.zeros(0)
+    return (np.concatenate([c["images"] for c in chunks]),
+            np.concatenate([c["labels"] for c in chunks]).astype(np.float64))
+
+
 def fine_tune(net: nn.Module, images: NDArray[np.uint8], target: NDArray[np.float64], seed: int,
-              epochs: int = EPOCHS, lr: float = LEARNING_RATE) -> nn.Module:
-    """net fine-tuned on images toward the soft targets (cross-entropy on the logit difference), batch norm frozen."""
+              epochs: int = EPOCHS, lr: float = LEARNING_RATE,
+              replay: tuple[NDArray[np.uint8], NDArray[np.float64]] | None = None) -> nn.Module:
+    """net fine-tuned on images toward the soft targets (cross-entropy on the logit difference), batch norm frozen.
+    replay (images, labels): each epoch adds as many of its rows, drawn afresh, as there are tried grasps, so the
+    candidates the tried records never show keep the labels the model first learned them with."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     opt = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=1e-4)
     loss_fn = nn.BCEWithLogitsLoss()
     x_all = torch.from_numpy(images.astype(np.float32) / 255.0)
     y_all = torch.from_numpy(target.astype(np.float32))
+    extra = replay is not None and len(replay[1]) > 0
     for _ in range(epochs):
         net.train()
         for m in net.modules():
             if isinstance(m, nn.BatchNorm2d):
                 m.eval()
-        order = rng.permutation(len(images))
+        x_ep, y_ep = x_all, y_all
+        if extra:
+            assert replay is not None
+            pick = rng.choice(len(replay[1]), size=min(len(images), len(replay[1])), replace=False)
+            x_ep = torch.cat([x_all, torch.from_numpy(replay[0][pick].astype(np.float32) / 255.0)])
+            y_ep = torch.cat([y_all, torch.from_numpy(replay[1][pick].astype(np.float32))])
+        order = rng.permutation(len(y_ep))
         for a in range(0, len(order), BATCH):
             idx = torch.from_numpy(order[a : a + BATCH])
-            logits = net(x_all[idx])
-            loss = loss_fn(logits[:, 1] - logits[:, 0], y_all[idx])
+            logits = net(x_ep[idx])
+            loss = loss_fn(logits[:, 1] - logits[:, 0], y_ep[idx])
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -185,7 +206,9 @@ def rule_table(data: dict[str, NDArray[Any]], base: NDArray[np.float64], tuned: 
 
 
 def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int, by: str = "seed", epochs: int = EPOCHS,
-             lr: float = LEARNING_RATE, mix: float = MIX) -> tuple[dict[str, Any], dict[str, Any], NDArray[np.float64]]:
+             lr: float = LEARNING_RATE, mix: float = MIX,
+             replay: tuple[NDArray[np.uint8], NDArray[np.float64]] | None = None,
+             ) -> tuple[dict[str, Any], dict[str, Any], NDArray[np.float64]]:
     """Cross-validated fine-tuned scores of every tried grasp, and per choice rule the picks' hold rates: over all
     detections and per scene kind."""
     fold = fold_of_rows(data, folds, by)
@@ -196,7 +219,7 @@ def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int, by: str = "s
         if not test.any():
             continue
         net = fine_tune(load_weights(weights), data["images"][train], data["target"][train], seed=k, epochs=epochs,
-                        lr=lr)
+                        lr=lr, replay=replay)
         net = mix_weights(load_weights(weights), net, mix)
         tuned[test] = torch_scores(net, data["images"][test])
     base = torch_scores(load_weights(weights), data["images"]).astype(np.float64)
@@ -206,11 +229,11 @@ def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int, by: str = "s
 
 
 def export(data: dict[str, NDArray[Any]], model: str, name: str, models_dir: Path, meta: dict[str, Any],
-           table: dict[str, Any]) -> Path:
+           table: dict[str, Any], replay: tuple[NDArray[np.uint8], NDArray[np.float64]] | None = None) -> Path:
     """model fine-tuned on every record, written as models_dir/NAME.onnx, .pt and .json (model's card with this
     training's data, recipe and the cross-validated table); the ONNX graph checked against torch."""
     net = fine_tune(load_weights(resolve_weights(model)), data["images"], data["target"], seed=0,
-                    epochs=meta["epochs"], lr=meta["learning_rate"])
+                    epochs=meta["epochs"], lr=meta["learning_rate"], replay=replay)
     net = mix_weights(load_weights(resolve_weights(model)), net, meta["mix"])
     onnx_path = export_onnx(net, models_dir / f"{name}.onnx", channels=int(data["images"].shape[1]))
     save_weights(net, models_dir / f"{name}.pt", "fast", int(data["images"].shape[1]), 60, {})
@@ -223,6 +246,7 @@ def export(data: dict[str, NDArray[Any]], model: str, name: str, models_dir: Pat
     card["training"] = {"init_from": model, "records": meta["records"], "images": meta["images"],
                         "detections": meta["detections"], "epochs": meta["epochs"],
                         "learning_rate": meta["learning_rate"], "mix": meta["mix"],
+                        "replay": meta.get("replay", []), "replay_rows": meta.get("replay_rows", 0),
                         "batch_size": BATCH, "target": "(held + N x share of perturbed copies held) / (N + 1)"}
     card["metrics"] = {"cross_validated_choice": table, "folds": meta["folds"], "folds_by": meta["folds_by"]}
     card["command"] = meta["command"]
@@ -238,8 +262,9 @@ def report(meta: dict[str, Any], table: dict[str, Any], kinds: dict[str, Any]) -
              f"- records: {', '.join(meta['records'])}", f"- {meta['images']} tried grasps in {meta['detections']} "
              f"detections; {meta['folds']} folds by {meta['folds_by']}; fine-tune of {meta['model']}: "
              f"{meta['epochs']} epochs, learning rate {meta['learning_rate']}, target the share of the grasp's 1 + N "
-             f"lifts that held; weights {meta['mix']:g} x the fine-tune's + {1 - meta['mix']:g} x {meta['model']}'s",
-             "", header, "|---|---|---|---|"]
+             f"lifts that held; weights {meta['mix']:g} x the fine-tune's + {1 - meta['mix']:g} x {meta['model']}'s"
+             + (f"; each epoch replays as many of the {meta['replay_rows']} labelled rows of "
+                f"{', '.join(meta['replay'])}" if meta.get("replay") else ""), "", header, "|---|---|---|---|"]
     for name, t in table.items():
         lines.append(f"| {name} | {t['detections']} | {100 * t['held']:.1f}% | {100 * t['robust']:.1f}% |")
     if len(kinds) > 1:
@@ -263,6 +288,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--learning-rate", type=float, default=LEARNING_RATE)
     ap.add_argument("--mix", type=float, default=MIX,
                     help="share of the fine-tuned weights in the result, the rest the starting model's (0 < MIX <= 1)")
+    ap.add_argument("--replay", type=Path, nargs="*", default=[],
+                    help="grasp-image datasets (scene_data) whose rows, with their labels, join every epoch")
     ap.add_argument("--tag", default="household-training")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--export", default=None, help="also fine-tune on every record and write models/NAME.*")
@@ -280,11 +307,14 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--mix {args.mix}: must be in (0, 1]")
     torch.set_num_threads(2)
     data = load_tried(args.images, args.records)
-    table, kinds, _ = evaluate(data, args.model, args.folds, args.folds_by, args.epochs, args.learning_rate, args.mix)
+    replay = load_replay(args.replay)
+    table, kinds, _ = evaluate(data, args.model, args.folds, args.folds_by, args.epochs, args.learning_rate, args.mix,
+                               replay)
     meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/reranker.py "
             + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
             "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": args.model, "folds": args.folds,
             "folds_by": args.folds_by, "epochs": args.epochs, "learning_rate": args.learning_rate, "mix": args.mix,
+            "replay": [str(p) for p in args.replay], "replay_rows": int(len(replay[1])),
             "records": [str(p) for p in args.records], "images": int(len(data["target"])),
             "detections": int(len(np.unique(data["detection"])))}
     md = report(meta, table, kinds)
@@ -294,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / f"reranker-{args.tag}.json").write_text(json.dumps(result, indent=1))
     print(md)
     if args.export:
-        print(f"wrote {export(data, args.model, args.export, args.models_dir, meta, table)}")
+        print(f"wrote {export(data, args.model, args.export, args.models_dir, meta, table, replay)}")
     return 0
 
 

@@ -86,6 +86,20 @@ def test_an_exported_model_scores_as_its_fine_tuned_network_and_says_what_it_lea
     assert not np.allclose(tuned, load_model("household15", threads=1).score(data["images"]), atol=1e-3)
 
 
+def test_replayed_rows_hold_the_scores_the_tried_targets_would_pull_away(tmp_path: Path) -> None:
+    bench = load_bench("reranker")
+    data = bench.load_tried(*map(lambda p: [p], tried(tmp_path, "pile-side, household-training objects, seeds 0-3")))
+    weights = resolve_weights("household15")
+    zeros = np.zeros(12)
+    alone = torch_scores(bench.fine_tune(load_weights(weights), data["images"], zeros, seed=0), data["images"])
+    replay = (data["images"][::-1].copy(), np.ones(12))  # the same images, labelled as grasps
+    held = torch_scores(bench.fine_tune(load_weights(weights), data["images"], zeros, seed=0, replay=replay),
+                        data["images"])
+    assert held.mean() > alone.mean() + 0.1
+    images, labels = bench.load_replay([])
+    assert images.shape == (0, 15, 60, 60) and labels.shape == (0,)
+
+
 def test_a_mix_sets_every_weight_between_the_starting_models_and_the_fine_tunes(tmp_path: Path) -> None:
     bench = load_bench("reranker")
     data = bench.load_tried(*map(lambda p: [p], tried(tmp_path, "pile-side, household-training objects, seeds 0-3")))
