@@ -22,7 +22,8 @@ writes bench/results/reranker-<tag>.md and .json.  --dir DIR adds every chunk be
 --export NAME then fine-tunes on every record and writes models/NAME.onnx, .pt and its card (the cross-validated
 table in its metrics): an ablation model a request names.  --mix A makes both, the folds' scores and the export,
 from A x the fine-tuned weights + (1 - A) x the starting model's.  --replay DIR adds to every epoch as many rows of a
-scene_data grasp-image dataset (analytic labels, candidates of every rank) as there are tried grasps.
+scene_data grasp-image dataset (analytic labels, candidates of every rank) as there are tried grasps.  --seeds K
+averages K fine-tunes of different seeds weight for weight (a model soup) in each fold and in the export.
 """
 
 from __future__ import annotations
@@ -156,6 +157,22 @@ def fine_tune(net: nn.Module, images: NDArray[np.uint8], target: NDArray[np.floa
     return net.eval()
 
 
+def fine_tune_soup(start: Path, images: NDArray[np.uint8], target: NDArray[np.float64], seed: int, seeds: int = 1,
+                   epochs: int = EPOCHS, lr: float = LEARNING_RATE,
+                   replay: tuple[NDArray[np.uint8], NDArray[np.float64]] | None = None) -> nn.Module:
+    """The weight average of `seeds` fine-tunes of the weights at start, from seeds seed, seed + 1000, ... (a model
+    soup: batch norm is frozen, so only the learned weights differ): one run's luck of batch order and replay draw
+    averaged out.  seeds 1 is fine_tune alone."""
+    nets = [fine_tune(load_weights(start), images, target, seed=seed + 1000 * j, epochs=epochs, lr=lr, replay=replay)
+            for j in range(seeds)]
+    if len(nets) == 1:
+        return nets[0]
+    states = [n.state_dict() for n in nets]
+    mean = {k: sum(s[k] for s in states) / len(states) if v.is_floating_point() else v for k, v in states[0].items()}
+    nets[0].load_state_dict(mean)
+    return nets[0].eval()
+
+
 def mix_weights(base: nn.Module, tuned: nn.Module, mix: float) -> nn.Module:
     """tuned with every floating-point parameter and buffer set to (1 - mix) x base's + mix x tuned's (same net)."""
     if mix == 1.0:
@@ -207,7 +224,7 @@ def rule_table(data: dict[str, NDArray[Any]], base: NDArray[np.float64], tuned: 
 
 def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int, by: str = "seed", epochs: int = EPOCHS,
              lr: float = LEARNING_RATE, mix: float = MIX,
-             replay: tuple[NDArray[np.uint8], NDArray[np.float64]] | None = None,
+             replay: tuple[NDArray[np.uint8], NDArray[np.float64]] | None = None, seeds: int = 1,
              ) -> tuple[dict[str, Any], dict[str, Any], NDArray[np.float64]]:
     """Cross-validated fine-tuned scores of every tried grasp, and per choice rule the picks' hold rates: over all
     detections and per scene kind."""
@@ -218,8 +235,8 @@ def evaluate(data: dict[str, NDArray[Any]], model: str, folds: int, by: str = "s
         train, test = fold != k, fold == k
         if not test.any():
             continue
-        net = fine_tune(load_weights(weights), data["images"][train], data["target"][train], seed=k, epochs=epochs,
-                        lr=lr, replay=replay)
+        net = fine_tune_soup(weights, data["images"][train], data["target"][train], seed=k, seeds=seeds,
+                             epochs=epochs, lr=lr, replay=replay)
         net = mix_weights(load_weights(weights), net, mix)
         tuned[test] = torch_scores(net, data["images"][test])
     base = torch_scores(load_weights(weights), data["images"]).astype(np.float64)
@@ -232,8 +249,8 @@ def export(data: dict[str, NDArray[Any]], model: str, name: str, models_dir: Pat
            table: dict[str, Any], replay: tuple[NDArray[np.uint8], NDArray[np.float64]] | None = None) -> Path:
     """model fine-tuned on every record, written as models_dir/NAME.onnx, .pt and .json (model's card with this
     training's data, recipe and the cross-validated table); the ONNX graph checked against torch."""
-    net = fine_tune(load_weights(resolve_weights(model)), data["images"], data["target"], seed=0,
-                    epochs=meta["epochs"], lr=meta["learning_rate"], replay=replay)
+    net = fine_tune_soup(resolve_weights(model), data["images"], data["target"], seed=0, seeds=meta.get("seeds", 1),
+                         epochs=meta["epochs"], lr=meta["learning_rate"], replay=replay)
     net = mix_weights(load_weights(resolve_weights(model)), net, meta["mix"])
     onnx_path = export_onnx(net, models_dir / f"{name}.onnx", channels=int(data["images"].shape[1]))
     save_weights(net, models_dir / f"{name}.pt", "fast", int(data["images"].shape[1]), 60, {})
@@ -245,7 +262,7 @@ def export(data: dict[str, NDArray[Any]], model: str, name: str, models_dir: Pat
                                  f"off (fine-tuned from {model} on bench/oracle.py --perturb records; not calibrated)")
     card["training"] = {"init_from": model, "records": meta["records"], "images": meta["images"],
                         "detections": meta["detections"], "epochs": meta["epochs"],
-                        "learning_rate": meta["learning_rate"], "mix": meta["mix"],
+                        "learning_rate": meta["learning_rate"], "mix": meta["mix"], "seeds": meta.get("seeds", 1),
                         "replay": meta.get("replay", []), "replay_rows": meta.get("replay_rows", 0),
                         "batch_size": BATCH, "target": "(held + N x share of perturbed copies held) / (N + 1)"}
     card["metrics"] = {"cross_validated_choice": table, "folds": meta["folds"], "folds_by": meta["folds_by"]}
@@ -264,7 +281,9 @@ def report(meta: dict[str, Any], table: dict[str, Any], kinds: dict[str, Any]) -
              f"{meta['epochs']} epochs, learning rate {meta['learning_rate']}, target the share of the grasp's 1 + N "
              f"lifts that held; weights {meta['mix']:g} x the fine-tune's + {1 - meta['mix']:g} x {meta['model']}'s"
              + (f"; each epoch replays as many of the {meta['replay_rows']} labelled rows of "
-                f"{', '.join(meta['replay'])}" if meta.get("replay") else ""), "", header, "|---|---|---|---|"]
+                f"{', '.join(meta['replay'])}" if meta.get("replay") else "")
+             + (f"; each model the weight average of {meta['seeds']} fine-tunes of different seeds"
+                if meta.get("seeds", 1) > 1 else ""), "", header, "|---|---|---|---|"]
     for name, t in table.items():
         lines.append(f"| {name} | {t['detections']} | {100 * t['held']:.1f}% | {100 * t['robust']:.1f}% |")
     if len(kinds) > 1:
@@ -288,6 +307,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--learning-rate", type=float, default=LEARNING_RATE)
     ap.add_argument("--mix", type=float, default=MIX,
                     help="share of the fine-tuned weights in the result, the rest the starting model's (0 < MIX <= 1)")
+    ap.add_argument("--seeds", type=int, default=1,
+                    help="fine-tunes (seeds) averaged weight for weight into each fold's model and the export")
     ap.add_argument("--replay", type=Path, nargs="*", default=[],
                     help="grasp-image datasets (scene_data) whose rows, with their labels, join every epoch")
     ap.add_argument("--tag", default="household-training")
@@ -305,16 +326,18 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("no records: name --images and --records, or --dir")
     if not 0.0 < args.mix <= 1.0:
         ap.error(f"--mix {args.mix}: must be in (0, 1]")
+    if args.seeds < 1:
+        ap.error(f"--seeds {args.seeds}: must be 1 or more")
     torch.set_num_threads(2)
     data = load_tried(args.images, args.records)
     replay = load_replay(args.replay)
     table, kinds, _ = evaluate(data, args.model, args.folds, args.folds_by, args.epochs, args.learning_rate, args.mix,
-                               replay)
+                               replay, args.seeds)
     meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/reranker.py "
             + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
             "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": args.model, "folds": args.folds,
             "folds_by": args.folds_by, "epochs": args.epochs, "learning_rate": args.learning_rate, "mix": args.mix,
-            "replay": [str(p) for p in args.replay], "replay_rows": int(len(replay[1])),
+            "seeds": args.seeds, "replay": [str(p) for p in args.replay], "replay_rows": int(len(replay[1])),
             "records": [str(p) for p in args.records], "images": int(len(data["target"])),
             "detections": int(len(np.unique(data["detection"])))}
     md = report(meta, table, kinds)

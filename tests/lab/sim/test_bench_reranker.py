@@ -116,6 +116,22 @@ def test_a_mix_sets_every_weight_between_the_starting_models_and_the_fine_tunes(
     assert scores[1] < scores[0]  # the half mix scores below the start, toward the fine-tune's zero targets
 
 
+def test_a_soup_is_the_weight_average_of_fine_tunes_from_different_seeds(tmp_path: Path) -> None:
+    bench = load_bench("reranker")
+    data = bench.load_tried(*map(lambda p: [p], tried(tmp_path, "pile-side, household-training objects, seeds 0-3")))
+    weights = resolve_weights("household15")
+    target = np.linspace(0.0, 1.0, 12)
+    runs = [bench.fine_tune(load_weights(weights), data["images"], target, seed=s, epochs=2).state_dict()
+            for s in (3, 1003)]
+    soup = bench.fine_tune_soup(weights, data["images"], target, seed=3, seeds=2, epochs=2).state_dict()
+    differ = [k for k, v in runs[0].items() if v.is_floating_point() and not np.allclose(v.numpy(), runs[1][k].numpy())]
+    assert differ  # the two seeds' fine-tunes differ, and the soup sits at their mean
+    for k in differ:
+        assert np.allclose(soup[k].numpy(), 0.5 * (runs[0][k].numpy() + runs[1][k].numpy()), atol=1e-6)
+    one = bench.fine_tune_soup(weights, data["images"], target, seed=3, seeds=1, epochs=2).state_dict()
+    assert all(np.allclose(one[k].numpy(), runs[0][k].numpy()) for k in differ)
+
+
 @pytest.mark.parametrize("scenes", ["pile-side, household objects, seeds 0-29",
                                     "tray (training ranges), household objects, seeds 0-9"])
 def test_records_of_held_out_objects_are_refused(tmp_path: Path, scenes: str) -> None:
