@@ -2,6 +2,8 @@
 
 - "scaled": the held-out random_urdfs 900-999, scaled so each fits the hand (the benchmarks' objects so far),
   with graspd's default hand;
+- "scaled-training": the training random_urdfs 000-899 (but the broken one), scaled and handled alike: the set
+  to look at what the scaled benchmarks fail on without looking at their held-out objects;
 - "household": the held-out household models (graspd_lab.world.household.HELD_OUT) at their true size, with a
   Panda-like hand (7.5 cm opening; the simulated fingers press with ExecutionParams.finger_force, 40 N), as the
   outside clutter benchmarks use;
@@ -23,8 +25,10 @@ from __future__ import annotations
 from graspd.core.hand import HandGeometry, hand_preset
 from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.world import household
+from graspd_lab.world.objects import BROKEN_URDFS, TRAINING_URDFS
 
-OBJECT_SETS = ("scaled", "household", "household-training", "household-training-heavy", "household-training-flat")
+OBJECT_SETS = ("scaled", "scaled-training", "household", "household-training", "household-training-heavy",
+               "household-training-flat")
 
 #: A Panda-like hand: the panda preset's fingers (45 mm reach, 10 mm thick) and 60 mm body behind the finger
 #: roots, opening 75 mm (outer faces 95 mm apart).
@@ -35,6 +39,8 @@ def object_set_ids(name: str) -> tuple[int, ...]:
     """The simulator object ids of a set (ValueError for an unknown name)."""
     if name == "scaled":
         return TEST_OBJECT_IDS
+    if name == "scaled-training":
+        return tuple(i for i in TRAINING_URDFS if i not in BROKEN_URDFS)
     if name == "household":
         return tuple(household.household_id(n) for n in household.HELD_OUT)
     if name == "household-training":
@@ -79,4 +85,6 @@ def describe(name: str) -> str:
         return (f"the {len(object_set_ids(name))} household training models under "
                 f"{household.FLAT_THICKNESS * 100:.0f} cm thick (not the held-out ones; for tuning) at their true "
                 "size, with a Panda-like hand (7.5 cm opening, 40 N per finger)")
+    if name == "scaled-training":
+        return ("pybullet_data random_urdfs 000-899 (the training objects; for tuning), scaled to the hand")
     return "pybullet_data random_urdfs 900-999 (held out from training), scaled to the hand"

@@ -74,7 +74,7 @@ from graspd_lab.training.dataset import (
 from graspd_lab.training.labels import LabelParams, label_grasps
 from graspd_lab.world import household
 from graspd_lab.world.noise import DepthNoise, SensorNoise, draw_sensor, sensor_noise
-from graspd_lab.world.objects import TRAINING_URDFS, check_not_held_out
+from graspd_lab.world.objects import BROKEN_URDFS, TRAINING_URDFS, check_not_held_out
 from graspd_lab.world.render import MeshScene
 
 #: Scene kinds and their share of the scenes: the benchmark's trays and piles, packed rows, lone objects.
@@ -97,8 +97,6 @@ SENSOR_MIXES: dict[str, tuple[tuple[str, float], ...]] = {
 #: Sensing and its share of the views: the benchmark's passive pair and one side camera.
 SENSING_MIX: tuple[tuple[str, float], ...] = (("passive", 0.6), ("side", 0.4))
 PARTS = ("train", "val", "test")
-#: A broken source mesh (non-finite vertices) pybullet loads but no ground truth can be made of.
-BROKEN_URDFS = frozenset({168})
 
 
 #: Friction coefficient of the scene labels: half the simulator's object friction (1.0), so a positive is a

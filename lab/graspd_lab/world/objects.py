@@ -43,6 +43,8 @@ from graspd_lab.world.meshes import (
 CATEGORY_NAMES = ("box", "cylinder", "other")
 HELD_OUT_URDFS = range(900, 1000)
 TRAINING_URDFS = range(0, 900)
+#: A broken source mesh (non-finite vertices) pybullet loads but no ground truth can be made of.
+BROKEN_URDFS = frozenset({168})
 PROCEDURAL_KINDS = ("box", "cylinder", "sphere", "cone", "capsule", "composite")
 #: Scale of the random_urdfs meshes in their own URDF files (mesh units -> metres).
 URDF_MESH_SCALE = 0.015

@@ -6,10 +6,11 @@ from types import ModuleType
 
 import pytest
 
-from graspd_lab.sim.object_sets import object_set_hand, object_set_ids
+from graspd_lab.sim.object_sets import object_set_hand, object_set_ids, object_set_stop
 from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.sim.world import SimWorld
 from graspd_lab.world import household
+from graspd_lab.world.objects import BROKEN_URDFS, TRAINING_URDFS
 from repo_module import load_bench
 
 
@@ -87,3 +88,10 @@ def test_the_tuning_set_is_the_household_training_models_and_never_a_held_out_on
     assert object_set_hand("household-training") == object_set_hand("household")
     heavy = {household.household_name(i) for i in object_set_ids("household-training-heavy")}
     assert heavy < names and all(household.household_mass_properties(n).mass >= household.HEAVY_MASS for n in heavy)
+
+
+def test_the_scaled_tuning_set_is_the_training_urdfs_with_the_scaled_sets_hand_and_rule() -> None:
+    ids = set(object_set_ids("scaled-training"))
+    assert ids and ids <= set(TRAINING_URDFS) and not ids & set(TEST_OBJECT_IDS) and not ids & BROKEN_URDFS
+    assert object_set_hand("scaled-training") == object_set_hand("scaled")
+    assert object_set_stop("scaled-training") == object_set_stop("scaled") == "ijrr"

@@ -31,8 +31,7 @@ from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.sim.protocol import Setting, run_round
 from graspd_lab.sim.sensing import NO_NOISE, observe
 from graspd_lab.sim.world import SimWorld, build_scene
-from graspd_lab.training.scene_data import BROKEN_URDFS
-from graspd_lab.world.objects import TRAINING_URDFS
+from graspd_lab.world.objects import BROKEN_URDFS, TRAINING_URDFS
 
 
 def _split(style: str) -> str:
