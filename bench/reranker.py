@@ -167,21 +167,23 @@ def fine_tune_soup(start: Path, images: NDArray[np.uint8], target: NDArray[np.fl
             for j in range(seeds)]
     if len(nets) == 1:
         return nets[0]
+    return weighted_average(nets, [1.0 / len(nets)] * len(nets))
+
+
+def weighted_average(nets: list[nn.Module], shares: list[float]) -> nn.Module:
+    """nets[-1] with every floating-point parameter and buffer set to the sum of share x that net's (same nets)."""
     states = [n.state_dict() for n in nets]
-    mean = {k: sum(s[k] for s in states) / len(states) if v.is_floating_point() else v for k, v in states[0].items()}
-    nets[0].load_state_dict(mean)
-    return nets[0].eval()
+    mean = {k: sum(w * s[k] for w, s in zip(shares, states, strict=True)) if v.is_floating_point() else v
+            for k, v in states[-1].items()}
+    nets[-1].load_state_dict(mean)
+    return nets[-1].eval()
 
 
 def mix_weights(base: nn.Module, tuned: nn.Module, mix: float) -> nn.Module:
     """tuned with every floating-point parameter and buffer set to (1 - mix) x base's + mix x tuned's (same net)."""
     if mix == 1.0:
         return tuned
-    start = base.state_dict()
-    mixed = {k: (1.0 - mix) * start[k] + mix * v if v.is_floating_point() else v
-             for k, v in tuned.state_dict().items()}
-    tuned.load_state_dict(mixed)
-    return tuned.eval()
+    return weighted_average([base, tuned], [1.0 - mix, mix])
 
 
 def choices(data: dict[str, NDArray[Any]], score: NDArray[np.float64], rows: NDArray[np.int64]) -> NDArray[np.int64]:

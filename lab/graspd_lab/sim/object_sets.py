@@ -25,7 +25,7 @@ from __future__ import annotations
 from graspd.core.hand import HandGeometry, hand_preset
 from graspd_lab.sim.objects import TEST_OBJECT_IDS
 from graspd_lab.world import household
-from graspd_lab.world.objects import BROKEN_URDFS, TRAINING_URDFS
+from graspd_lab.world.objects import USABLE_TRAINING_URDFS
 
 OBJECT_SETS = ("scaled", "scaled-training", "household", "household-training", "household-training-heavy",
                "household-training-flat")
@@ -40,7 +40,7 @@ def object_set_ids(name: str) -> tuple[int, ...]:
     if name == "scaled":
         return TEST_OBJECT_IDS
     if name == "scaled-training":
-        return tuple(i for i in TRAINING_URDFS if i not in BROKEN_URDFS)
+        return USABLE_TRAINING_URDFS
     if name == "household":
         return tuple(household.household_id(n) for n in household.HELD_OUT)
     if name == "household-training":

@@ -74,7 +74,7 @@ from graspd_lab.training.dataset import (
 from graspd_lab.training.labels import LabelParams, label_grasps
 from graspd_lab.world import household
 from graspd_lab.world.noise import DepthNoise, SensorNoise, draw_sensor, sensor_noise
-from graspd_lab.world.objects import BROKEN_URDFS, TRAINING_URDFS, check_not_held_out
+from graspd_lab.world.objects import USABLE_TRAINING_URDFS, check_not_held_out
 from graspd_lab.world.render import MeshScene
 
 #: Scene kinds and their share of the scenes: the benchmark's trays and piles, packed rows, lone objects.
@@ -163,7 +163,7 @@ class SceneParams:
         """The training objects split into parts (seeded); held-out objects are never listed.  With
         household_share > 0 the training household models (ids household.HOUSEHOLD_ID_BASE + k) are split
         alike and listed after the random_urdfs."""
-        ids = np.array([i for i in TRAINING_URDFS if i not in BROKEN_URDFS], np.int64)
+        ids = np.array(USABLE_TRAINING_URDFS, np.int64)
         parts = self._split(ids, np.random.default_rng([self.seed, 11]))
         if self.household_share > 0.0:
             house = np.array([household.household_id(n) for n in household.training_names()], np.int64)

@@ -45,6 +45,8 @@ HELD_OUT_URDFS = range(900, 1000)
 TRAINING_URDFS = range(0, 900)
 #: A broken source mesh (non-finite vertices) pybullet loads but no ground truth can be made of.
 BROKEN_URDFS = frozenset({168})
+#: The training random_urdfs scenes and tuning sets draw from: every one but the broken.
+USABLE_TRAINING_URDFS: tuple[int, ...] = tuple(i for i in TRAINING_URDFS if i not in BROKEN_URDFS)
 PROCEDURAL_KINDS = ("box", "cylinder", "sphere", "cone", "capsule", "composite")
 #: Scale of the random_urdfs meshes in their own URDF files (mesh units -> metres).
 URDF_MESH_SCALE = 0.015
