@@ -61,7 +61,7 @@ import numpy as np  # noqa: E402
 from graspd.core.camera import Camera  # noqa: E402
 from graspd.core.cloud import ViewpointCloud  # noqa: E402
 from graspd.core.grasp import GraspSet  # noqa: E402
-from graspd.core.hand import HandGeometry  # noqa: E402
+from graspd.core.hand import HAND_PRESETS, HandGeometry, hand_preset  # noqa: E402
 from graspd.core.progress import Progress  # noqa: E402
 from graspd.gpd.classifier import available_models, default_model_name, load_model, read_card  # noqa: E402
 from graspd.gpd.classifier import default_models_dir as models_dir  # noqa: E402
@@ -218,6 +218,8 @@ def _one_round(args: tuple[str, str | None, str | None, Setting, int, bool]
 def _setting_key(spec: str, setting: Setting) -> str:
     key = f"{spec}/{setting.num_objects}"
     key = key if setting.objects == "scaled" else f"{key}/{setting.objects}"
+    if setting.hand != object_set_hand(setting.objects):  # another hand than the set's: never resume across hands
+        key += "/hand-" + "-".join(f"{v:g}" for v in setting.hand.to_dict().values())
     return key if setting.stop_rule == "ijrr" else f"{key}/stop-{setting.stop_rule}"
 
 
@@ -278,6 +280,14 @@ def left_unfound(rounds: list[dict[str, Any]]) -> Counter[str]:
     return Counter(name for r in rounds if "no grasp" in r.get("end_reason", "") for name in r.get("left", ()))
 
 
+def describe_hand(preset: str) -> str:
+    """One line for a results file whose requests and simulated fingers use a hand preset instead of the object
+    set's hand: its name and opening."""
+    opening = hand_preset(preset).max_aperture
+    return (f"the `{preset}` preset ({opening * 100:.1f} cm opening; graspd.core.hand.HAND_PRESETS) in every request "
+            "and in the simulated fingers, instead of the object set's hand")
+
+
 def markdown(summaries: dict[str, Summary], meta: dict[str, Any],
              rounds: dict[str, list[dict[str, Any]]] | None = None) -> str:
     """A Table-3-like markdown table, one column per setting; with the rounds, the objects left where a detection
@@ -303,6 +313,7 @@ def markdown(summaries: dict[str, Summary], meta: dict[str, Any],
         f"- command: `{meta['command']}`",
         f"- commit: `{meta['commit']}`, date: {meta['date']}, {meta['cpus']} CPUs, jobs: {meta['jobs']}",
         f"- objects: {describe_objects(meta.get('object_set', 'scaled'))}",
+        *([f"- hand: {describe_hand(meta['hand'])}"] if meta.get("hand") else []),
         f"- stop rule: {STOP_RULE_TEXT[meta.get('stop', 'ijrr')]}",
         "- models: " + (", ".join(f"{k}: {v}" for k, v in meta["models"].items() if v) or "none"),
         "",
@@ -473,6 +484,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--object-set", choices=OBJECT_SETS, default="scaled", help="scaled: random_urdfs 900-999 "
                     "scaled to the hand (default hand); household: the held-out household models at true size "
                     "(Panda-like hand, 7.5 cm opening)")
+    ap.add_argument("--hand", choices=sorted(HAND_PRESETS), default=None, help="a hand preset for the requests "
+                    "and the simulated fingers instead of the object set's (what a user who sends that preset gets)")
     ap.add_argument("--stop", choices=STOP_RULES, default=None, help="how a round ends (default: the object set's: "
                     "standard for household objects, ijrr for scaled ones)")
     ap.add_argument("--precision", action="store_true", help="also check the top 5 of each round's first "
@@ -505,7 +518,7 @@ def main(argv: list[str] | None = None) -> int:
     service = args.service
     if service is None and not args.in_process and any(det != "baseline" for det, _ in parsed):
         proc, service = start_service()
-    hand = object_set_hand(args.object_set)
+    hand = object_set_hand(args.object_set) if args.hand is None else hand_preset(args.hand)
     models = {spec: model_for(det, args.model, service) for spec, (det, _) in zip(args.settings, parsed, strict=True)}
     reported = {spec: reported_model(det, models[spec], service, hand)
                 for spec, (det, _) in zip(args.settings, parsed, strict=True)}
@@ -522,6 +535,7 @@ def main(argv: list[str] | None = None) -> int:
         "service": service,
         "models": reported,
         "object_set": args.object_set,
+        "hand": args.hand,
         "stop": args.stop or object_set_stop(args.object_set),
         "precision": {},
     }

@@ -62,7 +62,7 @@ from numpy.typing import NDArray  # noqa: E402
 
 import clutter  # noqa: E402  (bench/clutter.py: service start, detectors, round log, formatting)
 from graspd.core.grasp import GraspSet  # noqa: E402
-from graspd.core.hand import HandGeometry  # noqa: E402
+from graspd.core.hand import HAND_PRESETS, HandGeometry, hand_preset  # noqa: E402
 from graspd.core.progress import Progress  # noqa: E402
 from graspd_lab.cluster import RayMissingError, imap, runner_from_args  # noqa: E402
 from graspd_lab.cluster import add_arguments as add_cluster_arguments  # noqa: E402
@@ -254,6 +254,7 @@ def markdown(per_style: dict[str, dict[str, tuple[Summary, dict[str, Any]]]],
         f"- scenes: {meta['objects']} of {describe_objects(meta.get('object_set', 'scaled'))}, dropped into each "
         "round's container, "
         f"{meta['sensing']} cameras, benchmark depth noise; workspace = container + 5 cm of table",
+        *([f"- hand: {clutter.describe_hand(meta['hand'])}"] if meta.get("hand") else []),
         f"- stop rule: {STOP_RULE_TEXT[meta.get('stop', 'ijrr')]}",
         "- P@k: the top 5 of each scene's first detection checked against the true meshes (label_grasps with the "
         "training labels; a hand that touches a container or support fails); mean over scenes with grasps",
@@ -362,6 +363,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--object-set", choices=OBJECT_SETS, default="scaled", help="scaled: random_urdfs 900-999 "
                     "scaled to the hand (default hand); household: the held-out household models at true size "
                     "(Panda-like hand, 7.5 cm opening)")
+    ap.add_argument("--hand", choices=sorted(HAND_PRESETS), default=None, help="a hand preset for the requests "
+                    "and the simulated fingers instead of the object set's (what a user who sends that preset gets)")
     ap.add_argument("--sensing", choices=SENSINGS, default="passive")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes (Ray CPUs with --ray)")
@@ -388,6 +391,8 @@ def main(argv: list[str] | None = None) -> int:
     for style in styles:
         try:
             settings[style] = style_setting(style, args.split, args.object_set, args.objects, args.sensing)
+            if args.hand is not None:
+                settings[style] = replace(settings[style], hand=hand_preset(args.hand))
         except ValueError as exc:
             ap.error(f"--styles {style}: {exc}")
     if args.in_process and args.service:
@@ -401,7 +406,7 @@ def main(argv: list[str] | None = None) -> int:
     if service is None and not args.in_process and any(d != "baseline" for d in detectors):
         proc, service = clutter.start_service()
     models = {d: clutter.model_for(d, args.model, service) for d in detectors}
-    hand = object_set_hand(args.object_set)
+    hand = object_set_hand(args.object_set) if args.hand is None else hand_preset(args.hand)
     reported = {d: clutter.reported_model(d, m, service, hand) for d, m in models.items()}
     stem = f"containers-{args.tag}"
     meta: dict[str, Any] = {
@@ -411,7 +416,7 @@ def main(argv: list[str] | None = None) -> int:
         "jobs": args.jobs, "runner": runner.describe(),
         "gpd": "in-process GraspDetector" if args.in_process else f"POST /detect to {service}",
         "models": reported, "split": args.split, "objects": args.objects, "object_set": args.object_set,
-        "stop": object_set_stop(args.object_set),
+        "stop": object_set_stop(args.object_set), "hand": args.hand,
         "sensing": args.sensing,
         "styles": styles, "headline_styles": [s for s in styles if s in HELD_OUT_STYLES],
         "containers": {s: [scene_container(s, args.seed + i, args.split).to_dict() for i in range(args.rounds)]

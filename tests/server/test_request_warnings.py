@@ -97,7 +97,8 @@ def test_a_model_for_another_hand_warns(server: tuple[TestClient, str], mug_path
                                         models_and_default: tuple[Path, str]) -> None:
     http, _ = server
     cloud = read_cloud(mug_path)
-    body = build_detect_request(cloud.points, cloud.viewpoints, num_samples=SAMPLES, hand="panda",
+    wide = {"finger_width": 0.01, "hand_outer_diameter": 0.14, "hand_depth": 0.06, "hand_height": 0.02}
+    body = build_detect_request(cloud.points, cloud.viewpoints, num_samples=SAMPLES, hand=wide,
                                 model=models_and_default[1])
     out = http.post("/detect", json=body).json()
     assert out["model_fits_hand"] is False

@@ -283,11 +283,11 @@ def _checked(detection: Detection, cloud: ViewpointCloud, params: DetectionParam
     """The detection with the service's request-level warnings (graspd.gpd.sanity.check_detection, the same as on
     every transport), each also printed on stderr, and the points the range window left out (as answers count
     them)."""
-    from graspd.gpd.classifier import card_fits_hand
+    from graspd.gpd.classifier import card_serves_hand
     from graspd.gpd.sanity import check_detection, region_check
 
     card = getattr(classifier, "card", None)
-    fits = None if card is None else card_fits_hand(dict(card), detection.hand.to_dict())
+    fits = None if card is None else card_serves_hand(dict(card), detection.hand.to_dict())
     region = region_check(cloud, params.workspace, params.range_window)
     detection = detection.warned(*check_detection(detection, cloud, params.workspace, params.range_window, fits,
                                                   region))

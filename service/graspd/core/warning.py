@@ -25,7 +25,8 @@ WARNING_CODES: dict[str, str] = {
     "non_finite_dropped": "rows of an unorganised cloud with NaN or infinite coordinates were dropped, or an "
                           "organised cloud has depth on too few of its pixels",
     "few_points": "too few points are left after the workspace crop",
-    "model_hand_mismatch": "the model was not trained for the requested hand; scores are less reliable",
+    "model_hand_mismatch": "the model does not serve the requested hand (not trained on its images, not chosen for "
+                           "it by the benchmarks); scores are less reliable",
     "no_candidates": "no grasp candidate survived; the stage that removed them is named",
     "target_too_small": "the request's target holds too little of an object to grasp; the message says why",
     "unseen_floor": "no grasp, and part of a container's floor wide enough to hide an object was seen by no camera",

@@ -4,7 +4,7 @@ with a DetectionWarning, what looks wrong and what to do (graspd.core.warning). 
 - viewpoint_warning: the viewpoints could not have seen the cloud (a camera behind the surface: normals, which
   preprocessing turns toward the cameras, then face the wrong way and the grasps come from the wrong side);
 - few_points_warning: too few points left after the workspace crop;
-- model_hand_warning: the model was not trained for the requested hand;
+- model_hand_warning: the model does not serve the requested hand (not trained on its images, not chosen for it);
 - no_candidates_warning: no candidate survived, naming the stage that removed them.
 """
 
@@ -152,7 +152,8 @@ def few_points_warning(num_points: int, cropped: bool, limit: int = FEW_POINTS) 
 
 
 def model_hand_warning(model: str | None, fits: bool | None, hand: Mapping[str, float]) -> DetectionWarning | None:
-    """model_hand_mismatch when the model was not trained for the hand (fits False; None: not known)."""
+    """model_hand_mismatch when the model does not serve the hand: neither trained on its grasp images nor chosen
+    for it by the benchmarks (fits False, graspd.gpd.classifier.card_serves_hand; None: not known)."""
     if fits is not False or model is None:
         return None
     shown = ", ".join(f"{k} {v:g}" for k, v in hand.items() if k in ("finger_width", "hand_outer_diameter",
@@ -200,7 +201,7 @@ def check_detection(det: Detection, cloud: ViewpointCloud, workspace: Workspace 
                     model_fits_hand: bool | None, region: RegionCheck | None = None) -> list[DetectionWarning]:
     """The request-level warnings of a GPD detection, in this order: viewpoint_flipped, few_points,
     model_hand_mismatch, no_candidates.  cloud, workspace and range_window: the cloud and region the detector was
-    given, in its frame (m); model_fits_hand: whether the model was made for the hand (None: not known); region:
+    given, in its frame (m); model_fits_hand: whether the model serves the hand (None: not known); region:
     region_check of them if already known (the service computes it beside the detection)."""
     if region is None:
         region = region_check(cloud, workspace, range_window)

@@ -1,6 +1,7 @@
 """bench/clutter.py writes the Table 3 markdown, the PNG and the JSON (with the commit) for a tiny run."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from types import ModuleType
 
@@ -95,3 +96,20 @@ def test_the_scaled_tuning_set_is_the_training_urdfs_with_the_scaled_sets_hand_a
     assert ids and ids <= set(TRAINING_URDFS) and not ids & set(TEST_OBJECT_IDS) and not ids & BROKEN_URDFS
     assert object_set_hand("scaled-training") == object_set_hand("scaled")
     assert object_set_stop("scaled-training") == object_set_stop("scaled") == "ijrr"
+
+
+def test_a_hand_preset_replaces_the_object_sets_hand_and_is_named(tmp_path: Path) -> None:
+    """--hand: the preset in every request and in the simulated fingers, said in the results file, and its rounds
+    never resumed as those of the set's own hand."""
+    bench = _bench()
+    assert bench.main(["--rounds", "1", "--objects", "2", "--settings", "baseline@pile-side", "--object-set",
+                       "household-training", "--hand", "panda", "--out", str(tmp_path), "--tag", "p"]) == 0
+    md = (tmp_path / "p.md").read_text()
+    assert "- hand: the `panda` preset (8.0 cm opening" in md
+    data = json.loads((tmp_path / "p.json").read_text())
+    assert data["meta"]["hand"] == "panda"
+    (row,) = [json.loads(line) for line in (tmp_path / "p.rounds.jsonl").read_text().splitlines()]
+    assert row["setting"].startswith("baseline@pile-side/2/household-training/") and "/hand-" in row["setting"]
+    own = replace(bench.SCENES["pile-side"], num_objects=2, objects="household-training",
+                  hand=object_set_hand("household-training"))
+    assert "/hand-" not in bench._setting_key("baseline@pile-side", own)

@@ -62,10 +62,11 @@ class ModelRegistry:
         return sorted(self.classifiers)
 
     def fits(self, name: str | None, hand: HandGeometry) -> bool | None:
-        """Whether model `name` was trained on grasp images of this hand (None: no model, unscored)."""
+        """Whether model `name` serves this hand: trained on its grasp images, or chosen for it by the benchmarks
+        (graspd.gpd.classifier.card_serves_hand; None: no model, unscored)."""
         if name is None or name not in self.classifiers:
             return None
-        return classifier.card_fits_hand(dict(getattr(self.classifiers[name], "card", {})), hand.to_dict())
+        return classifier.card_serves_hand(dict(getattr(self.classifiers[name], "card", {})), hand.to_dict())
 
     def is_instance(self, name: str) -> bool:
         """Whether a model was made for one object (an instance model: its card has "instance"); such a model
@@ -73,8 +74,8 @@ class ModelRegistry:
         return "instance" in dict(getattr(self.classifiers.get(name), "card", {}) or {})
 
     def resolve(self, name: str | None, scoring: bool = True, hand: HandGeometry | None = None) -> str | None:
-        """The model a request gets: its own, else the default, unless the default was trained for another
-        hand than the request's and a loaded model fits it (then that one, by name; never an instance model).  A
+        """The model a request gets: its own, else the default, unless the default does not serve the request's
+        hand (fits) and a loaded model does (then that one, by name; never an instance model).  A
         name that is not in the folder is a 422 naming 'model'; one that failed to load, or a missing default while
         scoring was asked for, is a 503 naming 'model'.  With scoring False (use_classifier false) a missing default is
         no error."""
@@ -122,7 +123,8 @@ class ModelRegistry:
             "cascade": self.cascade,
             "models": [
                 {"name": n, "representation": str(getattr(c, "representation", "")), "default": n == self.default,
-                 "card": classifier.card_without_paths(dict(getattr(c, "card", {})))}
+                 "card": classifier.card_without_paths(dict(getattr(c, "card", {}))),
+                 "measured_hands": [h.to_dict() for h in classifier.MEASURED_HANDS.get(n, ())]}
                 for n, c in sorted(self.classifiers.items())
             ],
         }

@@ -13,6 +13,10 @@ class ModelInfo(BaseModel):
     representation: str
     default: bool
     card: dict[str, Any]
+    measured_hands: list[dict[str, float]] = Field(
+        default_factory=list, description="hands the model also serves though its card's hand (its grasp images) "
+        "is another: the benchmarks chose it for them over the model made for each (HandGeometry fields, m); a "
+        "request carrying one gets no model_hand_mismatch warning")
 
 
 class InstanceJobOut(BaseModel):

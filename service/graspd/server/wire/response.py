@@ -173,10 +173,11 @@ class DetectResponse(BaseModel):  # built by services.mapping.response (the docs
                                        "transport")
     num_entries: int | None = Field(None, description="templates: library entries matched against")
     header: RosHeader | None = Field(None, description="Zenoh, CDR PointCloud2 input only: its ROS header")
-    model_fits_hand: bool | None = Field(None, description="gpd with a model: whether the model was trained on "
-                                         "grasp images of the request's hand (finger width, outer diameter, "
-                                         "depth, height).  false: the hand and the model differ and the scores "
-                                         "are less reliable (train one on a dataset of that hand: python -m "
+    model_fits_hand: bool | None = Field(None, description="gpd with a model: whether the model serves the "
+                                         "request's hand: trained on grasp images of it (finger width, outer "
+                                         "diameter, depth, height), or chosen for it by the benchmarks (GET "
+                                         "/models: measured_hands).  false: the hand and the model differ and the "
+                                         "scores are less reliable (train one on a dataset of that hand: python -m "
                                          "graspd_lab.training.dataset --hand NAME, then graspd train)")
     ranking_rule: str | None = Field(None, description="gpd with selection: how each grasp's ranking terms combine "
                                      "into the key it was sorted by")
