@@ -280,6 +280,17 @@ def left_unfound(rounds: list[dict[str, Any]]) -> Counter[str]:
     return Counter(name for r in rounds if "no grasp" in r.get("end_reason", "") for name in r.get("left", ()))
 
 
+def add_hand_argument(ap: argparse.ArgumentParser) -> None:
+    """--hand: a hand preset instead of the object set's (bench/clutter.py, bench/containers.py)."""
+    ap.add_argument("--hand", choices=sorted(HAND_PRESETS), default=None, help="a hand preset for the requests "
+                    "and the simulated fingers instead of the object set's (what a user who sends that preset gets)")
+
+
+def run_hand(object_set: str, preset: str | None) -> HandGeometry:
+    """The hand a run requests and executes with: the preset when given, else the object set's."""
+    return object_set_hand(object_set) if preset is None else hand_preset(preset)
+
+
 def describe_hand(preset: str) -> str:
     """One line for a results file whose requests and simulated fingers use a hand preset instead of the object
     set's hand: its name and opening."""
@@ -484,8 +495,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--object-set", choices=OBJECT_SETS, default="scaled", help="scaled: random_urdfs 900-999 "
                     "scaled to the hand (default hand); household: the held-out household models at true size "
                     "(Panda-like hand, 7.5 cm opening)")
-    ap.add_argument("--hand", choices=sorted(HAND_PRESETS), default=None, help="a hand preset for the requests "
-                    "and the simulated fingers instead of the object set's (what a user who sends that preset gets)")
+    add_hand_argument(ap)
     ap.add_argument("--stop", choices=STOP_RULES, default=None, help="how a round ends (default: the object set's: "
                     "standard for household objects, ijrr for scaled ones)")
     ap.add_argument("--precision", action="store_true", help="also check the top 5 of each round's first "
@@ -518,7 +528,7 @@ def main(argv: list[str] | None = None) -> int:
     service = args.service
     if service is None and not args.in_process and any(det != "baseline" for det, _ in parsed):
         proc, service = start_service()
-    hand = object_set_hand(args.object_set) if args.hand is None else hand_preset(args.hand)
+    hand = run_hand(args.object_set, args.hand)
     models = {spec: model_for(det, args.model, service) for spec, (det, _) in zip(args.settings, parsed, strict=True)}
     reported = {spec: reported_model(det, models[spec], service, hand)
                 for spec, (det, _) in zip(args.settings, parsed, strict=True)}

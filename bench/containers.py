@@ -62,7 +62,7 @@ from numpy.typing import NDArray  # noqa: E402
 
 import clutter  # noqa: E402  (bench/clutter.py: service start, detectors, round log, formatting)
 from graspd.core.grasp import GraspSet  # noqa: E402
-from graspd.core.hand import HAND_PRESETS, HandGeometry, hand_preset  # noqa: E402
+from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.core.progress import Progress  # noqa: E402
 from graspd_lab.cluster import RayMissingError, imap, runner_from_args  # noqa: E402
 from graspd_lab.cluster import add_arguments as add_cluster_arguments  # noqa: E402
@@ -143,14 +143,15 @@ def default_objects(object_set: str) -> int:
     return 8 if object_set.startswith("household") else 5
 
 
-def style_setting(style: str, split: str, object_set: str, objects: int | None = None, sensing: str = "passive"
-                  ) -> Setting:
+def style_setting(style: str, split: str, object_set: str, objects: int | None = None, sensing: str = "passive",
+                  hand: HandGeometry | None = None) -> Setting:
     """The benchmark's setting of one container style: the split's parameter ranges, objects of the set (default 8
-    household objects or 5 scaled ones), the sensing, and the set's hand.  ValueError for an unknown style."""
+    household objects or 5 scaled ones), the sensing, and the hand (default: the set's).  ValueError for an unknown
+    style."""
     if objects is None:
         objects = default_objects(object_set)
     return Setting(scene="container", container=style, container_split=split, num_objects=objects, sensing=sensing,
-                   objects=object_set, hand=object_set_hand(object_set))
+                   objects=object_set, hand=object_set_hand(object_set) if hand is None else hand)
 
 
 def add_scene_arguments(ap: argparse.ArgumentParser) -> None:
@@ -363,8 +364,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--object-set", choices=OBJECT_SETS, default="scaled", help="scaled: random_urdfs 900-999 "
                     "scaled to the hand (default hand); household: the held-out household models at true size "
                     "(Panda-like hand, 7.5 cm opening)")
-    ap.add_argument("--hand", choices=sorted(HAND_PRESETS), default=None, help="a hand preset for the requests "
-                    "and the simulated fingers instead of the object set's (what a user who sends that preset gets)")
+    clutter.add_hand_argument(ap)
     ap.add_argument("--sensing", choices=SENSINGS, default="passive")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes (Ray CPUs with --ray)")
@@ -387,12 +387,11 @@ def main(argv: list[str] | None = None) -> int:
     styles = args.styles or list(HELD_OUT_STYLES if args.split == "held_out" else TRAINING_STYLES)
     if args.objects is None:
         args.objects = default_objects(args.object_set)
+    hand = clutter.run_hand(args.object_set, args.hand)
     settings: dict[str, Setting] = {}
     for style in styles:
         try:
-            settings[style] = style_setting(style, args.split, args.object_set, args.objects, args.sensing)
-            if args.hand is not None:
-                settings[style] = replace(settings[style], hand=hand_preset(args.hand))
+            settings[style] = style_setting(style, args.split, args.object_set, args.objects, args.sensing, hand)
         except ValueError as exc:
             ap.error(f"--styles {style}: {exc}")
     if args.in_process and args.service:
@@ -406,7 +405,6 @@ def main(argv: list[str] | None = None) -> int:
     if service is None and not args.in_process and any(d != "baseline" for d in detectors):
         proc, service = clutter.start_service()
     models = {d: clutter.model_for(d, args.model, service) for d in detectors}
-    hand = object_set_hand(args.object_set) if args.hand is None else hand_preset(args.hand)
     reported = {d: clutter.reported_model(d, m, service, hand) for d, m in models.items()}
     stem = f"containers-{args.tag}"
     meta: dict[str, Any] = {

@@ -80,16 +80,19 @@ def card_fits_hand(card: dict[str, Any], hand: dict[str, float]) -> bool:
     """Whether a model card's hand makes the same grasp images as `hand` (a HandGeometry.to_dict()): equal on
     every IMAGE_HAND_FIELDS field to 0.1 mm.  A card without a hand fits nothing."""
     made_for = card.get("hand")
-    if not isinstance(made_for, dict):
-        return False
-    return all(abs(float(made_for.get(k, float("nan"))) - float(hand[k])) <= 1e-4 for k in IMAGE_HAND_FIELDS)
+    return isinstance(made_for, dict) and _same_images(made_for, hand)
+
+
+def _same_images(a: dict[str, Any], b: dict[str, float]) -> bool:
+    """Whether two hands (HandGeometry.to_dict()) make the same grasp images: equal on IMAGE_HAND_FIELDS to 0.1 mm."""
+    return all(abs(float(a.get(k, float("nan"))) - float(b[k])) <= 1e-4 for k in IMAGE_HAND_FIELDS)
 
 
 def card_serves_hand(card: dict[str, Any], hand: dict[str, float]) -> bool:
     """Whether a model serves `hand` (a HandGeometry.to_dict()): its grasp images were made for it
     (card_fits_hand), or the benchmarks chose it for that hand (MEASURED_HANDS, by the card's name)."""
     measured = MEASURED_HANDS.get(str(card.get("name", "")), ())
-    return card_fits_hand(card, hand) or any(card_fits_hand({"hand": h.to_dict()}, hand) for h in measured)
+    return card_fits_hand(card, hand) or any(_same_images(h.to_dict(), hand) for h in measured)
 
 
 #: The cascade's cheap first pass: scores every candidate so the full model scores only the best.
