@@ -220,6 +220,10 @@ def _setting_key(spec: str, setting: Setting) -> str:
     key = key if setting.objects == "scaled" else f"{key}/{setting.objects}"
     if setting.hand != object_set_hand(setting.objects):  # another hand than the set's: never resume across hands
         key += "/hand-" + "-".join(f"{v:g}" for v in setting.hand.to_dict().values())
+    if setting.scene == "container" and setting.sensing != "passive":  # the spec names a container, not cameras
+        key += f"/sensing-{setting.sensing}"
+    if setting.relook:
+        key += "/relook"
     return key if setting.stop_rule == "ijrr" else f"{key}/stop-{setting.stop_rule}"
 
 

@@ -146,11 +146,15 @@ class InProcessGPD:
     name: str = "gpd"
     classifier: Any = None
     options: dict[str, Any] = field(default_factory=dict)
+    #: The warning codes of the last detection (what a robot acting on the answer reads: Setting.relook).
+    warned: frozenset[str] = field(default=frozenset(), init=False, repr=False)
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         params = DetectionParams(seed=seed, workspace=workspace,
                                  use_classifier=self.classifier is not None, **self.options)
-        return GraspDetector(classifier=self.classifier, hand=hand).detect(cloud, params, hand=hand).grasps
+        found = GraspDetector(classifier=self.classifier, hand=hand).detect(cloud, params, hand=hand)
+        self.warned = frozenset(w.code for w in found.warnings)
+        return found.grasps
 
 
 @dataclass
@@ -165,10 +169,13 @@ class ServiceGPD:
     options: dict[str, Any] = field(default_factory=dict)
     #: The last answer as the client parsed it (its scene_objects and each grasp's ranking: bench/oracle.py's records).
     last: Grasps | None = field(default=None, init=False, repr=False)
+    #: The warning codes of the last answer (what a robot acting on the answer reads: Setting.relook).
+    warned: frozenset[str] = field(default=frozenset(), init=False, repr=False)
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         with GraspClient(self.url, timeout=120.0) as client:
             g = self.last = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source, workspace=workspace,
                               hand=hand.to_dict(), model=self.model, seed=seed % (2**32), **self.options)
+        self.warned = frozenset(w["code"] for w in g.warnings)
         return GraspSet(positions=g.positions, rotations=g.rotations, widths=g.widths, scores=g.scores,
                         samples=g.samples)

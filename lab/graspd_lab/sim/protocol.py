@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from graspd.core.camera import Camera, sensing_cameras
+from graspd.core.camera import Camera, overhead_camera, sensing_cameras
 from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
@@ -68,6 +68,10 @@ class Setting:
     container_split: str = "held_out"
     objects: str = "scaled"  # the object set, by name (graspd_lab.sim.object_sets.OBJECT_SETS)
     stop: str | None = None  # STOP_RULES; None: the object set's (graspd_lab.sim.object_sets.object_set_stop)
+    #: A robot that acts on the answer: when a detection has no feasible grasp and its answer warns that no camera
+    #: saw part of the container's floor (unseen_floor), it adds one view straight down into the workspace (a
+    #: wrist camera) and asks once more; only that second answer counts.  False: the standard protocol.
+    relook: bool = False
 
     def __post_init__(self) -> None:
         object_set_ids(self.objects)  # raises for an unknown set
@@ -103,9 +107,21 @@ class RoundResult:
     left: list[str] = field(default_factory=list)
     seconds: float = 0.0
     detect_seconds: float = 0.0
+    #: Detections asked again with a view from above (Setting.relook).
+    relooks: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+#: The warning codes after which a robot with Setting.relook looks again from above.
+RELOOK_WARNINGS = frozenset({"unseen_floor"})
+
+
+def asks_for_a_view(detector: SimDetector) -> bool:
+    """True when the detector's last answer warns of unseen floor (its `warned` codes: ServiceGPD, InProcessGPD);
+    a detector without warnings (the top-down baseline) never asks."""
+    return bool(RELOOK_WARNINGS & getattr(detector, "warned", frozenset()))
 
 
 @dataclass
@@ -192,6 +208,13 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
             grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
             result.detect_seconds += time.perf_counter() - td
             ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
+            if len(ok) == 0 and setting.relook and asks_for_a_view(detector):
+                cloud = observe(world.client, [*cams, overhead_camera(region)], noise, rng, region)
+                td = time.perf_counter()
+                grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
+                result.detect_seconds += time.perf_counter() - td
+                result.relooks += 1
+                ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
             if len(ok) == 0:
                 attempt = Attempt(Outcome.NO_GRASP, None)
             else:
@@ -235,6 +258,7 @@ class Summary:
     failures: dict[str, int]
     seconds_per_round: float
     detect_seconds_per_attempt: float
+    relooks: int = 0  # detections asked again with a view from above (Setting.relook)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -271,4 +295,5 @@ def summarize(results: list[RoundResult], boot: int = 2000, seed: int = 0) -> Su
         failures=dict(sorted(fails.items())),
         seconds_per_round=float(np.mean([r.seconds for r in results])),
         detect_seconds_per_attempt=float(sum(r.detect_seconds for r in results) / attempts_total),
+        relooks=sum(r.relooks for r in results),
     )

@@ -162,6 +162,18 @@ def sensing_cameras(sensing: str) -> list[Camera]:
     raise ValueError(f"sensing must be 'passive', 'active' or 'side', got {sensing!r}")
 
 
+def overhead_camera(workspace: tuple[float, float, float, float, float, float], fov_deg: float = 55.0,
+                    least_height: float = 0.4) -> Camera:
+    """One camera straight above a workspace box [xmin, xmax, ymin, ymax, zmin, zmax] (m), looking down at its
+    floor from high enough (at least least_height above it) that the vertical field of view spans the box: a
+    wrist camera looking into a container."""
+    x0, x1, y0, y1, z0, z1 = workspace
+    half = max(x1 - x0, y1 - y0) / 2
+    height = max(least_height, (z1 - z0) + half / float(np.tan(np.deg2rad(fov_deg) / 2)))
+    centre = ((x0 + x1) / 2, (y0 + y1) / 2, z0)
+    return Camera((centre[0], centre[1], z0 + height), centre, fov_deg=fov_deg, fov_axis="vertical")
+
+
 def active_cameras(target: tuple[float, float, float] = (0.0, 0.0, 0.03), radius: float = 0.40,
                    num_views: int = 6, arc_deg: float = 100.0) -> list[Camera]:
     """num_views cameras along an arc of arc_deg over the tray (in the y-z plane, through the zenith),
