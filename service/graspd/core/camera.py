@@ -171,7 +171,8 @@ def overhead_camera(workspace: tuple[float, float, float, float, float, float], 
     half = max(x1 - x0, y1 - y0) / 2
     height = max(least_height, (z1 - z0) + half / float(np.tan(np.deg2rad(fov_deg) / 2)))
     centre = ((x0 + x1) / 2, (y0 + y1) / 2, z0)
-    return Camera((centre[0], centre[1], z0 + height), centre, fov_deg=fov_deg, fov_axis="vertical")
+    return Camera((centre[0], centre[1], z0 + height), centre, up=(1.0, 0.0, 0.0), fov_deg=fov_deg,
+                  fov_axis="vertical")
 
 
 def active_cameras(target: tuple[float, float, float] = (0.0, 0.0, 0.03), radius: float = 0.40,
