@@ -224,6 +224,8 @@ def _setting_key(spec: str, setting: Setting) -> str:
         key += f"/sensing-{setting.sensing}"
     if setting.relook:
         key += "/relook"
+    if setting.flat_retry:
+        key += "/flat-retry"
     return key if setting.stop_rule == "ijrr" else f"{key}/stop-{setting.stop_rule}"
 
 
@@ -290,6 +292,29 @@ def add_hand_argument(ap: argparse.ArgumentParser) -> None:
                     "and the simulated fingers instead of the object set's (what a user who sends that preset gets)")
 
 
+def add_advice_arguments(ap: argparse.ArgumentParser) -> None:
+    """--relook and --flat-retry: a robot that does what a grasp-less answer advises (not the standard protocol;
+    graspd_lab.sim.protocol.Setting.relook and flat_retry)."""
+    ap.add_argument("--relook", action="store_true", help="after a detection without a grasp whose answer warns "
+                    "of unseen floor, add one view from straight above and ask once more")
+    ap.add_argument("--flat-retry", action="store_true", help="after a detection without a grasp whose answer "
+                    "warns of objects lying flat, ask once more with flat_objects on")
+
+
+def advice_lines(meta: dict[str, Any]) -> list[str]:
+    """The results file's lines on the robot's advice-following (none for the standard protocol)."""
+    lines = []
+    if meta.get("relook"):
+        lines.append("- relook: after a detection without a grasp whose answer warns of unseen floor, the robot adds "
+                     "one view from straight above and asks once more (graspd_lab.sim.protocol.Setting.relook; not "
+                     "the standard protocol); only that answer counts")
+    if meta.get("flat_retry"):
+        lines.append("- flat retry: after a detection without a grasp whose answer warns of objects lying flat, the "
+                     "robot asks once more with flat_objects on (Setting.flat_retry; not the standard protocol); "
+                     "only that answer counts")
+    return lines
+
+
 def run_hand(object_set: str, preset: str | None) -> HandGeometry:
     """The hand a run requests and executes with: the preset when given, else the object set's."""
     return object_set_hand(object_set) if preset is None else hand_preset(preset)
@@ -319,6 +344,8 @@ def markdown(summaries: dict[str, Summary], meta: dict[str, Any],
         ("Failures: empty close", lambda s: str(s.failures.get("empty_close", 0))),
         ("Failures: slipped", lambda s: str(s.failures.get("slipped", 0))),
         ("No grasp found (detections)", lambda s: str(s.failures.get("no_grasp", 0))),
+        *([("Asked again: relooks / flat retries", lambda s: f"{s.relooks} / {s.flat_retries}")]
+          if meta.get("relook") or meta.get("flat_retry") else []),
         ("Wall time per round (s)", lambda s: f"{s.seconds_per_round:.0f}"),
         ("Detection time per call (s)", lambda s: f"{s.detect_seconds_per_attempt:.1f}"),
     ]
@@ -330,6 +357,7 @@ def markdown(summaries: dict[str, Summary], meta: dict[str, Any],
         f"- objects: {describe_objects(meta.get('object_set', 'scaled'))}",
         *([f"- hand: {describe_hand(meta['hand'])}"] if meta.get("hand") else []),
         f"- stop rule: {STOP_RULE_TEXT[meta.get('stop', 'ijrr')]}",
+        *advice_lines(meta),
         "- models: " + (", ".join(f"{k}: {v}" for k, v in meta["models"].items() if v) or "none"),
         "",
         "| | " + " | ".join(names) + " |",
@@ -500,6 +528,7 @@ def main(argv: list[str] | None = None) -> int:
                     "scaled to the hand (default hand); household: the held-out household models at true size "
                     "(Panda-like hand, 7.5 cm opening)")
     add_hand_argument(ap)
+    add_advice_arguments(ap)
     ap.add_argument("--stop", choices=STOP_RULES, default=None, help="how a round ends (default: the object set's: "
                     "standard for household objects, ijrr for scaled ones)")
     ap.add_argument("--precision", action="store_true", help="also check the top 5 of each round's first "
@@ -551,6 +580,7 @@ def main(argv: list[str] | None = None) -> int:
         "object_set": args.object_set,
         "hand": args.hand,
         "stop": args.stop or object_set_stop(args.object_set),
+        "relook": args.relook, "flat_retry": args.flat_retry,
         "precision": {},
     }
     md = ""
@@ -562,7 +592,8 @@ def main(argv: list[str] | None = None) -> int:
         scene_pictures(args.out / f"{args.tag}-scenes.png", args.seed)
     try:
         for spec, (det, scene) in zip(args.settings, parsed, strict=True):
-            setting = replace(SCENES[scene], objects=args.object_set, hand=hand, stop=args.stop)
+            setting = replace(SCENES[scene], objects=args.object_set, hand=hand, stop=args.stop, relook=args.relook,
+                              flat_retry=args.flat_retry)
             if args.objects is not None:
                 setting = replace(setting, num_objects=args.objects)
             seeds = [args.seed + i for i in range(args.rounds)]

@@ -144,14 +144,14 @@ def default_objects(object_set: str) -> int:
 
 
 def style_setting(style: str, split: str, object_set: str, objects: int | None = None, sensing: str = "passive",
-                  hand: HandGeometry | None = None, relook: bool = False) -> Setting:
+                  hand: HandGeometry | None = None) -> Setting:
     """The benchmark's setting of one container style: the split's parameter ranges, objects of the set (default 8
-    household objects or 5 scaled ones), the sensing, the hand (default: the set's) and whether the robot looks
-    again from above when the answer warns of unseen floor (Setting.relook).  ValueError for an unknown style."""
+    household objects or 5 scaled ones), the sensing, and the hand (default: the set's).  ValueError for an unknown
+    style."""
     if objects is None:
         objects = default_objects(object_set)
     return Setting(scene="container", container=style, container_split=split, num_objects=objects, sensing=sensing,
-                   objects=object_set, hand=object_set_hand(object_set) if hand is None else hand, relook=relook)
+                   objects=object_set, hand=object_set_hand(object_set) if hand is None else hand)
 
 
 def add_scene_arguments(ap: argparse.ArgumentParser) -> None:
@@ -222,7 +222,8 @@ def precision_summary(records: list[dict[str, Any]]) -> dict[str, Any]:
 def _fails(s: Summary) -> str:
     f = s.failures
     return (f"coll {f.get('collision', 0)}, empty {f.get('empty_close', 0)}, slip {f.get('slipped', 0)}, "
-            f"none {f.get('no_grasp', 0)}" + (f", relooks {s.relooks}" if s.relooks else ""))
+            f"none {f.get('no_grasp', 0)}" + (f", relooks {s.relooks}" if s.relooks else "")
+            + (f", flat retries {s.flat_retries}" if s.flat_retries else ""))
 
 
 def _top_fails(p: dict[str, Any]) -> str:
@@ -255,9 +256,7 @@ def markdown(per_style: dict[str, dict[str, tuple[Summary, dict[str, Any]]]],
         f"- scenes: {meta['objects']} of {describe_objects(meta.get('object_set', 'scaled'))}, dropped into each "
         "round's container, "
         f"{meta['sensing']} cameras, benchmark depth noise; workspace = container + 5 cm of table",
-        *(["- relook: after a detection without a grasp whose answer warns of unseen floor, the robot adds one "
-           "view from straight above the container and asks once more (graspd_lab.sim.protocol.Setting.relook; "
-           "not the standard protocol); only that answer counts"] if meta.get("relook") else []),
+        *clutter.advice_lines(meta),
         *([f"- hand: {clutter.describe_hand(meta['hand'])}"] if meta.get("hand") else []),
         f"- stop rule: {STOP_RULE_TEXT[meta.get('stop', 'ijrr')]}",
         "- P@k: the top 5 of each scene's first detection checked against the true meshes (label_grasps with the "
@@ -369,9 +368,7 @@ def main(argv: list[str] | None = None) -> int:
                     "(Panda-like hand, 7.5 cm opening)")
     clutter.add_hand_argument(ap)
     ap.add_argument("--sensing", choices=SENSINGS, default="passive")
-    ap.add_argument("--relook", action="store_true", help="a robot that acts on the answer: after a detection "
-                    "without a grasp whose answer warns of unseen floor, add one view from straight above and ask "
-                    "once more (not the standard protocol; its rows say so)")
+    clutter.add_advice_arguments(ap)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="rounds run in parallel processes (Ray CPUs with --ray)")
     add_cluster_arguments(ap)
@@ -397,8 +394,8 @@ def main(argv: list[str] | None = None) -> int:
     settings: dict[str, Setting] = {}
     for style in styles:
         try:
-            settings[style] = style_setting(style, args.split, args.object_set, args.objects, args.sensing, hand,
-                                            args.relook)
+            base = style_setting(style, args.split, args.object_set, args.objects, args.sensing, hand)
+            settings[style] = replace(base, relook=args.relook, flat_retry=args.flat_retry)
         except ValueError as exc:
             ap.error(f"--styles {style}: {exc}")
     if args.in_process and args.service:
@@ -422,7 +419,7 @@ def main(argv: list[str] | None = None) -> int:
         "gpd": "in-process GraspDetector" if args.in_process else f"POST /detect to {service}",
         "models": reported, "split": args.split, "objects": args.objects, "object_set": args.object_set,
         "stop": object_set_stop(args.object_set), "hand": args.hand,
-        "sensing": args.sensing, "relook": args.relook,
+        "sensing": args.sensing, "relook": args.relook, "flat_retry": args.flat_retry,
         "styles": styles, "headline_styles": [s for s in styles if s in HELD_OUT_STYLES],
         "containers": {s: [scene_container(s, args.seed + i, args.split).to_dict() for i in range(args.rounds)]
                        for s in styles},

@@ -146,7 +146,7 @@ class InProcessGPD:
     name: str = "gpd"
     classifier: Any = None
     options: dict[str, Any] = field(default_factory=dict)
-    #: The warning codes of the last detection (what a robot acting on the answer reads: Setting.relook).
+    #: The warning codes of the last detection (what a robot acting on the answer reads: Setting.relook, flat_retry).
     warned: frozenset[str] = field(default=frozenset(), init=False, repr=False)
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
@@ -169,7 +169,7 @@ class ServiceGPD:
     options: dict[str, Any] = field(default_factory=dict)
     #: The last answer as the client parsed it (its scene_objects and each grasp's ranking: bench/oracle.py's records).
     last: Grasps | None = field(default=None, init=False, repr=False)
-    #: The warning codes of the last answer (what a robot acting on the answer reads: Setting.relook).
+    #: The warning codes of the last answer (what a robot acting on the answer reads: Setting.relook, flat_retry).
     warned: frozenset[str] = field(default=frozenset(), init=False, repr=False)
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:

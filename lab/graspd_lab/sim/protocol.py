@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -23,7 +23,7 @@ from graspd.core.cloud import ViewpointCloud
 from graspd.core.grasp import GraspSet
 from graspd.core.hand import HandGeometry
 from graspd_lab.sim.containers import scene_container, style_ranges
-from graspd_lab.sim.detectors import SimDetector, Workspace
+from graspd_lab.sim.detectors import InProcessGPD, ServiceGPD, SimDetector, Workspace
 from graspd_lab.sim.gripper import Attempt, ExecutionParams, Gripper, Outcome
 from graspd_lab.sim.object_sets import object_label, object_set_ids, object_set_stop
 from graspd_lab.sim.sensing import observe
@@ -72,6 +72,9 @@ class Setting:
     #: saw part of the container's floor (unseen_floor), it adds one view straight down into the workspace (a
     #: wrist camera) and asks once more; only that second answer counts.  False: the standard protocol.
     relook: bool = False
+    #: The same for objects lying too flat for the hand's init_bite (flat_objects): it asks once more with the
+    #: request's flat_objects option on, as the warning says (after a relook, if both apply).
+    flat_retry: bool = False
 
     def __post_init__(self) -> None:
         object_set_ids(self.objects)  # raises for an unknown set
@@ -107,21 +110,26 @@ class RoundResult:
     left: list[str] = field(default_factory=list)
     seconds: float = 0.0
     detect_seconds: float = 0.0
-    #: Detections asked again with a view from above (Setting.relook).
+    #: Detections asked again with a view from above (Setting.relook), and with flat_objects on (Setting.flat_retry).
     relooks: int = 0
+    flat_retries: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
-#: The warning codes after which a robot with Setting.relook looks again from above.
-RELOOK_WARNINGS = frozenset({"unseen_floor"})
+def warned(detector: SimDetector, code: str) -> bool:
+    """True when the detector's last answer carries the warning code (its `warned` codes: ServiceGPD,
+    InProcessGPD); a detector without warnings (the top-down baseline) never warns."""
+    return code in getattr(detector, "warned", frozenset())
 
 
-def asks_for_a_view(detector: SimDetector) -> bool:
-    """True when the detector's last answer warns of unseen floor (its `warned` codes: ServiceGPD, InProcessGPD);
-    a detector without warnings (the top-down baseline) never asks."""
-    return bool(RELOOK_WARNINGS & getattr(detector, "warned", frozenset()))
+def with_options(detector: SimDetector, **options: Any) -> SimDetector | None:
+    """A copy of a detector that sends these request options too (ServiceGPD, InProcessGPD); None for one
+    without request options (the top-down baseline)."""
+    if isinstance(detector, ServiceGPD | InProcessGPD):
+        return replace(detector, options={**detector.options, **options})
+    return None
 
 
 @dataclass
@@ -208,12 +216,19 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
             grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
             result.detect_seconds += time.perf_counter() - td
             ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
-            if len(ok) == 0 and setting.relook and asks_for_a_view(detector):
+            if len(ok) == 0 and setting.relook and warned(detector, "unseen_floor"):
                 cloud = observe(world.client, [*cams, overhead_camera(region)], noise, rng, region)
                 td = time.perf_counter()
                 grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
                 result.detect_seconds += time.perf_counter() - td
                 result.relooks += 1
+                ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
+            flat = with_options(detector, flat_objects=True) if setting.flat_retry else None
+            if len(ok) == 0 and flat is not None and warned(detector, "flat_objects"):
+                td = time.perf_counter()
+                grasps = flat.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
+                result.detect_seconds += time.perf_counter() - td
+                result.flat_retries += 1
                 ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
             if len(ok) == 0:
                 attempt = Attempt(Outcome.NO_GRASP, None)
@@ -259,6 +274,7 @@ class Summary:
     seconds_per_round: float
     detect_seconds_per_attempt: float
     relooks: int = 0  # detections asked again with a view from above (Setting.relook)
+    flat_retries: int = 0  # detections asked again with flat_objects on (Setting.flat_retry)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -295,5 +311,5 @@ def summarize(results: list[RoundResult], boot: int = 2000, seed: int = 0) -> Su
         failures=dict(sorted(fails.items())),
         seconds_per_round=float(np.mean([r.seconds for r in results])),
         detect_seconds_per_attempt=float(sum(r.detect_seconds for r in results) / attempts_total),
-        relooks=sum(r.relooks for r in results),
+        relooks=sum(r.relooks for r in results), flat_retries=sum(r.flat_retries for r in results),
     )

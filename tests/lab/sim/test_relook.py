@@ -1,6 +1,7 @@
-"""A robot that acts on the answer (Setting.relook): after a detection without a grasp that warns of unseen
-floor, one view from straight above finds the packet the passive cameras could not see; the standard protocol
-ends the round there."""
+"""A robot that acts on the answer (Setting.relook, flat_retry): after a detection without a grasp that warns of
+unseen floor, one view from straight above finds the packet the passive cameras could not see; after one that
+warns of objects lying flat, a request with flat_objects on grasps the packet.  The standard protocol ends the
+round at either answer."""
 
 from __future__ import annotations
 
@@ -10,9 +11,9 @@ import numpy as np
 import pytest
 
 from graspd.core.camera import overhead_camera
-from graspd_lab.sim.detectors import InProcessGPD
+from graspd_lab.sim.detectors import InProcessGPD, TopDownBaseline
 from graspd_lab.sim.object_sets import object_set_hand
-from graspd_lab.sim.protocol import Setting, run_round
+from graspd_lab.sim.protocol import Setting, run_round, with_options
 
 #: A deep bin of the training ranges holding one flat training object that the two passive cameras do not see
 #: between its walls (seed 7: the passive answer has no grasp and warns unseen_floor).
@@ -41,3 +42,22 @@ def test_a_robot_that_looks_again_from_above_grasps_what_the_passive_cameras_mis
     result = run_round(InProcessGPD(), replace(SETTING, relook=True), SEED)
     assert result.relooks >= 1
     assert result.attempts >= 1
+
+
+#: The same bin, seed 14: one packet lying flat in plain view; the passive answer has no grasp and warns
+#: flat_objects (its hands would need more bite than the packet's height gives).
+FLAT_SEED = 14
+
+
+def test_a_robot_that_asks_again_with_flat_objects_grasps_the_flat_packet() -> None:
+    standard = run_round(InProcessGPD(), SETTING, FLAT_SEED)
+    assert standard.attempts == 0 and standard.end_reason == "no grasp found"
+    result = run_round(InProcessGPD(), replace(SETTING, flat_retry=True), FLAT_SEED)
+    assert result.flat_retries >= 1 and result.relooks == 0
+    assert result.attempts >= 1
+
+
+def test_only_detectors_with_request_options_can_ask_again() -> None:
+    assert with_options(TopDownBaseline(), flat_objects=True) is None
+    again = with_options(InProcessGPD(options={"num_samples": 300}), flat_objects=True)
+    assert isinstance(again, InProcessGPD) and again.options == {"num_samples": 300, "flat_objects": True}
