@@ -71,7 +71,7 @@ def test_no_grasp_in_a_deep_bin_seen_over_its_wall_says_its_floor_went_unseen(bi
     assert len(det.grasps) == 0
     assert "unseen_floor" in codes(det)
     message = next(w.message for w in det.warnings if w.code == "unseen_floor")
-    assert "% of the floor" in message and "from above" in message
+    assert "% of the floor" in message and "from above" in message and "the widest around (" in message
 
 
 def test_the_hidden_part_is_the_floor_beside_the_near_wall(bin_seen_over_its_wall: tuple) -> None:
@@ -83,6 +83,10 @@ def test_the_hidden_part_is_the_floor_beside_the_near_wall(bin_seen_over_its_wal
     assert 0.03 < cover.floor_area < 0.08  # the 28 x 24 cm floor, less the walls' margins
     assert 0.2 < cover.unseen_share < 0.8
     assert cover.hidden_width >= MIN_HIDDEN_WIDTH
+    # where to look: on the floor (z = 0) beside the near wall (inner face at x = -0.14), inside the bin
+    assert cover.hidden_centre is not None
+    x, y, z = cover.hidden_centre
+    assert -0.14 < x < -0.02 and abs(y) < 0.12 and abs(z) < 0.01
 
 
 def test_the_same_bin_seen_from_above_gets_grasps_on_the_box_and_no_floor_warning() -> None:

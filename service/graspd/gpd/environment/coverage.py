@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 from scipy.spatial import ConvexHull, Delaunay, QhullError
 
+from graspd.core.types import F64
 from graspd.core.warning import DetectionWarning
 from graspd.gpd.environment.planes import in_plane_axes
 from graspd.gpd.environment.types import Environment, Label
@@ -28,12 +29,14 @@ MIN_HIDDEN_WIDTH = 0.04
 
 @dataclass(frozen=True)
 class FloorCoverage:
-    """The container floor between the walls found: its area (m²), the area no camera saw (m²), and the widest
-    that unseen floor gets (m, the largest disc that fits in it, to a cell)."""
+    """The container floor between the walls found: its area (m²), the area no camera saw (m²), the widest
+    that unseen floor gets (m, the largest disc that fits in it, to a cell) and that disc's centre on the floor
+    (cloud frame, m; None when no floor went unseen): where a second camera should look."""
 
     floor_area: float
     unseen_area: float
     hidden_width: float
+    hidden_centre: tuple[float, float, float] | None = None
 
     @property
     def unseen_share(self) -> float:
@@ -69,11 +72,28 @@ def floor_coverage(points: NDArray[np.floating], env: Environment) -> FloorCover
     ok = np.all((cell >= 0) & (cell < shape), axis=1)
     seen[cell[ok, 0] * shape[1] + cell[ok, 1]] = True
     unseen = (floor & ~seen).reshape(int(shape[0]), int(shape[1]))
-    # a cell's distance to the nearest seen or non-floor cell, in cells: a strip w cells wide peaks at (w + 1) / 2
-    depth = float(ndimage.distance_transform_edt(unseen).max()) if unseen.any() else 0.0
     area = FLOOR_CELL**2
+    if not unseen.any():
+        return FloorCoverage(float(floor.sum()) * area, 0.0, 0.0)
+    # a cell's distance to the nearest seen or non-floor cell, in cells: a strip w cells wide peaks at (w + 1) / 2
+    distance = ndimage.distance_transform_edt(unseen)
+    widest = np.unravel_index(int(np.argmax(distance)), distance.shape)
+    depth = float(distance[widest])
     return FloorCoverage(float(floor.sum()) * area, float(unseen.sum()) * area,
-                         max(0.0, 2.0 * depth - 1.0) * FLOOR_CELL)
+                         max(0.0, 2.0 * depth - 1.0) * FLOOR_CELL,
+                         _on_floor(lo + (np.asarray(widest) + 0.5) * FLOOR_CELL, axes, points, env))
+
+
+def _on_floor(planar: F64, axes: F64, points: NDArray[np.floating], env: Environment) -> tuple[float, float, float]:
+    """The point of the floor (cloud frame, m) over in-plane coordinates planar (2,): on the support plane, or
+    without one at the height of the lowest point."""
+    up = np.asarray(env.up, np.float64)
+    at = planar @ axes
+    if env.support is not None and abs(float(env.support.normal @ up)) > 1e-6:
+        at = at - float(env.support.distance(at[None])[0]) / float(env.support.normal @ up) * up
+    else:
+        at = at + float(np.min(np.asarray(points, np.float64) @ up)) * up
+    return (float(at[0]), float(at[1]), float(at[2]))
 
 
 def unseen_floor_warning(points: NDArray[np.floating], env: Environment) -> DetectionWarning | None:
@@ -84,9 +104,14 @@ def unseen_floor_warning(points: NDArray[np.floating], env: Environment) -> Dete
         return None
     return DetectionWarning(
         "unseen_floor", f"no camera saw {100 * cover.unseen_share:.0f}% of the floor between the container's walls "
-        f"({1e4 * cover.unseen_area:.0f} cm², up to {100 * cover.hidden_width:.0f} cm wide, hidden behind them): "
-        "objects lying there give no point and no grasp, so no grasp does not mean the container is empty; look "
-        "into it from above or from the other side")
+        f"({1e4 * cover.unseen_area:.0f} cm², up to {100 * cover.hidden_width:.0f} cm wide, hidden behind them"
+        f"{_where(cover.hidden_centre)}): objects lying there give no point and no grasp, so no grasp does not mean "
+        "the container is empty; look into it from above or from the other side")
+
+
+def _where(centre: tuple[float, float, float] | None) -> str:
+    return "" if centre is None else ", the widest around ({:.2f}, {:.2f}, {:.2f}) m in the answer's frame".format(
+        *centre)
 
 
 __all__ = ["FLOOR_CELL", "MIN_HIDDEN_WIDTH", "FloorCoverage", "floor_coverage", "unseen_floor_warning"]
