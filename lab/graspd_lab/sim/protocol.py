@@ -201,6 +201,14 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
     workspace = region
     noise = DepthNoise.benchmark() if setting.noise else DepthNoise.none()
     cams = cameras_for(setting)
+
+    def ask(det: SimDetector, seen: ViewpointCloud) -> tuple[GraspSet, NDArray[np.int64]]:
+        """One timed detection and the indices of its grasps the arm can execute."""
+        td = time.perf_counter()
+        found = det.detect(seen, workspace, setting.hand, seed=int(rng.integers(2**31)))
+        result.detect_seconds += time.perf_counter() - td
+        return found, np.flatnonzero(feasible(found, setting.max_approach_angle_deg))
+
     try:
         gripper = Gripper(world, setting.hand, execution)
         stop = StopRule(setting.stop_rule)
@@ -212,24 +220,15 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
                 result.end_reason = "attempt limit"
                 break
             cloud = observe(world.client, cams, noise, rng, region)
-            td = time.perf_counter()
-            grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
-            result.detect_seconds += time.perf_counter() - td
-            ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
+            grasps, ok = ask(detector, cloud)
             if len(ok) == 0 and setting.relook and warned(detector, "unseen_floor"):
                 cloud = observe(world.client, [*cams, overhead_camera(region)], noise, rng, region)
-                td = time.perf_counter()
-                grasps = detector.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
-                result.detect_seconds += time.perf_counter() - td
+                grasps, ok = ask(detector, cloud)
                 result.relooks += 1
-                ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
             flat = with_options(detector, flat_objects=True) if setting.flat_retry else None
             if len(ok) == 0 and flat is not None and warned(detector, "flat_objects"):
-                td = time.perf_counter()
-                grasps = flat.detect(cloud, workspace, setting.hand, seed=int(rng.integers(2**31)))
-                result.detect_seconds += time.perf_counter() - td
+                grasps, ok = ask(flat, cloud)
                 result.flat_retries += 1
-                ok = np.flatnonzero(feasible(grasps, setting.max_approach_angle_deg))
             if len(ok) == 0:
                 attempt = Attempt(Outcome.NO_GRASP, None)
             else:
