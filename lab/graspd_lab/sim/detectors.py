@@ -169,13 +169,16 @@ class ServiceGPD:
     options: dict[str, Any] = field(default_factory=dict)
     #: The last answer as the client parsed it (its scene_objects and each grasp's ranking: bench/oracle.py's records).
     last: Grasps | None = field(default=None, init=False, repr=False)
-    #: The warning codes of the last answer (what a robot acting on the answer reads: Setting.relook, flat_retry).
-    warned: frozenset[str] = field(default=frozenset(), init=False, repr=False)
 
     def detect(self, cloud: ViewpointCloud, workspace: Workspace, hand: HandGeometry, seed: int) -> GraspSet:
         with GraspClient(self.url, timeout=120.0) as client:
             g = self.last = client.detect(cloud.points, cloud.viewpoints, cloud.camera_source, workspace=workspace,
                               hand=hand.to_dict(), model=self.model, seed=seed % (2**32), **self.options)
-        self.warned = frozenset(w["code"] for w in g.warnings)
         return GraspSet(positions=g.positions, rotations=g.rotations, widths=g.widths, scores=g.scores,
                         samples=g.samples)
+
+    @property
+    def warned(self) -> frozenset[str]:
+        """The warning codes of the last answer (what a robot acting on the answer reads: Setting.relook,
+        flat_retry)."""
+        return frozenset() if self.last is None else frozenset(w["code"] for w in self.last.warnings)

@@ -225,10 +225,11 @@ def run_round(detector: SimDetector, setting: Setting, seed: int,
                 cloud = observe(world.client, [*cams, overhead_camera(region)], noise, rng, region)
                 grasps, ok = ask(detector, cloud)
                 result.relooks += 1
-            flat = with_options(detector, flat_objects=True) if setting.flat_retry else None
-            if len(ok) == 0 and flat is not None and warned(detector, "flat_objects"):
-                grasps, ok = ask(flat, cloud)
-                result.flat_retries += 1
+            if len(ok) == 0 and setting.flat_retry and warned(detector, "flat_objects"):
+                flat = with_options(detector, flat_objects=True)
+                if flat is not None:
+                    grasps, ok = ask(flat, cloud)
+                    result.flat_retries += 1
             if len(ok) == 0:
                 attempt = Attempt(Outcome.NO_GRASP, None)
             else:
