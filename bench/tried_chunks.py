@@ -1,7 +1,8 @@
 """Collect the oracle's tried grasps in chunks of rounds: a long, stoppable and resumable bench/oracle.py job.
 
 Each chunk is one bench/oracle.py run (--perturb 4 --images) over a range of round seeds, written to DIR as
-oracle-household-training-<kind>-s<first seed>.json and tried-household-training-<kind>-s<first seed>.npz.  A chunk
+oracle-<objects>-<kind>-s<first seed>.json and tried-<objects>-<kind>-s<first seed>.npz (objects: a training set,
+household-training with the benchmark's hand or scaled-training with graspd's default hand).  A chunk
 whose JSON exists is done and skipped, so the job is stopped with a kill and resumed by running the same command
 again (a killed chunk starts over).  Several kinds (scenes or container styles) are collected in turn, one chunk
 of each, so a stopped job holds some of every kind.  Training objects only: bench/reranker.py --dir DIR fits on them.
@@ -25,21 +26,24 @@ for sub in ("service", "client", "lab", "bench"):
 import clutter  # noqa: E402
 from containers import STYLES  # noqa: E402
 
+#: The object sets chunks draw from: training objects only (each with its own hand: object_set_hand).
+TRAINING_SETS = ("household-training", "scaled-training")
 #: Lifts per tried grasp: its own and 4 perturbed copies (bench/reranker.py's target is the share that held).
 PERTURB = 4
 TOP = 5
 
 
-def chunk_name(kind: str, first: int) -> str:
-    """A chunk's tag: its objects (always the training objects), kind and first seed."""
-    return f"household-training-{kind}-s{first}"
+def chunk_name(kind: str, first: int, objects: str = TRAINING_SETS[0]) -> str:
+    """A chunk's tag: its objects (a training set), kind and first seed."""
+    return f"{objects}-{kind}-s{first}"
 
 
-def chunk_command(kind: str, first: int, size: int, folder: Path, model: str | None) -> list[str]:
+def chunk_command(kind: str, first: int, size: int, folder: Path, model: str | None,
+                  objects: str = TRAINING_SETS[0]) -> list[str]:
     """The bench/oracle.py command line of one chunk: kind's scenes, seeds first .. first + size - 1."""
     place = ["--container", kind, "--split", "training"] if kind in STYLES else ["--scene", kind]
-    name = chunk_name(kind, first)
-    cmd = [sys.executable, str(REPO / "bench" / "oracle.py"), *place, "--object-set", "household-training",
+    name = chunk_name(kind, first, objects)
+    cmd = [sys.executable, str(REPO / "bench" / "oracle.py"), *place, "--object-set", objects,
            "--seed", str(first), "--rounds", str(size), "--top", str(TOP), "--perturb", str(PERTURB),
            "--images", str(folder / f"tried-{name}.npz"), "--out", str(folder), "--tag", name]
     return cmd + (["--model", model] if model else [])
@@ -53,17 +57,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--chunks", type=int, default=10, help="chunks of each kind")
     ap.add_argument("--size", type=int, default=10, help="rounds per chunk")
     ap.add_argument("--dir", type=Path, default=REPO / "data" / "generated" / "tried")
+    ap.add_argument("--object-set", choices=TRAINING_SETS, default=TRAINING_SETS[0],
+                    help="the training objects (household at true size with the benchmark's hand, or scaled ones "
+                    "with graspd's default hand)")
     ap.add_argument("--model", default=None, help="the model whose top grasps are tried (default: the service's)")
     args = ap.parse_args(argv)
     args.dir.mkdir(parents=True, exist_ok=True)
     for c in range(args.chunks):
         first = args.first_seed + c * args.size
         for kind in args.kinds:
-            if (args.dir / f"oracle-{chunk_name(kind, first)}.json").exists():
+            name = chunk_name(kind, first, args.object_set)
+            if (args.dir / f"oracle-{name}.json").exists():
                 print(f"{kind} seeds {first}-{first + args.size - 1}: done", flush=True)
                 continue
             print(f"{kind} seeds {first}-{first + args.size - 1}: collecting", flush=True)
-            done = subprocess.run(chunk_command(kind, first, args.size, args.dir, args.model), cwd=REPO,
+            done = subprocess.run(chunk_command(kind, first, args.size, args.dir, args.model,
+                                                args.object_set), cwd=REPO,
                                   stdout=subprocess.DEVNULL, check=False)
             if done.returncode != 0:
                 print(f"{kind} seeds {first}: bench/oracle.py exited {done.returncode}", flush=True)

@@ -42,9 +42,11 @@ from oracle import Watched, choice_table, other_terms, tried_images  # noqa: E40
 DEFAULT_TOP = 5
 
 
-def second_stage(top: int, hand: HandGeometry, detector: Watched, model: GraspClassifier) -> Chooser:
+def second_stage(top: int, hand: HandGeometry, detector: Watched, model: GraspClassifier,
+                 blend: float = 1.0) -> Chooser:
     """A protocol Chooser: of the first `top` feasible grasps, the one with the highest second-model score times
-    its other ranking terms (the answer's key over its score)."""
+    its other ranking terms (the answer's key over its score).  blend < 1 weighs the two models' scores
+    geometrically: first ** (1 - blend) * second ** blend."""
 
     def choose(world: SimWorld, grasps: GraspSet, ok: NDArray[np.int64]) -> int:
         tried = ok[:top]
@@ -54,7 +56,9 @@ def second_stage(top: int, hand: HandGeometry, detector: Watched, model: GraspCl
         answer = detector.last
         raw = (answer.raw.get("grasps") or []) if answer is not None else []
         terms = other_terms([raw[i].get("ranking") if i < len(raw) else None for i in tried], grasps.scores[tried])
-        return int(tried[int(np.argmax(np.asarray(scores, np.float64) * terms))])
+        first = np.clip(np.asarray(grasps.scores[tried], np.float64), 1e-6, 1.0)
+        mixed = first ** (1.0 - blend) * np.clip(np.asarray(scores, np.float64), 1e-6, 1.0) ** blend
+        return int(tried[int(np.argmax(mixed * terms))])
 
     return choose
 
@@ -65,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     clutter.add_look_arguments(ap)
     ap.add_argument("--top", type=int, default=DEFAULT_TOP, help="feasible grasps the second model re-orders")
     ap.add_argument("--second", required=True, help="the second model (models/NAME.onnx)")
+    ap.add_argument("--blend", type=float, default=1.0,
+                    help="weight of the second model's score: first ** (1 - w) * second ** w (1: the second alone)")
     args = ap.parse_args(argv)
     setting = looked_setting(args.object_set, args.scene, args.container, args.split)
     second = load_model(args.second, threads=1)
@@ -77,18 +83,20 @@ def main(argv: list[str] | None = None) -> int:
             detector = Watched(clutter.make_detector("gpd", args.model, service))
             ranked.append(run_round(detector, setting, seed))
             staged.append(run_round(detector, setting, seed,
-                                    choose=second_stage(args.top, setting.hand, detector, second)))
+                                    choose=second_stage(args.top, setting.hand, detector, second, args.blend)))
             print(f"seed {seed}: ranked {ranked[-1].outcomes} two-stage {staged[-1].outcomes}", flush=True)
     meta = {"command": "PYTHONPATH=service:client:lab .venv/bin/python bench/two_stage.py "
             + shlex.join(sys.argv[1:] if argv is None else argv), "commit": clutter.git_commit(),
             "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "model": served, "second": args.second,
-            "top": args.top, "scenes": (f"{args.container} ({args.split} ranges)" if args.container else args.scene)
+            "top": args.top, "blend": args.blend,
+            "scenes": (f"{args.container} ({args.split} ranges)" if args.container else args.scene)
             + f", {args.object_set} objects, seeds {seeds.start}-{seeds.stop - 1}"}
     rows = {"ranked (the service's first grasp)": summarize(ranked).to_dict(),
             f"{args.second} re-orders the first {args.top}": summarize(staged).to_dict()}
     lines = ["# A fine-tuned model as a second stage: it re-orders the service's first feasible grasps", "",
              f"- command: `{meta['command']}`", f"- commit: `{meta['commit']}`, date {meta['date']}, model "
-             f"{served}, second stage {args.second} over the first {args.top}", f"- scenes: {meta['scenes']}", "",
+             f"{served}, second stage {args.second} over the first {args.top} (blend {args.blend:g})",
+             f"- scenes: {meta['scenes']}", "",
              *choice_table(rows)]
     md = "\n".join(lines) + "\n"
     args.out.mkdir(parents=True, exist_ok=True)

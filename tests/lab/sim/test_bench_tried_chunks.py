@@ -28,3 +28,17 @@ def test_finished_chunks_are_skipped_so_a_stopped_job_resumes(tmp_path: Path,
     assert bench.main(["--kinds", "packed-side", "--first-seed", "300", "--chunks", "2", "--dir", str(tmp_path)]) == 0
     done = ["packed-side seeds 300-309: done", "packed-side seeds 310-319: done"]
     assert capsys.readouterr().out.splitlines() == done
+
+
+def test_chunks_of_scaled_training_objects_are_named_after_their_set(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    bench = load_bench("tried_chunks")
+    cmd = " ".join(bench.chunk_command("tote", 300, 10, tmp_path, None, "scaled-training"))
+    assert "--container tote --split training --object-set scaled-training --seed 300" in cmd
+    assert "--tag scaled-training-tote-s300" in cmd
+    (tmp_path / "oracle-scaled-training-tote-s300.json").write_text("{}")
+    args = ["--object-set", "scaled-training", "--kinds", "tote", "--chunks", "1", "--dir", str(tmp_path)]
+    assert bench.main(args) == 0
+    assert capsys.readouterr().out.splitlines() == ["tote seeds 300-309: done"]
+    with pytest.raises(SystemExit):
+        bench.main(["--object-set", "household", "--kinds", "tote", "--dir", str(tmp_path)])  # held out: refused

@@ -30,3 +30,6 @@ def test_the_second_model_picks_among_the_first_grasps_by_its_own_score() -> Non
     scores = second.score(oracle.tried_images(cloud, workspace, grasps[ok[:5]], PANDA_LIKE))
     assert pick == ok[int(np.argmax(scores))]
     assert bench.second_stage(1, PANDA_LIKE, detector, second)(world, grasps, ok) == ok[0]
+    # blend 0 weighs the first model's score alone (an in-process detector's answer gives no other terms)
+    first = bench.second_stage(5, PANDA_LIKE, detector, second, blend=0.0)(world, grasps, ok)
+    assert first == ok[int(np.argmax(grasps.scores[ok[:5]]))]
