@@ -46,9 +46,10 @@ FOLDS = 5
 
 
 def training_objects(meta: dict[str, Any]) -> bool:
-    """Whether a bench/oracle.py run's records (its meta) are of the household training objects, the only ones
-    fitted or tuned on (the scaled random_urdfs 900-999 and the household held-out models never are)."""
-    return ", household-training" in meta["scenes"]
+    """Whether a bench/oracle.py run's records (its meta) are of training objects, the only ones fitted or tuned on:
+    the household training models or the scaled random_urdfs 000-899 (the scaled random_urdfs 900-999 and the
+    household held-out models never are)."""
+    return any(f", {name}" in meta["scenes"] for name in ("household-training", "scaled-training"))
 #: L2 penalty on the standardised weights (0.1-10 pick alike on the training records' folds).
 L2 = 1.0
 

@@ -49,9 +49,16 @@ def test_a_hold_estimate_that_sees_the_cause_picks_the_grasp_that_holds(tmp_path
 
 
 @pytest.mark.parametrize("scenes", ["pile-side, household objects, seeds 0-29",
-                                    "tray (training ranges), household objects, seeds 0-9"])
+                                    "tray (training ranges), household objects, seeds 0-9",
+                                    "tray (training ranges), scaled objects, seeds 0-9"])
 def test_records_of_held_out_objects_are_refused(tmp_path: Path, scenes: str) -> None:
     bench = load_bench("foresight")
     records = write(tmp_path / "h.json", scenes, [detection(0, True)])
     with pytest.raises(SystemExit, match="only training objects"):
         bench.main(["--records", str(records), "--out", str(tmp_path)])
+
+
+@pytest.mark.parametrize("scenes", ["pile-side, household-training objects, seeds 0-29",
+                                    "tray (training ranges), scaled-training objects, seeds 0-9"])
+def test_records_of_training_objects_are_fitted_on(scenes: str) -> None:
+    assert load_bench("foresight").training_objects({"scenes": scenes})
