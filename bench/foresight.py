@@ -45,11 +45,15 @@ FEATURE_SETS = ("score", "seen", "truth", "seen + truth")
 FOLDS = 5
 
 
+#: The object sets records may be fitted or tuned on (bench/oracle.py --object-set): training objects only.
+TRAINING_OBJECT_SETS = ("household-training", "scaled-training")
+
+
 def training_objects(meta: dict[str, Any]) -> bool:
     """Whether a bench/oracle.py run's records (its meta) are of training objects, the only ones fitted or tuned on:
     the household training models or the scaled random_urdfs 000-899 (the scaled random_urdfs 900-999 and the
     household held-out models never are)."""
-    return any(f", {name}" in meta["scenes"] for name in ("household-training", "scaled-training"))
+    return any(f", {name}" in meta["scenes"] for name in TRAINING_OBJECT_SETS)
 #: L2 penalty on the standardised weights (0.1-10 pick alike on the training records' folds).
 L2 = 1.0
 

@@ -25,9 +25,8 @@ for sub in ("service", "client", "lab", "bench"):
 
 import clutter  # noqa: E402
 from containers import STYLES  # noqa: E402
+from foresight import TRAINING_OBJECT_SETS as TRAINING_SETS  # noqa: E402
 
-#: The object sets chunks draw from: training objects only (each with its own hand: object_set_hand).
-TRAINING_SETS = ("household-training", "scaled-training")
 #: Lifts per tried grasp: its own and 4 perturbed copies (bench/reranker.py's target is the share that held).
 PERTURB = 4
 TOP = 5
