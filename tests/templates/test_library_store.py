@@ -3,6 +3,7 @@ and rejects bad input with errors that name the field."""
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import pwd
 import shutil
@@ -10,7 +11,9 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -87,6 +90,40 @@ def test_eight_concurrent_processes_lose_nothing(library_url) -> None:
     labels = {e["label"] for e in summary["entries"]}
     assert labels == {f"w{w}-{k}" for w in range(8) for k in range(count)}
     assert all(e["failures"] == 1 for e in summary["entries"])
+
+
+def _open_at(url: str, start: float, errors: Any) -> None:
+    """At the wall-clock time start, connect to the (new) store at url and write a row; report any error."""
+    engine = make_engine(url)
+    while time.time() < start:  # spin, not sleep: the openers must collide
+        pass
+    try:
+        with engine.begin() as conn:
+            conn.execute(sa.text("CREATE TABLE IF NOT EXISTS opened (pid INTEGER)"))
+            conn.execute(sa.text("INSERT INTO opened VALUES (:pid)"), {"pid": os.getpid()})
+    except BaseException as exc:  # noqa: BLE001 - reported to the parent
+        errors.put(repr(exc))
+
+
+def test_processes_creating_one_store_at_once_all_open(tmp_path) -> None:
+    # a fresh file's switch to WAL takes an exclusive lock without the busy handler: openers must wait for it
+    fork = mp.get_context("fork")
+    errors = fork.Queue()
+    for trial in range(30):
+        start = time.time() + 0.1
+        procs = [fork.Process(target=_open_at, args=(f"sqlite:///{tmp_path}/at-once-{trial}.db", start, errors))
+                 for _ in range(8)]
+        for p in procs:
+            p.start()
+        for p in procs:
+            p.join(60)
+        assert all(p.exitcode == 0 for p in procs)
+        reported = []
+        while not errors.empty():
+            reported.append(errors.get())
+        assert reported == [], f"trial {trial}"
+        with make_engine(f"sqlite:///{tmp_path}/at-once-{trial}.db").connect() as conn:
+            assert conn.execute(sa.text("SELECT COUNT(DISTINCT pid) FROM opened")).scalar() == 8
 
 
 @pytest.mark.parametrize("where", ["file", "memory"])

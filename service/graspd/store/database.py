@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import io
 import re
+import sqlite3
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -193,6 +194,27 @@ def scrub(text: str, url: str | None = None) -> str:
     return _PATH.sub("<path>", out)
 
 
+#: How long a new connection keeps asking for WAL mode while other processes hold the file (s).
+WAL_WAIT_S = 60.0
+
+
+def _set_wal(cursor: Any, wait_s: float = WAL_WAIT_S) -> None:
+    """Put the SQLite file in WAL mode, retrying while it is locked: switching a fresh file's journal mode takes
+    an exclusive lock without calling the busy handler, so processes that create one store at once see
+    "database is locked" however long the busy timeout is."""
+    deadline = time.monotonic() + wait_s
+    pause = 0.005
+    while True:
+        try:
+            cursor.execute("PRAGMA journal_mode = WAL").fetchall()
+            return
+        except sqlite3.OperationalError as exc:
+            if ("locked" not in str(exc) and "busy" not in str(exc)) or time.monotonic() > deadline:
+                raise
+            time.sleep(pause)
+            pause = min(pause * 2, 0.2)
+
+
 def make_engine(url: str) -> Engine:
     """An engine for url; SQLite gets WAL, a 60 s busy timeout and BEGIN IMMEDIATE transactions.  Errors
     quote the URL with its password masked."""
@@ -214,7 +236,7 @@ def make_engine(url: str) -> Engine:
         cur = dbapi_conn.cursor()
         cur.execute("PRAGMA busy_timeout = 60000")
         if not memory:
-            cur.execute("PRAGMA journal_mode = WAL")
+            _set_wal(cur)
         cur.execute("PRAGMA foreign_keys = ON")
         cur.close()
 
