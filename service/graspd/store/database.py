@@ -194,15 +194,15 @@ def scrub(text: str, url: str | None = None) -> str:
     return _PATH.sub("<path>", out)
 
 
-#: How long a new connection keeps asking for WAL mode while other processes hold the file (s).
-WAL_WAIT_S = 60.0
+#: How long an SQLite connection waits for other processes' locks (s): the busy timeout and the WAL switch's retries.
+BUSY_TIMEOUT_S = 60
 
 
-def _set_wal(cursor: Any, wait_s: float = WAL_WAIT_S) -> None:
+def _set_wal(cursor: Any) -> None:
     """Put the SQLite file in WAL mode, retrying while it is locked: switching a fresh file's journal mode takes
     an exclusive lock without calling the busy handler, so processes that create one store at once see
     "database is locked" however long the busy timeout is."""
-    deadline = time.monotonic() + wait_s
+    deadline = time.monotonic() + BUSY_TIMEOUT_S
     pause = 0.005
     while True:
         try:
@@ -227,14 +227,14 @@ def make_engine(url: str) -> Engine:
     if parsed.get_backend_name() != "sqlite":
         return sa.create_engine(url, pool_pre_ping=True)
     memory = parsed.database in (None, "", ":memory:")
-    engine = sa.create_engine(url, connect_args={"timeout": 60, "check_same_thread": False},
+    engine = sa.create_engine(url, connect_args={"timeout": BUSY_TIMEOUT_S, "check_same_thread": False},
                               **({"poolclass": sa.pool.StaticPool} if memory else {}))  # one shared in-memory db
 
     @sa.event.listens_for(engine, "connect")
     def _connect(dbapi_conn: Any, _record: Any) -> None:
         dbapi_conn.isolation_level = None  # let the "begin" hook below own transactions
         cur = dbapi_conn.cursor()
-        cur.execute("PRAGMA busy_timeout = 60000")
+        cur.execute(f"PRAGMA busy_timeout = {BUSY_TIMEOUT_S * 1000}")
         if not memory:
             _set_wal(cur)
         cur.execute("PRAGMA foreign_keys = ON")
