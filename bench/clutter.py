@@ -6,7 +6,8 @@ chart and a JSON file (with the git commit) into bench/results/.  A setting is D
   detectors: baseline (top-down, no learning), gpd-noclass (GPD, no classification), gpd (GPD with the
              --model classifier, default: graspd's default model), gpd-noselect (same, random order instead
              of selection), gpd-cluster (same, GPD's cluster-sum ranking instead of the default), gpd-flat
-             (same, with the request option flat_objects: objects lying flat grasped by their edges),
+             (same, with the request option flat_objects: objects lying flat grasped by their edges), gpd-robust
+             (same, with robust_copies 4: the first grasps ranked by their score over 4 moved copies),
              gpd-rep15 / gpd-rep12 / gpd-rep3 (the first model in models/ of that representation)
   scenes:    pour-passive, pour-active (10 objects poured into a tray), pile-side, packed-side (5 objects)
   objects:   --object-set scaled (default: random_urdfs 900-999 scaled to the hand, graspd's default hand) or
@@ -87,8 +88,10 @@ from graspd_lab.world.noise import DepthNoise  # noqa: E402
 
 #: Detectors that score no grasp with a model.
 UNSCORED = ("baseline", "gpd-noclass")
-DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-cluster", "gpd-flat", "gpd-rep15", "gpd-rep12",
-             "gpd-rep3")
+DETECTORS = ("baseline", "gpd-noclass", "gpd", "gpd-noselect", "gpd-cluster", "gpd-flat", "gpd-robust", "gpd-rep15",
+             "gpd-rep12", "gpd-rep3")
+#: The request option of the gpd-robust ablation: copies of each of the first grasps (graspd.gpd.robustness).
+ROBUST_ABLATION_COPIES = 4
 SCENES: dict[str, Setting] = {
     "pour-passive": Setting(scene="pour", num_objects=10, sensing="passive"),
     "pour-active": Setting(scene="pour", num_objects=10, sensing="active"),
@@ -168,10 +171,13 @@ def make_detector(detector: str, model: str | None, service: str | None) -> SimD
         options["use_clustering"] = True
     if detector == "gpd-flat":
         options["flat_objects"] = True
+    if detector == "gpd-robust":
+        options["robust_copies"] = ROBUST_ABLATION_COPIES
     if service is not None:
         # named ablations only; everything else is the service's default
         options = {"gpd-noselect": {"selection": False}, "gpd-noclass": {"use_classifier": False},
-                   "gpd-cluster": {"clustering": True}, "gpd-flat": {"flat_objects": True}}.get(detector, {})
+                   "gpd-cluster": {"clustering": True}, "gpd-flat": {"flat_objects": True},
+                   "gpd-robust": {"robust_copies": ROBUST_ABLATION_COPIES}}.get(detector, {})
         return ServiceGPD(url=service, name=detector, model=model, options=options)
     classifier = None
     if model is not None:

@@ -95,7 +95,7 @@ from graspd_lab.training.scene_data import scene_labels  # noqa: E402
 from graspd_lab.training.scene_eval import precision_at_k  # noqa: E402
 from graspd_lab.world.noise import DepthNoise  # noqa: E402
 
-DETECTORS = ("gpd", "baseline", "gpd-noclass", "gpd-flat")
+DETECTORS = ("gpd", "baseline", "gpd-noclass", "gpd-flat", "gpd-robust")
 TOP_K = 5
 #: How deep (m) the open hand may enter a static body before the check calls it a touch: the labels'
 #: approach tolerance (a hand placed against a noisy cloud stops a little short).

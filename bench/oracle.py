@@ -37,7 +37,6 @@ for sub in ("service", "client", "lab", "bench"):
 import numpy as np  # noqa: E402
 import pybullet as pb  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
 
 import clutter  # noqa: E402
 from containers import add_scene_arguments, looked_setting  # noqa: E402
@@ -47,6 +46,7 @@ from graspd.core.hand import HandGeometry  # noqa: E402
 from graspd.gpd.detector import DetectionParams, GraspDetector  # noqa: E402
 from graspd.gpd.images import encode_images  # noqa: E402
 from graspd.gpd.preprocess import Workspace  # noqa: E402
+from graspd.gpd.robustness import COPY_SHIFT, COPY_TURN_DEG, pose_copies  # noqa: E402
 from graspd_client import Grasps  # noqa: E402
 from graspd_lab.sim.detectors import SimDetector  # noqa: E402
 from graspd_lab.sim.gripper import ExecutionParams  # noqa: E402
@@ -134,36 +134,21 @@ def tried_images(cloud: ViewpointCloud, workspace: Workspace, grasps: GraspSet, 
     return encode_images(scene, grasps, hand, "15")
 
 
-#: How far a perturbed copy of a tried grasp is moved (--perturb): a normal offset of this standard deviation (m) on
-#: each axis, and a turn of this many degrees about a random axis: a robot's and a camera's error.
-PERTURB_SHIFT = 0.002
-PERTURB_TURN_DEG = 3.0
-
-
-def perturbed(grasps: GraspSet, copies: int, rng: np.random.Generator) -> GraspSet:
-    """copies perturbed copies of each grasp (grasp-major: grasp 0's copies first)."""
-    g = grasps[np.repeat(np.arange(len(grasps)), copies)]
-    axes = rng.normal(size=(len(g), 3))
-    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    turns = Rotation.from_rotvec(axes * np.radians(PERTURB_TURN_DEG)).as_matrix()
-    return GraspSet(positions=g.positions + rng.normal(scale=PERTURB_SHIFT, size=(len(g), 3)),
-                    rotations=turns @ g.rotations, widths=g.widths, scores=g.scores, samples=g.samples)
-
-
 def oracle_chooser(top: int, hand: HandGeometry, records: list[dict[str, Any]],
                    detector: SimDetector | None = None, perturb: int = 0,
                    images: list[NDArray[np.uint8]] | None = None) -> Chooser:
     """A protocol Chooser: try the first `top` feasible grasps in physics with hand (the world restored after
     each), pick the first that held (else the first), and append the detection's record to records.  With perturb,
-    each tried grasp is also lifted that many times perturbed (perturbed()) and the share that held is recorded; the
-    choice does not change.  images (with a Watched detector): each detection's tried grasps' images are appended."""
+    each tried grasp is also lifted that many times perturbed (graspd.gpd.robustness.pose_copies) and the share
+    that held is recorded; the choice does not change.  images (with a Watched detector): each detection's tried
+    grasps' images are appended."""
 
     def choose(world: SimWorld, grasps: GraspSet, ok: NDArray[np.int64]) -> int:
         tried = ok[:top]
         lifted = lift_labels(world, grasps[tried], hand, params=ExecutionParams())
         robust: list[float] | None = None
         if perturb > 0:
-            copies = perturbed(grasps[tried], perturb, np.random.default_rng(len(records)))
+            copies = pose_copies(grasps[tried], perturb, seed=len(records))
             shaken = lift_labels(world, copies, hand, params=ExecutionParams())
             robust = [round(float(v), 3) for v in shaken.held.reshape(len(tried), perturb).mean(axis=1)]
         held = np.flatnonzero(lifted.held)
@@ -244,8 +229,8 @@ def report(data: dict[str, Any]) -> str:
                        if o == "success"]
             held_no = [r for d in shaken for r, o in zip(d["trial_robust"], d["trial_outcomes"], strict=True)
                        if o != "success"]
-            lines += [f"- each tried grasp also lifted {meta['perturb']} times, moved {1000 * PERTURB_SHIFT:.0f} mm "
-                      f"(standard deviation on each axis) and turned {PERTURB_TURN_DEG:.0f} degrees: the share of "
+            lines += [f"- each tried grasp also lifted {meta['perturb']} times, moved {1000 * COPY_SHIFT:.0f} mm "
+                      f"(standard deviation on each axis) and turned {COPY_TURN_DEG:.0f} degrees: the share of "
                       "copies that held, on average, for the first grasp "
                       f"{np.mean([d['trial_robust'][0] for d in shaken]):.2f}, "
                       f"for the grasp with the highest share among the tried "

@@ -32,6 +32,7 @@ MAX_TARGET_POINTS = 20_000
 MAX_TARGET_RLE_CHARS = 1 << 22
 MAX_OBJECT_ID = 100_000
 MAX_PER_OBJECT = 1_000
+MAX_ROBUST_COPIES = 16
 #: The kinds of target a detect request may give (one of them).
 TARGET_KINDS: tuple[str, ...] = ("indices", "mask", "box", "points", "object")
 MIN_CROP_SIZE = 8
@@ -113,6 +114,7 @@ def build_detect_request(
     target: Mapping[str, Any] | None = None,
     max_per_object: int | None = None,
     flat_objects: bool | None = None,
+    robust_copies: int | None = None,
 ) -> dict[str, Any]:
     """The JSON body of POST /detect (and of the Zenoh query) from numpy inputs.
 
@@ -135,6 +137,8 @@ def build_detect_request(
     {"object": id} (build_target).  max_per_object: most grasps per object before every other object has one
     (0 = pure ranking; default the server's).  flat_objects=True also grasps objects lying flat (a packet 1 cm
     thick) by their edges, the fingertips stopping above the table (off by default: such grasps hold less often).
+    robust_copies: moved copies of each of the first grasps that the ranking averages their score over (0 = off;
+    default the server's).
     """
     body: dict[str, Any] = {"cloud": build_cloud(points, viewpoints, camera_source, camera_poses=camera_poses,
                                                  points_frame=points_frame, normals=normals)}
@@ -150,7 +154,7 @@ def build_detect_request(
                "selection": selection, "seed": seed, "clustering": clustering, "use_classifier": use_classifier,
                "exclude_support_plane": exclude_support_plane, "min_aperture": min_aperture,
                "max_aperture": max_aperture, "approach_distance": approach_distance, "unknown_space": unknown_space,
-               "max_per_object": max_per_object, "flat_objects": flat_objects}
+               "max_per_object": max_per_object, "flat_objects": flat_objects, "robust_copies": robust_copies}
     body.update({k: v for k, v in options.items() if v is not None})
     if environment is not None:
         body["environment"] = environment if isinstance(environment, str) else dict(environment)

@@ -13,7 +13,7 @@ from graspd.server.wire.detect import DetectRequest
 
 def test_the_client_checks_the_same_limits_as_the_server() -> None:
     for name in ("MAX_NUM_SAMPLES", "MAX_GRASPS", "MAX_VIEWPOINTS", "MAX_TARGET_INDICES", "MAX_TARGET_POINTS",
-                 "MAX_TARGET_RLE_CHARS", "MAX_OBJECT_ID", "MAX_PER_OBJECT"):
+                 "MAX_TARGET_RLE_CHARS", "MAX_OBJECT_ID", "MAX_PER_OBJECT", "MAX_ROBUST_COPIES"):
         assert getattr(wire, name) == getattr(limits, name), name
 
 

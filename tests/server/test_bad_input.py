@@ -58,6 +58,8 @@ BAD: list[tuple[str, Any, int, str]] = [
     ("excess base64 padding", pts({"dtype": "float32", "shape": [1, 3],
                                    "data": base64.b64encode(bytes(12)).decode() + "=="}), 422, "cloud.points.data"),
     ("max_grasps negative", {"cloud": {"points": P}, "max_grasps": -1}, 422, "max_grasps"),
+    ("robust_copies 17", {"cloud": {"points": P}, "robust_copies": 17}, 422, "robust_copies"),
+    ("robust_copies negative", {"cloud": {"points": P}, "robust_copies": -1}, 422, "robust_copies"),
     ("workspace length", {"cloud": {"points": P}, "workspace": [0, 1, 0, 1]}, 422, "workspace"),
     ("workspace inverted", {"cloud": {"points": P}, "workspace": [1, 0, 0, 1, 0, 1]}, 422, "workspace"),
     ("approach zero", {"cloud": {"points": P}, "approach": {"direction": [0, 0, 0]}}, 422, "approach.direction"),

@@ -111,14 +111,17 @@ def test_request_options_reach_the_detector_parameters() -> None:
 
 
 def test_the_wire_defaults_are_the_detectors() -> None:
-    """range_window and max_per_object default on the wire to what the detector defaults to, and the wire's
-    unknown_space text names the detector's fallback share (the wire package does not import the detector:
+    """range_window, max_per_object and robust_copies default on the wire to what the detector defaults to, and
+    the wire's unknown_space text names the detector's fallback share (the wire package does not import the detector:
     graspd.server.wire)."""
     from graspd.gpd.occlusion import UNKNOWN_FALLBACK_SHARE  # noqa: PLC0415
     from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW  # noqa: PLC0415
+    from graspd.gpd.robustness import ROBUST_COPIES, ROBUST_TOP  # noqa: PLC0415
     from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT  # noqa: PLC0415
 
     fields = DetectRequest.model_fields
+    assert fields["robust_copies"].default == ROBUST_COPIES and f"first {ROBUST_TOP}" in str(
+        fields["robust_copies"].description)
     assert fields["range_window"].default == DEFAULT_RANGE_WINDOW
     assert fields["max_per_object"].default == DEFAULT_MAX_PER_OBJECT
     assert f"{UNKNOWN_FALLBACK_SHARE:.0%}" in str(fields["unknown_space"].description)

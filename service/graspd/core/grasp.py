@@ -31,9 +31,11 @@ def rotation_to_quat_xyzw(rotations: F64) -> F64:
 
 #: How selection combines the ranking terms (the response's ranking_rule says the same to a person).
 RANKING_RULE = ("key = classifier x utility x width x unknown: classifier is the model's probability (1 when "
-                "unscored), utility J(h) of the IJRR paper (top approaches and high grasps first, from the "
-                "support up), width in [0.2, 1] (a grasp whose object fills the opening ranks lower), unknown = "
-                "1 - the share of the hand in space no camera saw; grasps are sorted by key, best first")
+                "unscored; with robust_copies, for the first grasps by key, averaged over that many copies moved "
+                "2 mm and turned 3 degrees, and those grasps sorted among themselves ahead of the rest), utility "
+                "J(h) of the IJRR paper (top approaches and high grasps first, from the support up), width in "
+                "[0.2, 1] (a grasp whose object fills the opening ranks lower), unknown = 1 - the share of the hand "
+                "in space no camera saw; grasps are sorted by key, best first")
 
 
 @dataclass(frozen=True)

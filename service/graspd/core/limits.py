@@ -31,3 +31,7 @@ MAX_TARGET_RLE_CHARS = 1 << 22
 MAX_OBJECT_ID = 100_000
 #: Most grasps per object before every other graspable object has one (max_per_object; 0 = off).
 MAX_PER_OBJECT = MAX_GRASPS
+#: Most moved copies of each of the first grasps that the ranking scores (robust_copies; graspd.gpd.robustness).
+MAX_ROBUST_COPIES = 16
+#: The default of robust_copies: the detector's (graspd.gpd.robustness.ROBUST_COPIES; a test keeps them equal).
+DEFAULT_ROBUST_COPIES = 0

@@ -25,7 +25,7 @@ from graspd.core.warning import DetectionWarning
 from graspd.gpd.candidates import SUPPORT_BITE, SamplingParams, search_hands
 from graspd.gpd.environment import Environment, EnvironmentParams, Label, hand_hits_environment, model_environment
 from graspd.gpd.environment.coverage import unseen_floor_warning
-from graspd.gpd.images import encode_batches
+from graspd.gpd.images import encode_batches, encode_images
 from graspd.gpd.objects import SceneObject, Segmentation, segment_objects
 from graspd.gpd.occlusion import (
     MAX_UNKNOWN_SHARE,
@@ -36,6 +36,7 @@ from graspd.gpd.occlusion import (
     unknown_share,
 )
 from graspd.gpd.preprocess import DEFAULT_RANGE_WINDOW, PreprocessParams, Workspace, preprocess, support_plane_mask
+from graspd.gpd.robustness import MAX_ROBUST_COPIES, MAX_ROBUST_TOP, ROBUST_COPIES, ROBUST_TOP, robust_scores
 from graspd.gpd.scene import ClosingRegionPoints, Scene
 from graspd.gpd.selection import DEFAULT_MAX_PER_OBJECT, SelectionParams, Vec3, feasible_mask, select
 from graspd.gpd.target import MIN_TARGET_POINTS, Target, TargetError, target_mask
@@ -85,7 +86,9 @@ class DetectionParams:
     them; candidates.SamplingParams.clearance; 0 places it flush against them, as GPD does).  flat_objects (off by
     default): an object lying flat, thinner than the hand's init_bite above the support's clearance (a packet 1 cm
     thick), gets hands whose fingertips stop above the support and hold its edges, candidates.SUPPORT_BITE deep;
-    such grasps hold less often than deeper ones."""
+    such grasps hold less often than deeper ones.  robust_copies (0 = off, the default): the first robust_top grasps
+    by key are ranked by their classifier score averaged over the grasp and this many copies moved 2 mm and turned 3
+    degrees (graspd.gpd.robustness): a grasp that a robot's or a camera's small error spoils ranks lower."""
 
     num_samples: int = 1000
     workspace: Workspace | None = None
@@ -125,6 +128,8 @@ class DetectionParams:
     max_per_object: int = DEFAULT_MAX_PER_OBJECT
     clearance: float = HAND_CLEARANCE
     flat_objects: bool = False
+    robust_copies: int = ROBUST_COPIES
+    robust_top: int = ROBUST_TOP
 
     def __post_init__(self) -> None:
         if self.max_per_object < 0:
@@ -152,6 +157,10 @@ class DetectionParams:
             raise ValueError(f"unknown_fallback must be in [0, 1], got {self.unknown_fallback}")
         if not 0.0 <= self.clearance <= 0.02:
             raise ValueError(f"clearance must be in [0, 0.02] m, got {self.clearance}")
+        if not 0 <= self.robust_copies <= MAX_ROBUST_COPIES:
+            raise ValueError(f"robust_copies must be in [0, {MAX_ROBUST_COPIES}] (0 = off), got {self.robust_copies}")
+        if not 1 <= self.robust_top <= MAX_ROBUST_TOP:
+            raise ValueError(f"robust_top must be in [1, {MAX_ROBUST_TOP}], got {self.robust_top}")
         if not 0.0 <= self.width_margin <= 0.1:
             raise ValueError(f"width_margin must be in [0, 0.1] m, got {self.width_margin}")
 
@@ -295,7 +304,13 @@ class GraspDetector:
             candidates = candidates_for(sampling, replace(p, max_unknown=p.unknown_fallback))
         t = time.perf_counter()
         rng = np.random.default_rng(p.seed)
-        grasps = select(candidates, sel, use_selection=p.use_selection, rng=rng)
+        rescore = None
+        if scorer is not None and p.robust_copies > 0:
+            def rescore(top: GraspSet, s: Scorer = scorer) -> NDArray[np.float64]:
+                return robust_scores(top, lambda g: score_parallel(s, encode_images(scene, g, h, s.representation)),
+                                     p.robust_copies, seed=0 if p.seed is None else p.seed)
+        grasps = select(candidates, sel, use_selection=p.use_selection, rng=rng, rescore=rescore,
+                        rescore_top=p.robust_top)
         warnings = list(env.warnings)
         if p.unknown_space == "allow" and len(grasps):
             top = grasps[:10]

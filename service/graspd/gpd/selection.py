@@ -13,6 +13,7 @@ max_per_object grasps before every other object with a grasp has one.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -156,9 +157,12 @@ def cover_order(objects: NDArray[np.int64], cap: int) -> NDArray[np.int64]:
 
 
 def select(grasps: GraspSet, params: SelectionParams, use_selection: bool = True,
-           rng: np.random.Generator | None = None) -> GraspSet:
+           rng: np.random.Generator | None = None,
+           rescore: Callable[[GraspSet], NDArray[np.float64]] | None = None, rescore_top: int = 0) -> GraspSet:
     """The final ranked list.  With use_selection off (the paper's ablation), the feasible, positively
-    scored grasps come back in random order instead of by score and utility."""
+    scored grasps come back in random order instead of by score and utility.  rescore (a grasp's score
+    averaged over moved copies, graspd.gpd.robustness) replaces the classifier term of the first rescore_top
+    grasps by key, which are then ranked among themselves, ahead of the rest."""
     g = grasps[feasible_mask(grasps, params)]
     if params.min_score is not None:
         g = g[~(g.scores < params.min_score)]  # NaN (unscored) survives
@@ -173,7 +177,15 @@ def select(grasps: GraspSet, params: SelectionParams, use_selection: bool = True
     util, width = utility(g, params, params.table_height), width_preference(g, params)
     seen = 1.0 - np.clip(np.nan_to_num(g.unknown_share, nan=0.0), 0.0, 1.0)
     key = rank * util * width * seen
+    order = np.argsort(-np.nan_to_num(key, nan=-np.inf), kind="stable")
+    if rescore is not None and rescore_top > 0 and len(g):
+        top = order[:rescore_top]
+        own = np.nan_to_num(g.scores[top], nan=1.0)
+        rank = np.asarray(rank, np.float64).copy()
+        rank[top] = rank[top] * rescore(g[top]) / np.maximum(own, 1e-6)
+        key = rank * util * width * seen
+        order[: len(top)] = top[np.argsort(-np.nan_to_num(key[top], nan=-np.inf), kind="stable")]
     ranked = replace(g, ranking=Ranking(classifier=np.asarray(rank, np.float64), utility=util, width=width,
                                         unknown=seen, key=key))
-    ranked = ranked[np.argsort(-np.nan_to_num(key, nan=-np.inf), kind="stable")]
+    ranked = ranked[order]
     return ranked[cover_order(ranked.object_ids, params.max_per_object)][: params.max_grasps]

@@ -161,6 +161,7 @@ def detection_params(req: DetectRequest, target: Target | None = None) -> Detect
             cascade=req.cascade,
             unknown_space=req.unknown_space,
             flat_objects=req.flat_objects,
+            robust_copies=req.robust_copies,
             seed=req.seed,
             target=target,
             max_per_object=req.max_per_object,

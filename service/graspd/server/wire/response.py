@@ -37,7 +37,9 @@ class RankingOut(BaseModel):
     """The terms a GPD grasp was ranked by (dimensionless; DetectResponse.ranking_rule says how they combine)."""
 
     classifier: float | None = Field(description="the classifier term: the model's probability (1 when unscored); "
-                                     "with clustering, the sum of the cluster members' scores")
+                                     "with clustering, the sum of the cluster members' scores; with robust_copies, "
+                                     "for the first 16 grasps by rank, averaged over that many copies of the grasp "
+                                     "moved 2 mm and turned 3 degrees")
     utility: float | None = Field(description="utility J(h) of the IJRR paper in [0, 1]: top approaches and high "
                                   "grasps first, from the support up (1 when up is unknown)")
     width: float | None = Field(description="width preference in [0.2, 1]: lower when the object fills the opening")
