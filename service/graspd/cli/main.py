@@ -39,6 +39,8 @@ SUBCOMMAND_MODULES: tuple[str, ...] = tuple(module for module, _ in LAZY_SUBCOMM
 BUILTIN_COMMANDS: tuple[str, ...] = ("detect", "demo")
 #: Exit status of a command that cannot run as asked (bad arguments, no usable model).
 EXIT_USAGE = 2
+#: A demo detection slower than this (s) was a first call that compiled the kernels: a second one is timed too.
+DEMO_COLD_S = 5.0
 
 
 def missing_package_hint(exc: ImportError) -> str:
@@ -241,7 +243,11 @@ def _demo(args: argparse.Namespace) -> int:
     cloud = cluttered_tabletop(num_objects=args.objects, seed=args.seed)
     params = DetectionParams(num_samples=args.samples, exclude_support_plane=True, gravity=GRAVITY,
                              approach_direction=GRAVITY, approach_max_angle_deg=80.0, max_grasps=20)
-    detection, _ = _checked(GraspDetector(classifier).detect(cloud, params), cloud, params, classifier)
+    detector = GraspDetector(classifier)
+    first = detector.detect(cloud, params)
+    # a fresh install compiles its kernels on the first call (cached on disk): time a warm call too, as served
+    again = detector.detect(cloud, params) if first.timings["total"] > DEMO_COLD_S else None
+    detection, _ = _checked(first, cloud, params, classifier)
     result = _with_ranking(detection)
     if classifier is None:
         result["note"] = "no classifier in models/: candidates are unscored (the paper's 'no classification' ablation)"
@@ -250,8 +256,11 @@ def _demo(args: argparse.Namespace) -> int:
     title = f"demo tabletop ({args.objects} objects, {len(cloud)} points, 2 cameras): {_drawn(args.top, detection)}"
     plot_grasps(shown, detection.grasps, detection.hand, out / "grasps.png", top=args.top, title=title,
                 gravity=GRAVITY, environment=detection.environment, warnings=detection.warnings)
-    t = detection.timings
-    print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates in {t['total']:.2f} s "
+    took = f"{first.timings['total']:.2f} s"
+    if again is not None:
+        took = (f"{again.timings['total']:.2f} s ({first.timings['total']:.1f} s the first time: the kernels "
+                "compiled, cached on disk for later runs)")
+    print(f"{len(detection.grasps)} grasps from {detection.num_candidates} candidates in {took} "
           f"(model: {detection.model or 'none'}); wrote {out / 'grasps.json'} (all {len(detection.grasps)}) and "
           f"{out / 'grasps.png'} (the best {min(args.top, len(detection.grasps))})")
     return 0
