@@ -68,20 +68,6 @@ def test_a_round_executes_the_choosers_pick_and_draws_the_same_scene_and_noise()
     assert chosen.outcomes == plain.outcomes and chosen.cleared == plain.cleared
 
 
-def test_perturbed_copies_are_the_same_grasps_moved_a_little_and_turned_three_degrees() -> None:
-    bench = load_bench("oracle")
-    rot = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
-    grasps = GraspSet(positions=np.array([[0.0, 0.0, 0.1], [0.2, 0.0, 0.1]]), rotations=np.stack([rot, rot]),
-                      widths=np.array([0.03, 0.05]), scores=np.array([0.9, 0.8]), samples=np.zeros((2, 3)))
-    copies = bench.perturbed(grasps, 4, np.random.default_rng(0))
-    assert len(copies) == 8 and copies.widths.tolist() == [0.03] * 4 + [0.05] * 4  # grasp-major
-    shift = copies.positions - np.repeat(grasps.positions, 4, axis=0)
-    assert 0 < np.abs(shift).max() < 5 * bench.PERTURB_SHIFT
-    turn = np.einsum("mij,mij->m", copies.rotations, np.repeat(grasps.rotations, 4, axis=0))  # trace(R0^T R)
-    assert np.allclose(np.degrees(np.arccos((turn - 1) / 2)), bench.PERTURB_TURN_DEG)
-    assert np.allclose(copies.rotations @ copies.rotations.transpose(0, 2, 1), np.eye(3), atol=1e-9)
-
-
 def test_tried_images_are_the_images_the_detector_scored() -> None:
     bench = load_bench("oracle")
     hand = PANDA_LIKE
