@@ -22,7 +22,7 @@ COPY_SHIFT = 0.002
 COPY_TURN_DEG = 3.0
 #: The default: off.  Asked for, copies of each of the first ROBUST_TOP grasps by rank (the oracle lifts 4; 16
 #: grasps' 64 more images cost a few percent of a request).  With 4 copies the training objects' piles, packed
-#: scenes, trays and deep bins gain 0-2 points of success, the held-out ones nothing: bench/results/*-robust4.md.
+#: scenes, trays and deep bins gain 0-6 points of success, the held-out ones nothing: bench/results/*-robust4.md.
 ROBUST_COPIES = 0
 ROBUST_TOP = 16
 MAX_ROBUST_TOP = 100
